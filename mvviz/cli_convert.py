@@ -1,0 +1,140 @@
+"""mvviz convert: turn another tool's calibration (and detections) into a native scene.
+
+Examples:
+
+    # the Shelf rig, cameras only
+    mvviz convert --from voxelpose calibration_shelf.json -o scenes/shelf
+
+    # an EasyMocap capture with its 2D keypoints
+    mvviz convert --from easymocap data/intri.yml data/extri.yml \\
+        --detections-from easymocap --detections data/annots -o scenes/capture
+
+    # a Pose2Sim calibration with OpenPose output, one folder per camera
+    mvviz convert --from pose2sim Calib.toml \\
+        --detections-from openpose --detections pose/ --fps 30 -o scenes/trial
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+import warnings
+
+from pipeline.importers import CALIBRATION_FORMATS, DETECTION_FORMATS, convert_scene
+from pipeline.joint_sets import JOINT_SETS
+from pipeline.scene import load_scene
+
+_EPILOG = """\
+calibration formats (CALIB_FILES):
+{calib}
+
+detection formats (--detections DIR):
+{det}
+
+Camera names come from the calibration; detection folders must be named like the
+cameras (a folder for an unknown camera is an error, a missing folder only a
+warning). The keypoint layout (BODY_25, OpenPose COCO-18, COCO-17, Halpe-26) is
+detected from the keypoint count and converted by joint name to --joint-set.
+Metres are converted to millimetres. Nothing is written unless everything reads
+cleanly; the exit code is 2 on bad input.
+"""
+
+
+def register(subparsers) -> None:
+    """Add the ``convert`` subcommand to ``subparsers``."""
+    calib = "\n".join(f"  {f.name:<10} {f.files}" for f in CALIBRATION_FORMATS.values())
+    det = "\n".join(f"  {f.name:<10} {f.files}" for f in DETECTION_FORMATS.values())
+    parser = subparsers.add_parser(
+        "convert",
+        help="convert another tool's calibration (and 2D detections) into a scene directory",
+        description=__doc__,
+        epilog=_EPILOG.format(calib=calib, det=det),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--from",
+        dest="calib_format",
+        required=True,
+        choices=sorted(CALIBRATION_FORMATS),
+        help="format of the calibration files",
+    )
+    parser.add_argument(
+        "calib_files",
+        nargs="+",
+        metavar="CALIB_FILES",
+        help="calibration file(s): see the list of formats below",
+    )
+    parser.add_argument(
+        "--detections-from",
+        dest="detections_format",
+        choices=sorted(DETECTION_FORMATS),
+        help="format of the 2D detections (requires --detections)",
+    )
+    parser.add_argument(
+        "--detections",
+        metavar="DIR",
+        help="directory with one folder of per-frame json files per camera",
+    )
+    parser.add_argument(
+        "--joint-set",
+        default="coco17",
+        choices=sorted(JOINT_SETS),
+        help="joint set of the scene's keypoints (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--fps", type=float, default=25.0, help="frame rate of the scene (default: %(default)s)"
+    )
+    parser.add_argument("--name", help="scene name (default: the output directory's name)")
+    parser.add_argument(
+        "--image-size",
+        nargs=2,
+        type=int,
+        metavar=("W", "H"),
+        help="image size in pixels, for calibrations that do not store it "
+        "(EasyMocap without H_/W_, VoxelPose rigs other than Shelf and Campus)",
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace SCENE_DIR if it exists and is not empty"
+    )
+    parser.add_argument(
+        "-o", "--output", required=True, metavar="SCENE_DIR", help="scene directory to write"
+    )
+    parser.set_defaults(func=functools.partial(run, parser=parser))
+
+
+def run(args: argparse.Namespace, *, parser: argparse.ArgumentParser) -> int:
+    """Convert; returns the exit code (format errors propagate to ``mvviz.cli.main``)."""
+    if (args.detections_format is None) != (args.detections is None):
+        parser.error("--detections-from and --detections go together")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            out = _convert(args)
+        finally:
+            for w in caught:
+                print(f"mvviz convert: warning: {w.message}", file=sys.stderr)
+    scene = load_scene(out)
+    det = scene.detections
+    layout = scene.meta.get("imported_from", {}).get("detections", {}).get("layout")
+    print(
+        f"wrote {out}: {len(scene.rig)} cameras ({', '.join(scene.rig.names)}), "
+        f"{len(det)} detections in {scene.num_frames} frames"
+        + (f" ({layout} -> {scene.joint_set.name})" if layout else "")
+    )
+    return 0
+
+
+def _convert(args: argparse.Namespace):
+    return convert_scene(
+        calib_format=args.calib_format,
+        calib_paths=args.calib_files,
+        out_dir=args.output,
+        detections_format=args.detections_format,
+        detections_path=args.detections,
+        joint_set=args.joint_set,
+        fps=args.fps,
+        name=args.name,
+        image_size=tuple(args.image_size) if args.image_size else None,
+        overwrite=args.overwrite,
+    )

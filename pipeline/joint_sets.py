@@ -1,0 +1,205 @@
+"""Joint sets: names, order and bone connections of every skeleton the project reads.
+
+One place for all of them, so that importers, stages, metrics and the viewer agree.
+Names follow COCO's lower-case ``left_*`` / ``right_*`` style in every set, which is
+what lets :func:`convert_keypoints` map sets onto each other by name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class JointSet:
+    """A named skeleton.
+
+    Attributes:
+        name: registry key, e.g. ``"coco17"``.
+        names: joint names in storage order, length ``num_joints``.
+        bones: (parent, child) index pairs to draw.
+        parents: kinematic parent of each joint (-1 for a root), where the set is a tree.
+    """
+
+    name: str
+    names: tuple[str, ...]
+    bones: tuple[tuple[int, int], ...]
+    parents: tuple[int, ...] | None = None
+    index: dict[str, int] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "index", {n: i for i, n in enumerate(self.names)})
+        for a, b in self.bones:
+            if not (0 <= a < len(self.names) and 0 <= b < len(self.names)):
+                raise ValueError(f"joint set {self.name}: bone ({a}, {b}) out of range")
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.names)
+
+    @property
+    def flip_index(self) -> np.ndarray:
+        """(num_joints,) index of each joint's left/right mirror (itself if unpaired)."""
+        out = np.arange(self.num_joints)
+        for i, n in enumerate(self.names):
+            for a, b in (("left_", "right_"), ("right_", "left_")):
+                if n.startswith(a) and n.replace(a, b, 1) in self.index:
+                    out[i] = self.index[n.replace(a, b, 1)]
+        return out
+
+
+def _bones(names: tuple[str, ...], pairs: list[tuple[str, str]]) -> tuple[tuple[int, int], ...]:
+    idx = {n: i for i, n in enumerate(names)}
+    return tuple((idx[a], idx[b]) for a, b in pairs)
+
+
+# SMPL's 24 joints, in SMPL's order; parents are SMPL's kinematic tree.
+SMPL24_NAMES = (
+    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
+    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck",
+    "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder",
+    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hand", "right_hand",
+)  # fmt: skip
+SMPL24_PARENTS = (
+    -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
+)  # fmt: skip
+SMPL24 = JointSet(
+    name="smpl24",
+    names=SMPL24_NAMES,
+    bones=tuple((p, c) for c, p in enumerate(SMPL24_PARENTS) if p >= 0),
+    parents=SMPL24_PARENTS,
+)
+
+COCO17_NAMES = (
+    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder",
+    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
+    "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
+)  # fmt: skip
+COCO17 = JointSet(
+    name="coco17",
+    names=COCO17_NAMES,
+    bones=_bones(
+        COCO17_NAMES,
+        [
+            ("nose", "left_eye"), ("nose", "right_eye"), ("left_eye", "left_ear"),
+            ("right_eye", "right_ear"), ("left_shoulder", "right_shoulder"),
+            ("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"),
+            ("right_shoulder", "right_elbow"), ("right_elbow", "right_wrist"),
+            ("left_shoulder", "left_hip"), ("right_shoulder", "right_hip"),
+            ("left_hip", "right_hip"), ("left_hip", "left_knee"), ("left_knee", "left_ankle"),
+            ("right_hip", "right_knee"), ("right_knee", "right_ankle"),
+        ],
+    ),
+)  # fmt: skip
+
+# OpenPose BODY_25 (OpenPose's own order).
+BODY25_NAMES = (
+    "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder",
+    "left_elbow", "left_wrist", "mid_hip", "right_hip", "right_knee", "right_ankle",
+    "left_hip", "left_knee", "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear",
+    "left_big_toe", "left_small_toe", "left_heel", "right_big_toe", "right_small_toe",
+    "right_heel",
+)  # fmt: skip
+BODY25 = JointSet(
+    name="body25",
+    names=BODY25_NAMES,
+    bones=_bones(
+        BODY25_NAMES,
+        [
+            ("nose", "neck"), ("neck", "right_shoulder"), ("right_shoulder", "right_elbow"),
+            ("right_elbow", "right_wrist"), ("neck", "left_shoulder"),
+            ("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"), ("neck", "mid_hip"),
+            ("mid_hip", "right_hip"), ("right_hip", "right_knee"), ("right_knee", "right_ankle"),
+            ("mid_hip", "left_hip"), ("left_hip", "left_knee"), ("left_knee", "left_ankle"),
+            ("nose", "right_eye"), ("right_eye", "right_ear"), ("nose", "left_eye"),
+            ("left_eye", "left_ear"), ("left_ankle", "left_big_toe"),
+            ("left_big_toe", "left_small_toe"), ("left_ankle", "left_heel"),
+            ("right_ankle", "right_big_toe"), ("right_big_toe", "right_small_toe"),
+            ("right_ankle", "right_heel"),
+        ],
+    ),
+)  # fmt: skip
+
+# Halpe-26 (AlphaPose): COCO-17 first, then head, neck, hip and feet.
+HALPE26_NAMES = COCO17_NAMES + (
+    "head", "neck", "mid_hip", "left_big_toe", "right_big_toe", "left_small_toe",
+    "right_small_toe", "left_heel", "right_heel",
+)  # fmt: skip
+HALPE26 = JointSet(
+    name="halpe26",
+    names=HALPE26_NAMES,
+    bones=COCO17.bones
+    + _bones(
+        HALPE26_NAMES,
+        [
+            ("head", "neck"), ("neck", "mid_hip"), ("left_ankle", "left_big_toe"),
+            ("left_ankle", "left_small_toe"), ("left_ankle", "left_heel"),
+            ("right_ankle", "right_big_toe"), ("right_ankle", "right_small_toe"),
+            ("right_ankle", "right_heel"),
+        ],
+    ),
+)  # fmt: skip
+
+JOINT_SETS: dict[str, JointSet] = {js.name: js for js in (SMPL24, COCO17, BODY25, HALPE26)}
+
+# COCO-17 joints that have an SMPL-24 counterpart (same anatomical joint, modulo the
+# usual offset of COCO hips, which sit a little higher and wider than SMPL's).
+COCO17_TO_SMPL24: dict[str, str] = {
+    n: n
+    for n in (
+        "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
+        "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle",
+        "right_ankle",
+    )
+}  # fmt: skip
+
+
+def get_joint_set(name: str) -> JointSet:
+    """The joint set registered as ``name``; a ValueError lists the known ones."""
+    try:
+        return JOINT_SETS[name.lower()]
+    except KeyError:
+        raise ValueError(
+            f"unknown joint set {name!r}; expected one of {sorted(JOINT_SETS)}"
+        ) from None
+
+
+def mapping_indices(src: JointSet, dst: JointSet) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(src_idx, dst_idx)`` of the joints both sets name alike."""
+    pairs = [(src.index[n], i) for i, n in enumerate(dst.names) if n in src.index]
+    if not pairs:
+        return np.zeros(0, int), np.zeros(0, int)
+    s, d = zip(*pairs, strict=True)
+    return np.asarray(s), np.asarray(d)
+
+
+def convert_keypoints(keypoints: np.ndarray, src: JointSet, dst: JointSet) -> np.ndarray:
+    """Re-order keypoints from ``src`` to ``dst`` by joint name.
+
+    Args:
+        keypoints: (..., src.num_joints, C) array, e.g. C=3 for (x, y, confidence).
+    Returns:
+        (..., dst.num_joints, C); joints ``dst`` has and ``src`` lacks are NaN
+        (confidence 0 when C == 3).
+    """
+    keypoints = np.asarray(keypoints, dtype=float)
+    if keypoints.shape[-2] != src.num_joints:
+        raise ValueError(
+            f"keypoints have {keypoints.shape[-2]} joints, expected {src.num_joints} ({src.name})"
+        )
+    out = np.full(keypoints.shape[:-2] + (dst.num_joints, keypoints.shape[-1]), np.nan)
+    s, d = mapping_indices(src, dst)
+    out[..., d, :] = keypoints[..., s, :]
+    if keypoints.shape[-1] == 3:
+        missing = np.setdiff1d(np.arange(dst.num_joints), d)
+        out[..., missing, 2] = 0.0
+    return out
+
+
+def coco17_smpl24_pairs() -> tuple[np.ndarray, np.ndarray]:
+    """(coco_idx, smpl_idx) index arrays of the COCO-17 joints with an SMPL-24 counterpart."""
+    c = np.array([COCO17.index[k] for k in COCO17_TO_SMPL24])
+    s = np.array([SMPL24.index[v] for v in COCO17_TO_SMPL24.values()])
+    return c, s

@@ -1,0 +1,270 @@
+"""One results file per run: everything the viewer and the evaluation need, per frame.
+
+``results.npz`` is columnar: per detection row (N), per person-frame (Q, the people
+the per-frame stages found), per affinity edge (E), per track (K x F). It is written
+atomically, and keyed by a hash of the scene's files and the configuration so a
+re-run with the same inputs reuses it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.body_model import BodyModel
+from pipeline.config import PipelineConfig
+from pipeline.files import SceneFormatError, load_npz, save_npz_atomic
+from pipeline.run import (
+    FrameResult,
+    SequenceResult,
+    restored_joints,
+    run_frames,
+    run_sequence,
+    select_2d,
+    source_joint_set,
+)
+from pipeline.scene import Scene
+
+RESULTS_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class PipelineResults:
+    """A run, as arrays. Shapes: N detection rows, Q person-frames, E affinity edges,
+    K tracks, F frames, V views, J joints of the source joint set."""
+
+    config: PipelineConfig
+    joint_set: str
+    num_frames: int
+    num_views: int
+    det_joints2d: np.ndarray  # (N, J, 3) the 2D joints that fed the stages
+    det_restored: np.ndarray | None  # (N, 24, 3) restored SMPL 2D joints, if the scene has them
+    det_person: np.ndarray  # (N,) person-frame row (into the Q arrays), -1 unassigned
+    person_frame: np.ndarray  # (Q,)
+    person_joints: np.ndarray  # (Q, J, 3) raw triangulation, mm
+    person_reproj: np.ndarray  # (Q, J, V) reprojection error px, NaN where unobserved
+    person_used: np.ndarray  # (Q, J, V) bool
+    person_members: np.ndarray  # (Q, V) detection row per view, -1
+    person_linkage: np.ndarray  # (Q,) mean affinity inside the cluster
+    person_track: np.ndarray  # (Q,) track index, -1
+    edge_a: np.ndarray  # (E,) detection row
+    edge_b: np.ndarray  # (E,) detection row
+    edge_affinity: np.ndarray  # (E,)
+    edge_distance: np.ndarray  # (E,) mean ray distance, mm
+    track_raw: np.ndarray  # (K, F, J, 3)
+    track_forward: np.ndarray  # (K, F, J, 3) Kalman forward filter
+    track_smoothed: np.ndarray  # (K, F, J, 3) RTS
+    track_prior: np.ndarray  # (K, F, J, 3) predicted mean before each update
+    track_innovation: np.ndarray  # (K, F, J, 3)
+    track_mahalanobis: np.ndarray  # (K, F, J)
+    cache_key: str = ""
+
+    @property
+    def num_tracks(self) -> int:
+        return int(self.track_raw.shape[0])
+
+    @property
+    def track_filtered(self) -> np.ndarray:
+        """The configured filter's output: smoothed if the config asks for RTS."""
+        return self.track_smoothed if self.config.kalman.smoother else self.track_forward
+
+    def people_in_frame(self, frame: int) -> np.ndarray:
+        return np.flatnonzero(self.person_frame == frame)
+
+
+def pack(
+    frames: list[FrameResult],
+    seq: SequenceResult,
+    *,
+    config: PipelineConfig,
+    joint_set: str,
+    num_frames: int,
+    num_views: int,
+    num_detections: int,
+    restored: np.ndarray | None,
+    joints2d_all: np.ndarray,
+    cache_key: str = "",
+) -> PipelineResults:
+    """Flatten per-frame results and the sequence stages into :class:`PipelineResults`."""
+    J = joints2d_all.shape[1]
+    det_person = np.full(num_detections, -1)
+    cols: dict[str, list] = {
+        k: [] for k in ("frame", "joints", "reproj", "used", "members", "link")
+    }
+    edges: dict[str, list] = {k: [] for k in ("a", "b", "aff", "dist")}
+    q = 0
+    for fr in frames:
+        a, t = fr.association, fr.triangulation
+        P = a.num_people
+        assigned = a.cluster >= 0
+        det_person[fr.rows[assigned]] = q + a.cluster[assigned]
+        members = np.where(a.members >= 0, fr.rows[np.maximum(a.members, 0)], -1)
+        cols["frame"].append(np.full(P, fr.frame))
+        cols["joints"].append(t.points.reshape(P, J, 3))
+        cols["reproj"].append(t.reprojection_error.reshape(P, J, num_views))
+        cols["used"].append(t.used.reshape(P, J, num_views))
+        cols["members"].append(members.reshape(P, num_views))
+        cols["link"].append(a.linkage)
+        ia, ib = np.triu_indices(len(fr.rows), 1)
+        keep = np.isfinite(a.affinity[ia, ib])
+        edges["a"].append(fr.rows[ia[keep]])
+        edges["b"].append(fr.rows[ib[keep]])
+        edges["aff"].append(a.affinity[ia[keep], ib[keep]])
+        edges["dist"].append(a.ray_distance[ia[keep], ib[keep]])
+        q += P
+
+    def cat(parts, shape, dtype=float):
+        return np.concatenate(parts).astype(dtype) if parts else np.zeros(shape, dtype)
+
+    f = seq.filtered
+    to_tracks = lambda x: np.moveaxis(x, 0, 1)  # (F, K, ...) -> (K, F, ...)  # noqa: E731
+    return PipelineResults(
+        config=config,
+        joint_set=joint_set,
+        num_frames=num_frames,
+        num_views=num_views,
+        det_joints2d=joints2d_all,
+        det_restored=restored,
+        det_person=det_person,
+        person_frame=cat(cols["frame"], (0,), int),
+        person_joints=cat(cols["joints"], (0, J, 3)),
+        person_reproj=cat(cols["reproj"], (0, J, num_views)),
+        person_used=cat(cols["used"], (0, J, num_views), bool),
+        person_members=cat(cols["members"], (0, num_views), int),
+        person_linkage=cat(cols["link"], (0,)),
+        person_track=seq.person_track,
+        edge_a=cat(edges["a"], (0,), int),
+        edge_b=cat(edges["b"], (0,), int),
+        edge_affinity=cat(edges["aff"], (0,)),
+        edge_distance=cat(edges["dist"], (0,)),
+        track_raw=seq.tracks.joints,
+        track_forward=to_tracks(f.forward),
+        track_smoothed=to_tracks(f.filtered),
+        track_prior=to_tracks(f.prior_mean),
+        track_innovation=to_tracks(f.innovation),
+        track_mahalanobis=to_tracks(f.mahalanobis),
+        cache_key=cache_key,
+    )
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """Hash of the scene files that feed the pipeline (content of the small ones)."""
+    h = hashlib.sha256()
+    for name in ("scene.json", "cameras.json", scene.meta.get("detections", "detections.npz")):
+        p = scene.root / name
+        if p.is_file():
+            h.update(name.encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def cache_key(scene: Scene, config: PipelineConfig, model: BodyModel) -> str:
+    h = hashlib.sha256()
+    h.update(scene_fingerprint(scene).encode())
+    h.update(config.to_json().encode())
+    h.update(str(model.source).encode())
+    h.update(str(RESULTS_VERSION).encode())
+    return h.hexdigest()[:16]
+
+
+def run_pipeline(
+    scene: Scene, config: PipelineConfig, model: BodyModel, *, progress: bool = True
+) -> PipelineResults:
+    """All stages, from a loaded scene to :class:`PipelineResults`."""
+    restored = restored_joints(scene, model)
+    joints2d = select_2d(scene, config, restored)
+    frames = run_frames(scene, config, joints2d, progress=progress)
+    seq = run_sequence(frames, scene.num_frames, config)
+    return pack(
+        frames,
+        seq,
+        config=config,
+        joint_set=source_joint_set(scene, config).name,
+        num_frames=scene.num_frames,
+        num_views=len(scene.rig),
+        num_detections=len(scene.detections),
+        restored=restored,
+        joints2d_all=joints2d,
+        cache_key=cache_key(scene, config, model),
+    )
+
+
+# --------------------------------------------------------------------------- file io
+
+_ARRAY_FIELDS = [
+    f.name
+    for f in dataclasses.fields(PipelineResults)
+    if f.name not in ("config", "joint_set", "num_frames", "num_views", "cache_key", "det_restored")
+]
+
+
+def save_results(results: PipelineResults, path: str | os.PathLike) -> None:
+    meta = {
+        "version": RESULTS_VERSION,
+        "config": results.config.to_dict(),
+        "joint_set": results.joint_set,
+        "num_frames": results.num_frames,
+        "num_views": results.num_views,
+        "cache_key": results.cache_key,
+    }
+    arrays = {k: getattr(results, k) for k in _ARRAY_FIELDS}
+    if results.det_restored is not None:
+        arrays["det_restored"] = results.det_restored
+    save_npz_atomic(path, meta=np.array(json.dumps(meta)), **arrays)
+
+
+def load_results(path: str | os.PathLike) -> PipelineResults:
+    path = Path(path)
+    a = load_npz(path)
+    try:
+        meta = json.loads(str(a.pop("meta")))
+    except KeyError:
+        raise SceneFormatError(path, "meta", "missing: not an mvviz results file") from None
+    if meta.get("version") != RESULTS_VERSION:
+        raise SceneFormatError(path, "meta.version", f"expected {RESULTS_VERSION}")
+    missing = [k for k in _ARRAY_FIELDS if k not in a]
+    if missing:
+        raise SceneFormatError(path, missing[0], "missing array")
+    return PipelineResults(
+        config=PipelineConfig.from_dict(meta["config"], source=str(path)),
+        joint_set=meta["joint_set"],
+        num_frames=int(meta["num_frames"]),
+        num_views=int(meta["num_views"]),
+        cache_key=meta.get("cache_key", ""),
+        det_restored=a.get("det_restored"),
+        **{k: a[k] for k in _ARRAY_FIELDS},
+    )
+
+
+def default_results_path(scene: Scene) -> Path:
+    return scene.root / ".mvviz" / "results.npz"
+
+
+def run_or_load(
+    scene: Scene,
+    config: PipelineConfig,
+    model: BodyModel,
+    *,
+    out: str | os.PathLike | None = None,
+    progress: bool = True,
+    force: bool = False,
+) -> tuple[PipelineResults, bool]:
+    """Load cached results if their key matches, else run and save. Returns (results, cached)."""
+    path = Path(out) if out else default_results_path(scene)
+    key = cache_key(scene, config, model)
+    if path.is_file() and not force:
+        try:
+            res = load_results(path)
+            if res.cache_key == key:
+                return res, True
+        except SceneFormatError:
+            pass  # stale or foreign file: recompute and replace it
+    res = run_pipeline(scene, config, model, progress=progress)
+    save_results(res, path)
+    return res, False

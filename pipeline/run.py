@@ -1,0 +1,180 @@
+"""The one place where the stages are composed.
+
+Per frame (re-runnable on its own, which is what the viewer does when a parameter
+changes): 2D source selection (keypoints, or SMPL joints restored from the monocular
+predictions) -> cross-view association -> triangulation. Then, over the sequence:
+tracking -> Kalman filtering (forward and RTS-smoothed).
+
+Units: mm, pixels, frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from pipeline.associate import Association, associate_frame
+from pipeline.body_model import BodyModel
+from pipeline.config import PipelineConfig
+from pipeline.joint_sets import SMPL24, JointSet
+from pipeline.kalman import FilterResult, kalman_filter
+from pipeline.restore import restore_joints_2d
+from pipeline.scene import Scene
+from pipeline.track import Tracks, track_people
+from pipeline.triangulate import Triangulation, triangulate_people
+
+
+@dataclass(frozen=True, eq=False)
+class FrameResult:
+    """Per-frame stages of one frame.
+
+    Attributes:
+        frame: the frame index.
+        rows: (n,) detection rows (into the scene's detections) of this frame.
+        joints2d: (n, J, 3) the 2D joints that fed association and triangulation.
+        association: clusters, affinities and members.
+        triangulation: (num_people, J, ...) 3D joints, reprojection errors, used views.
+    """
+
+    frame: int
+    rows: np.ndarray
+    joints2d: np.ndarray
+    association: Association
+    triangulation: Triangulation
+
+
+@dataclass(frozen=True, eq=False)
+class SequenceResult:
+    """Sequence-wide stages: tracks and their filtered trajectories.
+
+    Attributes:
+        person_track: (Q,) track of each person-frame (rows of the per-frame people).
+        tracks: raw joints per track (K, F, J, 3) and lifetimes.
+        filtered: Kalman result over (F, K, J, 3) measurements.
+    """
+
+    person_track: np.ndarray
+    tracks: Tracks
+    filtered: FilterResult
+
+
+def source_joint_set(scene: Scene, config: PipelineConfig) -> JointSet:
+    return SMPL24 if config.source == "smpl" else scene.joint_set
+
+
+def restored_joints(scene: Scene, model: BodyModel) -> np.ndarray | None:
+    """(N, 24, 3) SMPL joints restored from the monocular predictions, or None.
+
+    Every joint of a row gets the row's mean keypoint confidence (the detector's score
+    for that person), so that a weak detection stays weak whichever source is used.
+    """
+    det = scene.detections
+    if not det.has_smpl:
+        return None
+    conf = det.keypoints[..., 2]
+    score = np.where((conf > 0).any(1), conf.sum(1) / np.maximum((conf > 0).sum(1), 1), 1.0)
+    return restore_joints_2d(
+        det.smpl_pose, det.smpl_betas, det.cam_weak, det.bbox, model, score=score
+    )
+
+
+def select_2d(scene: Scene, config: PipelineConfig, restored: np.ndarray | None) -> np.ndarray:
+    """(N, J, 3) the 2D joints of the configured source for every detection row."""
+    if config.source == "smpl":
+        if restored is None:
+            raise ValueError(
+                f"{scene.root}: source 'smpl' needs smpl_pose/smpl_betas/cam_weak/bbox in "
+                "detections.npz; this scene has only keypoints"
+            )
+        return restored
+    return scene.detections.keypoints
+
+
+def enabled_view_mask(scene: Scene, config: PipelineConfig) -> np.ndarray:
+    unknown = set(config.disabled_views) - set(scene.rig.names)
+    if unknown:
+        raise ValueError(f"disabled_views names unknown cameras {sorted(unknown)}")
+    return np.array([c.name not in config.disabled_views for c in scene.rig])
+
+
+def frame_rows(scene: Scene) -> list[np.ndarray]:
+    """Detection rows per frame, computed once (index with the frame number)."""
+    f = scene.detections.frame
+    order = np.argsort(f, kind="stable")
+    bounds = np.searchsorted(f[order], np.arange(scene.num_frames + 1))
+    return [order[bounds[i] : bounds[i + 1]] for i in range(scene.num_frames)]
+
+
+def run_frame(
+    scene: Scene,
+    frame: int,
+    config: PipelineConfig,
+    joints2d_all: np.ndarray,
+    *,
+    rows: np.ndarray | None = None,
+) -> FrameResult:
+    """Association and triangulation of one frame."""
+    if rows is None:
+        rows = np.flatnonzero(scene.detections.frame == frame)
+    enabled = enabled_view_mask(scene, config)
+    views = scene.detections.view[rows]
+    joints2d = joints2d_all[rows].copy()
+    joints2d[~enabled[views], :, 2] = 0.0  # a disabled camera contributes nothing
+    assoc = associate_frame(
+        scene.rig, views, joints2d, config.association, enabled_views=enabled
+    )
+    P, V, J = assoc.num_people, len(scene.rig), joints2d.shape[1]
+    kp = np.full((P, V, J, 3), np.nan)
+    kp[..., 2] = 0.0
+    for p in range(P):
+        for v in range(V):
+            m = assoc.members[p, v]
+            if m >= 0:
+                kp[p, v] = joints2d[m]
+    tp = config.triangulation
+    tri = triangulate_people(
+        scene.rig,
+        kp,
+        min_confidence=tp.min_confidence,
+        outlier_threshold_px=tp.outlier_threshold_px,
+        min_views=tp.min_views,
+    )
+    return FrameResult(
+        frame=frame, rows=rows, joints2d=joints2d, association=assoc, triangulation=tri
+    )
+
+
+def run_frames(
+    scene: Scene,
+    config: PipelineConfig,
+    joints2d_all: np.ndarray,
+    *,
+    progress: bool = True,
+) -> list[FrameResult]:
+    rows = frame_rows(scene)
+    return [
+        run_frame(scene, f, config, joints2d_all, rows=rows[f])
+        for f in tqdm(range(scene.num_frames), desc="associate+triangulate", disable=not progress)
+    ]
+
+
+def run_sequence(
+    frames: list[FrameResult], num_frames: int, config: PipelineConfig
+) -> SequenceResult:
+    """Tracking and filtering over the per-frame people."""
+    if frames and frames[0].triangulation.points.ndim == 3:
+        J = frames[0].triangulation.points.shape[1]
+    else:
+        J = 0
+    person_frame = np.concatenate(
+        [np.full(fr.triangulation.points.shape[0], fr.frame) for fr in frames] or [np.zeros(0)]
+    ).astype(int)
+    person_joints = np.concatenate(
+        [fr.triangulation.points.reshape(-1, J, 3) for fr in frames] or [np.zeros((0, J, 3))]
+    )
+    tracks = track_people(person_frame, person_joints, num_frames, config.tracking)
+    measurements = np.moveaxis(tracks.joints, 1, 0)  # (F, K, J, 3)
+    filtered = kalman_filter(measurements, config.kalman)
+    return SequenceResult(person_track=tracks.track_of, tracks=tracks, filtered=filtered)

@@ -1,0 +1,369 @@
+"""The native scene format: a directory with scene.json, cameras.json, detections.npz,
+optional gt.npz and optional videos/images. Documented in sample_data/README.md.
+
+Units: world millimetres (z up), image pixels. Every reader checks shapes and values
+where the data enters and raises :class:`~pipeline.files.SceneFormatError` naming the
+file and the field; :func:`write_scene` writes a whole scene atomically.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.cameras import CameraRig, load_cameras, save_cameras
+from pipeline.files import SceneFormatError, atomic_directory, load_npz, save_npz_atomic
+from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
+
+SMPL_FIELDS = ("smpl_pose", "smpl_betas", "cam_weak", "bbox")
+SMPL_FIELD_WIDTH = {"smpl_pose": 72, "smpl_betas": 10, "cam_weak": 3, "bbox": 4}
+
+
+@dataclass(frozen=True, eq=False)
+class Detections:
+    """Per-view detections, one row per detected person in one view and frame.
+
+    Attributes:
+        frame: (N,) int frame index.
+        view: (N,) int index into the scene's camera rig.
+        keypoints: (N, J, 3) x px, y px, confidence in [0, 1]; a missed joint has
+            confidence 0 (its x, y may be NaN).
+        smpl_pose: (N, 72) axis-angle, SPIN-style, root orientation in the camera frame
+            (x right, y down, z forward); a NaN row means "no regressor output".
+        smpl_betas: (N, 10); cam_weak: (N, 3) weak-perspective (s, tx, ty);
+        bbox: (N, 4) x0, y0, x1, y1 pixels of the crop cam_weak refers to.
+        gt_person_id: (N,) optional ground truth of synthetic scenes: the person a row
+            shows, -1 for a false positive (used to score association).
+    """
+
+    frame: np.ndarray
+    view: np.ndarray
+    keypoints: np.ndarray
+    smpl_pose: np.ndarray | None = None
+    smpl_betas: np.ndarray | None = None
+    cam_weak: np.ndarray | None = None
+    bbox: np.ndarray | None = None
+    gt_person_id: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.frame.shape[0])
+
+    @property
+    def has_smpl(self) -> bool:
+        return self.smpl_pose is not None
+
+    @property
+    def smpl_valid(self) -> np.ndarray:
+        """(N,) bool: rows that carry monocular SMPL regressor output."""
+        if self.smpl_pose is None:
+            return np.zeros(len(self), bool)
+        return np.isfinite(self.smpl_pose).all(1) & np.isfinite(self.cam_weak).all(1)
+
+    def take(self, rows: np.ndarray) -> Detections:
+        """The subset of rows ``rows`` (index or boolean mask)."""
+        kw = {
+            k: (None if getattr(self, k) is None else getattr(self, k)[rows])
+            for k in ("frame", "view", "keypoints", "gt_person_id") + SMPL_FIELDS
+        }
+        return Detections(**kw)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {"frame": self.frame, "view": self.view, "keypoints": self.keypoints}
+        if self.has_smpl:
+            out.update({k: getattr(self, k) for k in SMPL_FIELDS})
+        if self.gt_person_id is not None:
+            out["gt_person_id"] = self.gt_person_id
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class GroundTruth:
+    """Ground-truth people.
+
+    Attributes:
+        frame: (M,) int; person_id: (M,) int, stable over time.
+        joints3d: (M, 24, 3) world mm, SMPL-24 order.
+        smpl_pose: (M, 72) axis-angle; smpl_betas: (M, 10); transl: (M, 3) world mm.
+            The body is ``1000 * body_model(pose, betas) + transl`` (the model is in metres).
+    """
+
+    frame: np.ndarray
+    person_id: np.ndarray
+    joints3d: np.ndarray
+    smpl_pose: np.ndarray | None = None
+    smpl_betas: np.ndarray | None = None
+    transl: np.ndarray | None = None
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {"frame": self.frame, "person_id": self.person_id, "joints3d": self.joints3d}
+        for k in ("smpl_pose", "smpl_betas", "transl"):
+            if getattr(self, k) is not None:
+                out[k] = getattr(self, k)
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A loaded scene directory."""
+
+    root: Path
+    name: str
+    fps: float
+    num_frames: int
+    joint_set: JointSet
+    rig: CameraRig
+    detections: Detections
+    gt: GroundTruth | None = None
+    videos: dict[str, Path] = field(default_factory=dict)
+    image_dirs: dict[str, Path] = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- checks
+
+
+def _check_array(
+    source, name: str, a: np.ndarray, *, ndim_shape: tuple, kind: str = "f"
+) -> np.ndarray:
+    """Check ``a`` against ``ndim_shape`` (None = any size) and numeric kind."""
+    if a.dtype.kind not in ("f", "i", "u", "b"):
+        raise SceneFormatError(source, name, f"expected a numeric array, got dtype {a.dtype}")
+    if a.ndim != len(ndim_shape) or any(
+        s is not None and s != d for s, d in zip(ndim_shape, a.shape, strict=True)
+    ):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in ndim_shape) + ")"
+        raise SceneFormatError(source, name, f"expected shape {want}, got {a.shape}")
+    if kind == "i":
+        if a.dtype.kind == "f":
+            if not (np.isfinite(a).all() and (a == np.round(a)).all()):
+                raise SceneFormatError(source, name, "expected integers")
+        return a.astype(np.int64)
+    return a.astype(np.float64)
+
+
+def check_detections(
+    arrays: dict[str, np.ndarray], *, source, num_joints: int, num_views: int
+) -> Detections:
+    """Validate detection columns (see :class:`Detections`) and build the dataclass."""
+    for k in ("frame", "view", "keypoints"):
+        if k not in arrays:
+            raise SceneFormatError(source, k, "missing (required column)")
+    frame = _check_array(source, "frame", np.asarray(arrays["frame"]), ndim_shape=(None,), kind="i")
+    n = frame.shape[0]
+    view = _check_array(source, "view", np.asarray(arrays["view"]), ndim_shape=(n,), kind="i")
+    kp = _check_array(source, "keypoints", np.asarray(arrays["keypoints"]), ndim_shape=(n, None, 3))
+    if kp.shape[1] != num_joints:
+        raise SceneFormatError(
+            source, "keypoints", f"expected {num_joints} joints per row, got {kp.shape[1]}"
+        )
+    if (frame < 0).any():
+        raise SceneFormatError(source, "frame", "expected non-negative frame indices")
+    if ((view < 0) | (view >= num_views)).any():
+        bad = np.unique(view[(view < 0) | (view >= num_views)])
+        raise SceneFormatError(
+            source, "view", f"expected view indices in [0, {num_views}), got {bad.tolist()}"
+        )
+    conf = kp[..., 2]
+    if not np.isfinite(conf).all():
+        raise SceneFormatError(source, "keypoints[..., 2]", "confidence is NaN or infinite")
+    if (conf < 0).any() or (conf > 1).any():
+        raise SceneFormatError(
+            source,
+            "keypoints[..., 2]",
+            f"expected confidence in [0, 1], got range [{conf.min():.3g}, {conf.max():.3g}]",
+        )
+    if not np.isfinite(kp[..., :2][conf > 0]).all():
+        raise SceneFormatError(
+            source, "keypoints[..., :2]", "NaN coordinates on a joint with confidence > 0"
+        )
+    present = [k for k in SMPL_FIELDS if k in arrays]
+    smpl: dict[str, np.ndarray | None] = dict.fromkeys(SMPL_FIELDS)
+    if present:
+        if len(present) != len(SMPL_FIELDS):
+            missing = sorted(set(SMPL_FIELDS) - set(present))
+            raise SceneFormatError(
+                source, missing[0], f"monocular SMPL fields come together; missing {missing}"
+            )
+        for k in SMPL_FIELDS:
+            smpl[k] = _check_array(
+                source, k, np.asarray(arrays[k]), ndim_shape=(n, SMPL_FIELD_WIDTH[k])
+            )
+        valid = np.isfinite(smpl["smpl_pose"]).all(1)
+        for k in ("smpl_betas", "cam_weak", "bbox"):
+            if not np.isfinite(smpl[k][valid]).all():
+                raise SceneFormatError(source, k, "NaN in a row whose smpl_pose is given")
+        bb = smpl["bbox"][valid]
+        if ((bb[:, 2] <= bb[:, 0]) | (bb[:, 3] <= bb[:, 1])).any():
+            raise SceneFormatError(source, "bbox", "expected x1 > x0 and y1 > y0")
+    gt_person = None
+    if "gt_person_id" in arrays:
+        gt_person = _check_array(
+            source, "gt_person_id", np.asarray(arrays["gt_person_id"]), ndim_shape=(n,), kind="i"
+        )
+    return Detections(frame=frame, view=view, keypoints=kp, gt_person_id=gt_person, **smpl)
+
+
+def check_ground_truth(arrays: dict[str, np.ndarray], *, source) -> GroundTruth:
+    for k in ("frame", "person_id", "joints3d"):
+        if k not in arrays:
+            raise SceneFormatError(source, k, "missing (required column)")
+    frame = _check_array(source, "frame", np.asarray(arrays["frame"]), ndim_shape=(None,), kind="i")
+    m = frame.shape[0]
+    pid = _check_array(
+        source, "person_id", np.asarray(arrays["person_id"]), ndim_shape=(m,), kind="i"
+    )
+    j3 = _check_array(
+        source, "joints3d", np.asarray(arrays["joints3d"]), ndim_shape=(m, SMPL24.num_joints, 3)
+    )
+    opt = {}
+    for k, w in (("smpl_pose", 72), ("smpl_betas", 10), ("transl", 3)):
+        opt[k] = (
+            _check_array(source, k, np.asarray(arrays[k]), ndim_shape=(m, w))
+            if k in arrays
+            else None
+        )
+    pairs = frame * (pid.max(initial=0) + 1) + pid
+    if np.unique(pairs).size != m:
+        raise SceneFormatError(source, "person_id", "a person appears twice in one frame")
+    return GroundTruth(frame=frame, person_id=pid, joints3d=j3, **opt)
+
+
+# --------------------------------------------------------------------------- load / write
+
+
+def load_scene(root: str | os.PathLike) -> Scene:
+    """Load and validate a scene directory."""
+    root = Path(root)
+    meta_path = root / "scene.json"
+    if not meta_path.is_file():
+        raise SceneFormatError(meta_path, None, "file not found (is this a scene directory?)")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise SceneFormatError(meta_path, None, f"not valid JSON ({exc})") from exc
+    if not isinstance(meta, dict):
+        raise SceneFormatError(meta_path, None, "expected a JSON object")
+    units = meta.get("units", "mm")
+    if units != "mm":
+        raise SceneFormatError(meta_path, "units", f"expected 'mm', got {units!r}")
+    try:
+        joint_set = get_joint_set(str(meta.get("joint_set", "")))
+    except ValueError as exc:
+        raise SceneFormatError(meta_path, "joint_set", str(exc)) from None
+    fps = meta.get("fps", 25.0)
+    if not isinstance(fps, (int, float)) or fps <= 0:
+        raise SceneFormatError(meta_path, "fps", f"expected a positive number, got {fps!r}")
+
+    rig = load_cameras(root / meta.get("cameras", "cameras.json"))
+    det_path = root / meta.get("detections", "detections.npz")
+    det_arrays = load_npz(det_path)
+    if "view_names" in det_arrays:
+        # Detections may name their views; map them onto the rig's order.
+        names = [str(s) for s in det_arrays.pop("view_names")]
+        unknown = [n for n in names if n not in rig.names]
+        if unknown:
+            raise SceneFormatError(
+                det_path, "view_names", f"cameras {unknown} are not in cameras.json ({rig.names})"
+            )
+        lut = np.array([rig.index_of(n) for n in names])
+        v = np.asarray(det_arrays["view"])
+        if v.size and (v.min() < 0 or v.max() >= len(names)):
+            raise SceneFormatError(det_path, "view", f"expected indices into view_names ({names})")
+        det_arrays["view"] = lut[v.astype(int)] if v.size else v
+    detections = check_detections(
+        det_arrays, source=det_path, num_joints=joint_set.num_joints, num_views=len(rig)
+    )
+    gt = None
+    if meta.get("gt"):
+        gt_path = root / meta["gt"]
+        gt = check_ground_truth(load_npz(gt_path), source=gt_path)
+
+    num_frames = meta.get("num_frames")
+    if num_frames is None:
+        candidates = [detections.frame.max(initial=-1) + 1]
+        if gt is not None:
+            candidates.append(gt.frame.max(initial=-1) + 1)
+        num_frames = int(max(candidates))
+    videos, image_dirs = {}, {}
+    if meta.get("videos"):
+        for cam in rig.names:
+            p = root / meta["videos"] / f"{cam}.mp4"
+            if p.is_file():
+                videos[cam] = p
+    if meta.get("images"):
+        for cam in rig.names:
+            p = root / meta["images"] / cam
+            if p.is_dir():
+                image_dirs[cam] = p
+    return Scene(
+        root=root,
+        name=str(meta.get("name", root.name)),
+        fps=float(fps),
+        num_frames=int(num_frames),
+        joint_set=joint_set,
+        rig=rig,
+        detections=detections,
+        gt=gt,
+        videos=videos,
+        image_dirs=image_dirs,
+        meta=meta,
+    )
+
+
+def write_scene(
+    out_dir: str | os.PathLike,
+    *,
+    name: str,
+    fps: float,
+    num_frames: int,
+    joint_set: JointSet,
+    rig: CameraRig,
+    detections: Detections,
+    gt: GroundTruth | None = None,
+    videos: dict[str, Path] | None = None,
+    extra_meta: dict | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write a complete scene directory atomically.
+
+    ``videos`` (camera name -> mp4 path) are copied into ``videos/<camera>.mp4``.
+
+    The data is validated on the way out with the same checks the reader applies.
+    """
+    out_dir = Path(out_dir)
+    check_detections(
+        detections.arrays(),
+        source=out_dir / "detections.npz",
+        num_joints=joint_set.num_joints,
+        num_views=len(rig),
+    )
+    if gt is not None:
+        check_ground_truth(gt.arrays(), source=out_dir / "gt.npz")
+    meta = {
+        "name": name,
+        "fps": float(fps),
+        "units": "mm",
+        "joint_set": joint_set.name,
+        "num_frames": int(num_frames),
+        "cameras": "cameras.json",
+        "detections": "detections.npz",
+        "gt": "gt.npz" if gt is not None else None,
+    }
+    with atomic_directory(out_dir, overwrite=overwrite) as tmp:
+        save_cameras(rig, tmp / "cameras.json")
+        save_npz_atomic(tmp / "detections.npz", **detections.arrays())
+        if gt is not None:
+            save_npz_atomic(tmp / "gt.npz", **gt.arrays())
+        if videos:
+            (tmp / "videos").mkdir()
+            for cam, src in videos.items():
+                shutil.copyfile(src, tmp / "videos" / f"{cam}.mp4")
+        meta["videos"] = "videos" if (tmp / "videos").is_dir() else None
+        meta.update(extra_meta or {})
+        (tmp / "scene.json").write_text(json.dumps(meta, indent=1) + "\n")
+    return out_dir

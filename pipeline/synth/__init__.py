@@ -1,0 +1,1 @@
+"""Synthetic scenes: rendering people seen by a calibrated rig."""

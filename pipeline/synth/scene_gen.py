@@ -1,0 +1,340 @@
+"""Synthetic multi-view scenes with ground truth: people with different body shapes move
+in the area a real rig sees; every view is rendered with a z-buffer (the same z-buffer
+decides which joints are occluded) and fed to the simulated detectors.
+
+Deterministic for a seed. World mm, z up.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from pipeline.body_model import BodyModel
+from pipeline.cameras import CameraRig
+from pipeline.joint_sets import COCO17, SMPL24
+from pipeline.scene import SMPL_FIELDS, Detections, GroundTruth, write_scene
+from pipeline.synth.detectors import DetectorNoise, simulate_keypoints, simulate_regressor
+from pipeline.synth.motion import (
+    PersonMotion,
+    plan_people,
+    pose_from_params,
+    root_to_world,
+    sample_pose_library,
+)
+from pipeline.synth.render import (
+    MeshInstance,
+    occluded_by_other,
+    render_background,
+    render_meshes,
+    visible_mask,
+)
+
+# Clothing colours (RGB), one per person; the viewer uses its own palette.
+PERSON_COLOURS = (
+    (200, 70, 60), (60, 120, 200), (80, 170, 90), (210, 170, 60),
+    (150, 90, 190), (60, 180, 180), (220, 120, 170), (130, 130, 130),
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """What to synthesise. ``video_scale`` < 1 writes smaller videos (detection always
+    runs on full-resolution renders)."""
+
+    num_people: int = 4
+    num_frames: int = 250
+    fps: float = 25.0
+    seed: int = 0
+    render_video: bool = True
+    video_scale: float = 1.0
+    noise: DetectorNoise = field(default_factory=DetectorNoise)
+    min_views: int = 3
+
+
+@dataclass(frozen=True, eq=False)
+class SynthPeople:
+    """Ground-truth bodies. pose (P, F, 24, 3) world root; betas (P, 10); transl (P, F, 3) mm;
+    joints (P, F, 24, 3) mm."""
+
+    pose: np.ndarray
+    betas: np.ndarray
+    transl: np.ndarray
+    joints: np.ndarray
+
+
+def visible_floor_area(
+    rig: CameraRig, *, min_views: int = 3, spacing_mm: float = 200.0, margin_px: float = 40.0
+) -> np.ndarray:
+    """(K, 2) floor points where a standing person (feet to head) is inside >= min_views images."""
+    centres = rig.centers[:, :2]
+    lo, hi = centres.min(0) - 3000, centres.max(0) + 3000
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0], spacing_mm), np.arange(lo[1], hi[1], spacing_mm))
+    pts = np.stack([gx.ravel(), gy.ravel()], -1)
+    count = np.zeros(len(pts), int)
+    for cam in rig:
+        ok = np.ones(len(pts), bool)
+        for h in (0.0, 900.0, 1800.0):  # feet, pelvis, above the head
+            for dx, dy in ((-350, 0), (350, 0), (0, -350), (0, 350)):
+                p3 = np.column_stack([pts[:, 0] + dx, pts[:, 1] + dy, np.full(len(pts), h)])
+                uv = cam.project(p3)
+                ok &= (
+                    np.isfinite(uv).all(1)
+                    & (uv[:, 0] > margin_px)
+                    & (uv[:, 0] < cam.width - margin_px)
+                    & (uv[:, 1] > margin_px)
+                    & (uv[:, 1] < cam.height - margin_px)
+                )
+        # A camera too close sees only part of a body: require a sensible distance too.
+        dist = np.linalg.norm(pts - cam.center[:2], axis=1)
+        count += ok & (dist > 1500)
+    area = pts[count >= min(min_views, len(rig))]
+    if len(area) < 10:
+        raise ValueError(
+            f"fewer than 10 floor points are seen by {min_views} cameras; "
+            "is the rig's world z axis up, in millimetres?"
+        )
+    return area
+
+
+def bodies_from_motion(
+    motions: list[PersonMotion], model: BodyModel, *, chunk: int = 64
+) -> SynthPeople:
+    """Turn planned motions into world poses with feet on the floor (z = 0)."""
+    P, F = len(motions), len(motions[0].heading)
+    pose = np.zeros((P, F, 24, 3))
+    transl = np.zeros((P, F, 3))
+    joints = np.zeros((P, F, 24, 3))
+    for p, m in enumerate(motions):
+        local = pose_from_params(m.params)
+        local[:, 0] = root_to_world(m.heading, local[:, 0])
+        pose[p] = local
+        betas = torch.as_tensor(np.tile(m.betas, (F, 1)), dtype=torch.float32)
+        for s in range(0, F, chunk):
+            sl = slice(s, s + chunk)
+            with torch.no_grad():
+                out = model(torch.as_tensor(local[sl], dtype=torch.float32), betas[sl])
+            v = out.vertices.numpy() * 1000
+            j = out.joints.numpy() * 1000
+            # Lowest vertex on the floor; pelvis over the planned floor position.
+            t = np.zeros((v.shape[0], 3))
+            t[:, 2] = -v[..., 2].min(1)
+            t[:, :2] = m.position[sl] - j[:, 0, :2]
+            transl[p, sl] = t
+            joints[p, sl] = j + t[:, None]
+    return SynthPeople(
+        pose=pose, betas=np.stack([m.betas for m in motions]), transl=transl, joints=joints
+    )
+
+
+def _ghosts(
+    rng: np.random.Generator, cam, area: np.ndarray, library: np.ndarray, model: BodyModel, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` phantom people for one view: (n, 17, 2) keypoints, (n, 24, 2) SMPL joints, poses."""
+    pose = library[rng.integers(len(library), size=n)].reshape(n, 24, 3).copy()
+    pose[:, 0] = root_to_world(rng.uniform(-np.pi, np.pi, n), np.zeros((n, 3)))
+    betas = rng.normal(0, 1, (n, 10))
+    with torch.no_grad():
+        out = model(torch.as_tensor(pose, dtype=torch.float32), torch.as_tensor(betas).float())
+    v = out.vertices.numpy() * 1000
+    spot = area[rng.integers(len(area), size=n)]
+    shift = np.column_stack([spot - out.joints.numpy()[:, 0, :2] * 1000, -v[..., 2].min(1)])
+    coco = model.coco_keypoints(out.vertices).numpy() * 1000 + shift[:, None]
+    smpl = out.joints.numpy() * 1000 + shift[:, None]
+    return cam.project(coco), cam.project(smpl), (pose, betas)
+
+
+def synthesize(
+    rig: CameraRig,
+    model: BodyModel,
+    config: SynthConfig,
+    *,
+    video_dir: Path | None = None,
+    progress: bool = True,
+) -> tuple[SynthPeople, Detections]:
+    """Plan, pose, render and detect. Writes ``video_dir/<camera>.mp4`` when given."""
+    rng = np.random.default_rng(config.seed)
+    noise = config.noise
+    area = visible_floor_area(rig, min_views=config.min_views)
+    # Keep waypoints away from the edge of the seen area.
+    centre = area.mean(0)
+    core = area[
+        np.linalg.norm(area - centre, axis=1) < 0.8 * np.linalg.norm(area - centre, axis=1).max()
+    ]
+    motions = plan_people(rng, core, config.num_people, config.num_frames, config.fps)
+    people = bodies_from_motion(motions, model)
+    library = sample_pose_library(200, seed=config.seed)
+    faces = model.faces.numpy()
+    backgrounds = [render_background(cam) for cam in rig]
+
+    writers = {}
+    if video_dir is not None and config.render_video:
+        for cam in rig:
+            size = (int(round(cam.width * config.video_scale)) // 2 * 2,
+                    int(round(cam.height * config.video_scale)) // 2 * 2)  # fmt: skip
+            w = cv2.VideoWriter(
+                str(video_dir / f"{cam.name}.mp4"),
+                cv2.VideoWriter_fourcc(*"mp4v"),
+                config.fps,
+                size,
+            )
+            if not w.isOpened():
+                raise RuntimeError(f"cannot open a video writer for {video_dir / cam.name}.mp4")
+            writers[cam.name] = (w, size)
+
+    columns = ("frame", "view", "keypoints", "gt_person_id") + SMPL_FIELDS
+    rows: dict[str, list] = {k: [] for k in columns}
+    P = config.num_people
+    betas_t = torch.as_tensor(people.betas, dtype=torch.float32)
+    frames = range(config.num_frames)
+    for f in tqdm(frames, desc="synth frames", disable=not progress, unit="frame"):
+        with torch.no_grad():
+            out = model(torch.as_tensor(people.pose[:, f], dtype=torch.float32), betas_t)
+            coco_m = model.coco_keypoints(out.vertices)
+        verts = out.vertices.numpy() * 1000 + people.transl[:, f, None]
+        coco = coco_m.numpy() * 1000 + people.transl[:, f, None]
+        meshes = [
+            MeshInstance(
+                vertices=verts[p], faces=faces, color=PERSON_COLOURS[p % len(PERSON_COLOURS)]
+            )
+            for p in range(P)
+        ]
+        for v, cam in enumerate(rig):
+            render = render_meshes(cam, meshes, background=backgrounds[v])
+            if cam.name in writers:
+                w, size = writers[cam.name]
+                img = render.image
+                if size != (cam.width, cam.height):
+                    img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+                w.write(cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+            pts = coco.reshape(-1, 3)
+            ids = np.repeat(np.arange(P), COCO17.num_joints)
+            vis = visible_mask(
+                render, cam, pts, ids, tolerance_mm=noise.self_occlusion_tolerance_mm
+            )
+            other = occluded_by_other(render, cam, pts, ids).reshape(P, -1)
+            self_occ = (~vis).reshape(P, -1) & ~other
+            true_2d = cam.project(coco)
+            kp, detected = simulate_keypoints(rng, cam, true_2d, self_occ, other, noise)
+            order = rng.permutation(np.flatnonzero(detected))  # detector order is arbitrary
+            n_ghost = rng.poisson(noise.false_positives_per_view)
+            if order.size:
+                smpl2d = cam.project(people.joints[order, f])
+                reg = simulate_regressor(
+                    rng, cam, people.pose[order, f], people.betas[order], smpl2d, model, noise
+                )
+                _append(rows, f, v, kp[order], order, reg)
+            if n_ghost:
+                g_coco, g_smpl, (g_pose, g_betas) = _ghosts(rng, cam, area, library, model, n_ghost)
+                in_img = (
+                    (g_coco[..., 0] >= 0) & (g_coco[..., 0] < cam.width)
+                    & (g_coco[..., 1] >= 0) & (g_coco[..., 1] < cam.height)
+                )  # fmt: skip
+                inside = in_img.sum(1) >= 8
+                if inside.any():
+                    g_coco, g_smpl = g_coco[inside], g_smpl[inside]
+                    conf = np.clip(rng.uniform(0.25, 0.55, g_coco.shape[:2]), 0, 1)
+                    g_kp = np.concatenate(
+                        [g_coco + rng.normal(0, 3, g_coco.shape), conf[..., None]], -1
+                    )
+                    off = (
+                        (g_kp[..., 0] < 0)
+                        | (g_kp[..., 0] >= cam.width)
+                        | (g_kp[..., 1] < 0)
+                        | (g_kp[..., 1] >= cam.height)
+                    )
+                    g_kp[off] = (np.nan, np.nan, 0.0)
+                    reg = simulate_regressor(
+                        rng, cam, g_pose[inside], g_betas[inside], g_smpl, model, noise
+                    )
+                    _append(rows, f, v, g_kp, np.full(int(inside.sum()), -1), reg)
+    for w, _ in writers.values():
+        w.release()
+
+    n = len(rows["frame"])
+    arrays = {k: (np.concatenate(v) if v else None) for k, v in rows.items()}
+    detections = Detections(
+        frame=arrays["frame"] if n else np.zeros(0, int),
+        view=arrays["view"] if n else np.zeros(0, int),
+        keypoints=arrays["keypoints"] if n else np.zeros((0, COCO17.num_joints, 3)),
+        gt_person_id=arrays["gt_person_id"] if n else np.zeros(0, int),
+        smpl_pose=arrays["smpl_pose"] if n else np.zeros((0, 72)),
+        smpl_betas=arrays["smpl_betas"] if n else np.zeros((0, 10)),
+        cam_weak=arrays["cam_weak"] if n else np.zeros((0, 3)),
+        bbox=arrays["bbox"] if n else np.zeros((0, 4)),
+    )
+    return people, detections
+
+
+def _append(
+    rows: dict, frame: int, view: int, kp: np.ndarray, person: np.ndarray, reg: dict
+) -> None:
+    m = kp.shape[0]
+    rows["frame"].append(np.full(m, frame))
+    rows["view"].append(np.full(m, view))
+    rows["keypoints"].append(kp)
+    rows["gt_person_id"].append(np.asarray(person))
+    for k in SMPL_FIELDS:
+        rows[k].append(reg[k])
+
+
+def ground_truth(people: SynthPeople) -> GroundTruth:
+    P, F = people.joints.shape[:2]
+    return GroundTruth(
+        frame=np.tile(np.arange(F), P),
+        person_id=np.repeat(np.arange(P), F),
+        joints3d=people.joints.reshape(P * F, SMPL24.num_joints, 3),
+        smpl_pose=people.pose.reshape(P * F, 72),
+        smpl_betas=np.repeat(people.betas, F, axis=0),
+        transl=people.transl.reshape(P * F, 3),
+    )
+
+
+def write_synth_scene(
+    out_dir: str | os.PathLike,
+    rig: CameraRig,
+    model: BodyModel,
+    config: SynthConfig,
+    *,
+    name: str | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> Path:
+    """Synthesise and write a native scene directory atomically."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
+        raise FileExistsError(f"{out_dir} exists and is not empty (pass --overwrite to replace it)")
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out_dir.parent, prefix=f".{out_dir.name}.videos.") as tmp:
+        video_dir = Path(tmp) if config.render_video else None
+        people, detections = synthesize(rig, model, config, video_dir=video_dir, progress=progress)
+        videos = {c.name: Path(tmp) / f"{c.name}.mp4" for c in rig} if video_dir else None
+        noise = {k: getattr(config.noise, k) for k in config.noise.__dataclass_fields__}
+        return write_scene(
+            out_dir,
+            name=name or out_dir.name,
+            fps=config.fps,
+            num_frames=config.num_frames,
+            joint_set=COCO17,
+            rig=rig,
+            detections=detections,
+            gt=ground_truth(people),
+            videos=videos,
+            extra_meta={
+                "synth": {
+                    "seed": config.seed,
+                    "num_people": config.num_people,
+                    "video_scale": config.video_scale,
+                    "body_model": os.path.basename(model.source),
+                    "noise": noise,
+                }
+            },
+            overwrite=overwrite,
+        )
