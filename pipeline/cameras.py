@@ -7,6 +7,7 @@ z forward; distortion ``dist = (k1, k2, p1, p2, k3)`` as in OpenCV.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from dataclasses import dataclass
@@ -106,6 +107,25 @@ class Camera:
         }
 
 
+@functools.lru_cache(maxsize=64)
+def _fold_radius2(k1: float, k2: float, k3: float) -> float:
+    r2 = np.linspace(0.0, 100.0, 20001)
+    slope = 1 + r2 * (3 * k1 + r2 * (5 * k2 + r2 * 7 * k3))
+    bad = np.flatnonzero(slope <= 0)
+    return float(r2[bad[0]]) if bad.size else np.inf
+
+
+def max_valid_radius2(dist: np.ndarray) -> float:
+    """Squared normalised radius beyond which the radial distortion folds back.
+
+    ``r_d = r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` stops increasing where its derivative
+    ``1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6`` first reaches 0; points beyond would land
+    back inside the image. Returns inf when it never folds (within r <= 10).
+    """
+    k1, k2, _, _, k3 = (float(x) for x in dist)
+    return _fold_radius2(k1, k2, k3)
+
+
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
 
 
@@ -116,7 +136,8 @@ def distort_and_project(points_cam: np.ndarray, K: np.ndarray, dist: np.ndarray)
         points_cam: (..., 3) points in camera coordinates.
         K: (3, 3) intrinsics; dist: (5,) k1, k2, p1, p2, k3.
     Returns:
-        (..., 2) pixels; NaN where the point is not in front of the camera.
+        (..., 2) pixels; NaN where the point is not in front of the camera or lies past
+        the radius where the distortion folds back.
     """
     p = np.asarray(points_cam, float)
     z = p[..., 2]
@@ -125,6 +146,8 @@ def distort_and_project(points_cam: np.ndarray, K: np.ndarray, dist: np.ndarray)
         y = np.where(z > 1e-9, p[..., 1] / z, np.nan)
     k1, k2, p1, p2, k3 = dist
     r2 = x * x + y * y
+    # Past the distortion's fold a point would land back inside the image: not visible.
+    r2 = np.where(r2 <= max_valid_radius2(dist), r2, np.nan)
     radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
     xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
     yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y

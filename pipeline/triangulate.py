@@ -1,25 +1,35 @@
 """Stage 3, triangulation: each associated person's 2D joints in several views -> 3D joints.
 
 A confidence-weighted linear (DLT) triangulation per joint, with outlier-view rejection:
-a view whose reprojection error is too large is dropped and the joint re-solved, as long
-as enough views remain.
+while a joint's worst view reprojects too far, one view is dropped and the joint
+re-solved, as long as enough views remain.
 
 Why these choices:
 
 * The DLT is solved in undistorted *normalised* image coordinates with ``[R | t]``
-  matrices: lens distortion is removed once up front (an iterative, per-camera step),
-  after which the problem is linear, and ``[R | t]`` has entries of order one, so the
-  normal equations are as well conditioned as the view geometry allows.
+  matrices: lens distortion is removed once up front (iterative, per camera), after
+  which the problem is linear, and ``[R | t]`` has entries of order one.
 * The homogeneous DLT ``A X = 0`` is solved inhomogeneously (``X = (x, y, z, 1)``) through
   the 3 x 3 normal equations, in closed form (adjugate / determinant), for all joints at
   once. Unlike the unit-norm SVD solution, this does not depend on where the world origin
-  is or on the world's units, and it is many times faster than a batched SVD or ``eigh``.
-  The normal matrix is never formed from the 2V x 4 system: it is linear in
-  ``(w^2, w^2 x, w^2 y, w^2 (x^2 + y^2))`` with per-view constant coefficient matrices,
-  so one small matrix product builds it for every joint (see :func:`_normal_basis`).
-* Rejection drops only the single worst view of a joint per round and then re-solves,
-  because one gross outlier drags the first solution and inflates the errors of the
-  good views too; the worst view is the one to distrust, the others are re-judged after.
+  is or on its units, and it is many times faster than a batched SVD or ``eigh``. The
+  normal matrix is linear in ``(w^2, w^2 x, w^2 y, w^2 (x^2 + y^2))`` with constant
+  per-view coefficients, so one small matrix product builds it for every joint
+  (:func:`_normal_basis`); the 2V x 4 system itself is never formed.
+* The DLT residual of a view is its image error times depth / focal length, so far
+  cameras would count more than near ones. :func:`triangulate_people` therefore solves
+  twice: the second time with each view's rows rescaled by focal / depth (depths from the
+  first solution), which makes every residual a pixel error. On the Shelf rig this brings
+  the mean error under 2 px noise from 6% above to within 1% of the maximum-likelihood
+  (bundle-adjusted) point.
+* Which view to drop: each candidate (the joint without one of its views) is solved and
+  the one with the smallest mean squared reprojection error over its remaining views wins.
+  Simply dropping the view with the largest residual is wrong surprisingly often, because
+  a view with high leverage drags the solution towards its outlier and the *other* views
+  show the large residuals: on synthetic Shelf data with one outlier (40-200 px) among
+  5 / 4 / 3 views, the largest residual is the outlier in 93% / 81% / 58% of joints, the
+  best candidate in 98% / 95% / 87%, and the overall MPJPE drops from 14.1 to 7.7 mm.
+  Candidates are only solved for joints over the threshold, so this costs little.
 
 Units: world millimetres, image pixels. Shapes use P people, V views (cameras, in rig
 order), J joints, N a flat batch.
@@ -38,6 +48,11 @@ __all__ = ["Triangulation", "triangulate_dlt", "triangulate_people"]
 # A 3 x 3 normal matrix whose determinant is this small relative to its scale has (nearly)
 # parallel rays: the depth is undetermined, so the point is NaN rather than a huge number.
 _MIN_RELATIVE_DET = 1e-14
+
+# Matrix products are split into blocks of this many columns. OpenBLAS multi-threads a
+# product once m * n * k exceeds 4 * 65536; for these thin products threads gain nothing
+# and, when the cores are busy, make the product 5-20x slower.
+_GEMM_COLUMNS = 1024
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,8 +84,25 @@ class Triangulation:
 # --------------------------------------------------------------------------- linear solve
 
 
+def _gemm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` for 2D arrays, in single-threaded column blocks (see ``_GEMM_COLUMNS``)."""
+    n = b.shape[1]
+    if n <= _GEMM_COLUMNS:
+        return a @ b
+    out = np.empty((a.shape[0], n))
+    for s in range(0, n, _GEMM_COLUMNS):
+        np.matmul(a, b[:, s : s + _GEMM_COLUMNS], out=out[:, s : s + _GEMM_COLUMNS])
+    return out
+
+
+# Entries of the symmetric 4 x 4 normal matrix that the solve needs:
+# M00 M01 M02 M11 M12 M22 (the 3 x 3 block) and M03 M13 M23 (minus the right-hand side).
+_NORMAL_ROWS = np.array([0, 0, 0, 1, 1, 2, 0, 1, 2])
+_NORMAL_COLS = np.array([0, 1, 2, 1, 2, 2, 3, 3, 3])
+
+
 def _normal_basis(proj: np.ndarray) -> np.ndarray:
-    """(V, 3, 4) projection matrices -> (4 V, 9) coefficients of the normal equations.
+    """(V, 3, 4) projection matrices -> (9, 4 V) coefficients of the normal equations.
 
     View v contributes the rows ``w (x P2 - P0)`` and ``w (y P2 - P1)`` (``Pk`` the rows of
     its matrix) to the DLT system ``A X = 0``; their share of ``A^T A`` is
@@ -78,60 +110,53 @@ def _normal_basis(proj: np.ndarray) -> np.ndarray:
         w^2 (P0^T P0 + P1^T P1) - w^2 x (P0^T P2 + P2^T P0)
             - w^2 y (P1^T P2 + P2^T P1) + w^2 (x^2 + y^2) P2^T P2,
 
-    four constant 4 x 4 matrices per view. Row ``4 v + k`` holds the 9 entries we need
-    (the upper 3 x 3 triangle and the first three of the last column) of the k-th of them.
+    four constant 4 x 4 matrices per view. Column ``k V + v`` holds the 9 needed entries
+    of the k-th matrix of view v, so that ``basis @ c`` with ``c[k V + v]`` the k-th
+    coefficient of view v sums every view's share.
     """
     P0, P1, P2 = proj[:, 0], proj[:, 1], proj[:, 2]  # (V, 4) each
 
-    def outer_sym(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    def sym(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # a b^T + b a^T, per view
         return a[:, :, None] * b[:, None, :] + b[:, :, None] * a[:, None, :]
 
-    mats = np.stack(
-        [
-            0.5 * (outer_sym(P0, P0) + outer_sym(P1, P1)),
-            -outer_sym(P0, P2),
-            -outer_sym(P1, P2),
-            0.5 * outer_sym(P2, P2),
-        ],
+    terms = np.stack(
+        [0.5 * (sym(P0, P0) + sym(P1, P1)), -sym(P0, P2), -sym(P1, P2), 0.5 * sym(P2, P2)],
         axis=1,
-    )  # (V, 4, 4, 4): view, term, row, column
-    rows, cols = _NORMAL_ENTRIES
-    return mats[:, :, rows, cols].reshape(-1, 9)
+    )  # (V, 4 terms, 4, 4)
+    return terms[:, :, _NORMAL_ROWS, _NORMAL_COLS].transpose(2, 1, 0).reshape(9, -1)
 
 
-# Entries of the symmetric 4 x 4 normal matrix kept: M00 M01 M02 M11 M12 M22 M03 M13 M23.
-_NORMAL_ENTRIES = (np.array([0, 0, 0, 1, 1, 2, 0, 1, 2]), np.array([0, 1, 2, 1, 2, 2, 3, 3, 3]))
-
-
-def _solve_normal(basis: np.ndarray, xy: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted DLT of a flat batch.
+def _solve_normal(basis: np.ndarray, x: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted DLT of a batch, view-major.
 
     Args:
-        basis: (4 V, 9) from :func:`_normal_basis`.
-        xy: (N, V, 2) image coordinates matching the projection matrices; must be finite
-            (anything) where ``w == 0``.
-        w: (N, V) row weights, 0 = view unused.
+        basis: (9, 4 V) from :func:`_normal_basis`.
+        x, y: (V, N) image coordinates matching the projection matrices; must be finite
+            (any value) where ``w == 0``.
+        w: (V, N) row weights, 0 = view unused.
     Returns:
-        (N, 3) points; NaN or inf where the system is singular (the caller masks those).
+        (3, N) points; NaN where the rays are (nearly) parallel or fewer than two.
     """
-    x, y = xy[..., 0], xy[..., 1]
-    w2 = w * w
-    coeff = np.stack([w2, w2 * x, w2 * y, w2 * (x * x + y * y)], axis=-1)  # (N, V, 4)
-    m = coeff.reshape(len(w), -1) @ basis  # (N, 9), one GEMM for the whole batch
-    a, b, c, d, e, f = m[:, 0], m[:, 1], m[:, 2], m[:, 3], m[:, 4], m[:, 5]
-    r0, r1, r2 = -m[:, 6], -m[:, 7], -m[:, 8]  # right-hand side -M[:3, 3]
-    # Adjugate of the symmetric [[a b c] [b d e] [c e f]]; Cramer's rule is accurate for
-    # a 3 x 3 system as well conditioned as ours and needs no per-matrix LAPACK call.
-    A00, A01, A02 = d * f - e * e, c * e - b * f, b * e - c * d
-    A11, A12, A22 = a * f - c * c, b * c - a * e, a * d - b * b
-    det = a * A00 + b * A01 + c * A02
-    scale = (a + d + f) / 3.0
+    V, N = w.shape
+    c = np.empty((4, V, N))
+    w2 = np.multiply(w, w, out=c[0])
+    wx = np.multiply(w2, x, out=c[1])
+    wy = np.multiply(w2, y, out=c[2])
+    np.add(wx * x, wy * y, out=c[3])
+    a, b, c_, d, e, f, r0, r1, r2 = _gemm(basis, c.reshape(4 * V, N))  # (9, N) -> rows
+    # Adjugate of the symmetric [[a b c] [b d e] [c e f]]; Cramer's rule is accurate for a
+    # 3 x 3 system as well conditioned as ours and needs no per-matrix LAPACK call. The
+    # right-hand side is -(r0, r1, r2), hence the sign of the determinant below.
+    A00, A01, A02 = d * f - e * e, c_ * e - b * f, b * e - c_ * d
+    A11, A12, A22 = a * f - c_ * c_, b * c_ - a * e, a * d - b * b
+    det = a * A00 + b * A01 + c_ * A02
+    scale = (a + d + f) * (1.0 / 3.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv_det = np.where(np.abs(det) > _MIN_RELATIVE_DET * scale**3, 1.0 / det, np.nan)
-    out = np.empty((len(w), 3))
-    out[:, 0] = (A00 * r0 + A01 * r1 + A02 * r2) * inv_det
-    out[:, 1] = (A01 * r0 + A11 * r1 + A12 * r2) * inv_det
-    out[:, 2] = (A02 * r0 + A12 * r1 + A22 * r2) * inv_det
+        neg_inv_det = np.where(np.abs(det) > _MIN_RELATIVE_DET * scale**3, -1.0 / det, np.nan)
+    out = np.empty((3, N))
+    np.multiply(A00 * r0 + A01 * r1 + A02 * r2, neg_inv_det, out=out[0])
+    np.multiply(A01 * r0 + A11 * r1 + A12 * r2, neg_inv_det, out=out[1])
+    np.multiply(A02 * r0 + A12 * r1 + A22 * r2, neg_inv_det, out=out[2])
     return out
 
 
@@ -162,16 +187,17 @@ def triangulate_dlt(proj: np.ndarray, points: np.ndarray, weights: np.ndarray) -
         batch = None
     if weights.ndim < 1 or weights.shape[-1] != V or batch is None:
         raise ValueError(
-            f"weights: expected (..., {V}) matching points {points.shape}, got {weights.shape}"
+            f"weights: expected (..., {V}) to go with points {points.shape}, got {weights.shape}"
         )
-    points = np.broadcast_to(points, batch + (V, 2)).reshape(-1, V, 2)
-    weights = np.broadcast_to(weights, batch + (V,)).reshape(-1, V)
-    usable = (weights > 0) & np.isfinite(points).all(-1)
-    w = np.where(usable, weights, 0.0)
-    xy = np.where(usable[..., None], points, 0.0)
-    out = _solve_normal(_normal_basis(proj), xy, w)
-    out[usable.sum(-1) < 2] = np.nan
-    return out.reshape(batch + (3,))
+    # View-major (V, N) arrays, as the solver wants them.
+    xy = np.broadcast_to(points, batch + (V, 2)).reshape(-1, V, 2).transpose(2, 1, 0)
+    w = np.broadcast_to(weights, batch + (V,)).reshape(-1, V).T
+    with np.errstate(invalid="ignore"):
+        usable = (w > 0) & np.isfinite(xy).all(0)
+    x, y = np.where(usable, xy[0], 0.0), np.where(usable, xy[1], 0.0)
+    X = _solve_normal(_normal_basis(proj), x, y, np.where(usable, w, 0.0))
+    X[:, usable.sum(0) < 2] = np.nan
+    return X.T.reshape(batch + (3,))
 
 
 # --------------------------------------------------------------------------- rig stage
@@ -179,72 +205,123 @@ def triangulate_dlt(proj: np.ndarray, points: np.ndarray, weights: np.ndarray) -
 
 @dataclass(frozen=True, eq=False)
 class _RigArrays:
-    """A rig's cameras as stacked arrays, shaped for broadcasting over (N, V)."""
+    """A rig's cameras as stacked arrays, shaped to broadcast over view-major (V, N)."""
 
-    basis: np.ndarray  # (4 V, 9) normal-equation coefficients of [R | t]
-    axis: np.ndarray  # (3, V): X @ axis + t[:, 2] = depth of X in every camera
-    focal: np.ndarray  # (V,) mean focal length, px
-    R_stack: np.ndarray  # (3, 3 V): X @ R_stack = all camera coordinates at once
-    t: np.ndarray  # (V, 3)
-    K: np.ndarray  # (3, 3, V): K[i, j] is a (V,) row that broadcasts over (N, V)
-    dist: np.ndarray  # (5, V)
+    basis: np.ndarray  # (9, 4 V) normal-equation coefficients of the [R | t] matrices
+    R_all: np.ndarray  # (3 V, 3): rows x, y, z of every camera, so R_all @ X -> (3, V, N)
+    t_all: np.ndarray  # (3 V, 1) the matching translations
+    K: np.ndarray  # (3, 3, V, 1): K[i, j] is a (V, 1) column
+    dist: np.ndarray  # (5, V, 1)
     distorted: bool  # any camera with non-zero distortion
+    focal: np.ndarray  # (V, 1) mean focal length, px
 
 
 def _rig_arrays(rig: CameraRig) -> _RigArrays:
-    R = np.stack([c.R for c in rig])
-    t = np.stack([c.t for c in rig])
+    R = np.stack([c.R for c in rig])  # (V, 3, 3)
+    t = np.stack([c.t for c in rig])  # (V, 3)
+    K = np.stack([c.K for c in rig], axis=-1)[..., None]
     return _RigArrays(
         basis=_normal_basis(np.concatenate([R, t[:, :, None]], axis=2)),
-        axis=R[:, 2].T.copy(),
-        focal=np.array([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in rig]),
-        R_stack=R.transpose(2, 0, 1).reshape(3, -1),
-        t=t,
-        K=np.stack([c.K for c in rig], axis=-1),
-        dist=np.stack([c.dist for c in rig], axis=-1),
+        R_all=R.transpose(1, 0, 2).reshape(-1, 3),
+        t_all=t.T.reshape(-1, 1),
+        K=K,
+        dist=np.stack([c.dist for c in rig], axis=-1)[..., None],
         distorted=any(np.any(c.dist != 0) for c in rig),
+        focal=0.5 * (K[0, 0] + K[1, 1]),
     )
 
 
-def _normalise(rig: CameraRig, arrays: _RigArrays, pixels: np.ndarray) -> np.ndarray:
-    """(N, V, 2) distorted pixels -> (N, V, 2) undistorted normalised coordinates."""
+def _normalise(
+    rig: CameraRig, arrays: _RigArrays, u: np.ndarray, v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(V, N) distorted pixels u, v -> (V, N) undistorted normalised x, y."""
     if not arrays.distorted:
         # No distortion: the map is exactly K^-1, done for all views at once (cv2's
         # per-call overhead would dominate at a few hundred joints per frame).
         K = arrays.K
-        y = (pixels[..., 1] - K[1, 2]) / K[1, 1]
-        x = (pixels[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-        return np.stack([x, y], axis=-1)
-    out = np.empty(pixels.shape)
-    for v, cam in enumerate(rig):
-        out[:, v] = cam.undistort_to_normalised(pixels[:, v])
-    return out
+        y = (v - K[1, 2]) / K[1, 1]
+        return (u - K[0, 2] - K[0, 1] * y) / K[0, 0], y
+    x, y = np.empty(u.shape), np.empty(u.shape)
+    for i, cam in enumerate(rig):
+        x[i], y[i] = cam.undistort_to_normalised(np.stack([u[i], v[i]], axis=-1)).T
+    return x, y
 
 
-def _reprojection_error(arrays: _RigArrays, X: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-    """(N, 3) world mm and (N, V, 2) observed pixels -> (N, V) pixel distances.
-
-    NaN where the observation or the point is NaN; +inf where the point is behind a camera.
-    """
-    V = arrays.t.shape[0]
-    X_cam = (X @ arrays.R_stack).reshape(len(X), V, 3) + arrays.t
-    # The same projection model as Camera.project, with every camera's K and dist
-    # broadcast over the views axis.
-    uv = distort_and_project(X_cam, arrays.K, arrays.dist)
-    err = np.hypot(uv[..., 0] - pixels[..., 0], uv[..., 1] - pixels[..., 1])
-    behind = (X_cam[..., 2] <= 1e-9) & np.isfinite(pixels[..., 0]) & np.isfinite(X[:, None, 0])
-    err[behind] = np.inf
-    return err
+def _depth(arrays: _RigArrays, X: np.ndarray) -> np.ndarray:
+    """(3, N) world mm -> (3, V, N) camera coordinates, mm."""
+    V = len(arrays.focal)
+    return (_gemm(arrays.R_all, X) + arrays.t_all).reshape(3, V, -1)
 
 
 def _pixel_scale(arrays: _RigArrays, X: np.ndarray) -> np.ndarray:
-    """(N, 3) world mm -> (N, V) focal / depth of each point in each camera.
+    """(3, N) world mm -> (V, N) focal / depth of each point in each camera.
 
-    |depth| because the algebraic residual of a point behind a camera has that magnitude
-    too; floored at 1 mm so that a point at a camera centre cannot divide by zero.
+    |depth|, because the DLT residual of a point behind a camera has that magnitude too;
+    floored at 1 mm so that a point at a camera centre cannot divide by zero.
     """
-    depth = X @ arrays.axis + arrays.t[:, 2]
-    return arrays.focal / np.maximum(np.abs(depth), 1.0)
+    z = _depth(arrays, X)[2]
+    return arrays.focal / np.maximum(np.abs(z), 1.0)
+
+
+def _reprojection_error(
+    arrays: _RigArrays, X: np.ndarray, u: np.ndarray, v: np.ndarray
+) -> np.ndarray:
+    """(3, N) world mm and (V, N) observed pixels -> (V, N) pixel distances.
+
+    NaN where the observation or the point is NaN; +inf where the point is behind a camera.
+    """
+    X_cam = _depth(arrays, X)
+    if arrays.distorted:
+        # Camera.project's own model, every camera's K and dist broadcast over the views.
+        uv = distort_and_project(np.moveaxis(X_cam, 0, -1), arrays.K, arrays.dist)
+        pu, pv = uv[..., 0], uv[..., 1]
+    else:  # the same model without distortion terms (they would add exact zeros)
+        K = arrays.K
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv_z = 1.0 / X_cam[2]
+        py = X_cam[1] * inv_z
+        pu = K[0, 0] * (X_cam[0] * inv_z) + K[0, 1] * py + K[0, 2]
+        pv = K[1, 1] * py + K[1, 2]
+    err = np.hypot(pu - u, pv - v)
+    err[(X_cam[2] <= 1e-9) & np.isfinite(u)] = np.inf
+    return err
+
+
+def _candidate_solves(
+    arrays: _RigArrays,
+    x: np.ndarray,
+    y: np.ndarray,
+    w: np.ndarray,
+    used: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each joint re-solved without each one of its used views; the best candidate wins.
+
+    Args:
+        x, y, u, v: (V, n) normalised and pixel coordinates of n joints.
+        w: (V, n) weights (already 0 for unused views); used: (V, n).
+    Returns:
+        (3, n) points, (V, n) reprojection errors and (n,) dropped view of the candidate
+        with the smallest mean squared reprojection error over its remaining views; the
+        dropped view is -1 where no candidate could be solved.
+    """
+    V, n = w.shape
+    keep = ~np.eye(V, dtype=bool)[:, :, None]  # (view, candidate, 1): candidate c drops c
+
+    def tile(a: np.ndarray) -> np.ndarray:  # (V, n) -> (V, V * n), candidate-major
+        return np.broadcast_to(a[:, None], (V, V, n)).reshape(V, V * n)
+
+    cand_used = used[:, None] & keep  # (V, V, n)
+    X = _solve_normal(arrays.basis, tile(x), tile(y), (w[:, None] * keep).reshape(V, V * n))
+    err = _reprojection_error(arrays, X, tile(u), tile(v)).reshape(V, V, n)
+    score = np.where(cand_used, err * err, 0.0).sum(0) / np.maximum(cand_used.sum(0), 1)
+    score[~used | np.isnan(score)] = np.inf  # (V, n): dropping an unused view is no candidate
+    best = score.argmin(0)
+    cols = np.arange(n)
+    chosen = best * n + cols
+    dropped = np.where(np.isfinite(score[best, cols]), best, -1)
+    return X[:, chosen], err.reshape(V, V * n)[:, chosen], dropped
 
 
 def triangulate_people(
@@ -262,11 +339,13 @@ def triangulate_people(
         keypoints: (P, V, J, 3) distorted pixels (u, v) and confidence per person, view and
             joint. Observations with NaN or confidence < ``min_confidence`` are missing.
         min_confidence: below this a 2D joint is not used.
-        outlier_threshold_px: a joint whose worst used view reprojects further than this is
-            re-solved without that view, while more than ``min_views`` views remain.
-        min_views: a joint needs this many used views (>= 2), else its point is NaN. With
-            exactly ``min_views`` views no view is dropped: a 2-view joint with one bad view
-            keeps both, and its large ``reprojection_error`` is what tells.
+        outlier_threshold_px: while a joint's worst used view reprojects further than this
+            and it has more than ``min_views`` used views, one view is dropped (the one whose
+            removal fits the others best) and the joint re-solved.
+        min_views: a joint needs this many used views (>= 2), else its point is NaN. A joint
+            at ``min_views`` views keeps them all: with 2 views and one bad view, both stay
+            and the large ``reprojection_error`` is what tells (which one is wrong is
+            undecidable from two views).
     Returns:
         :class:`Triangulation`. The DLT weights are the confidences, rescaled per view by
         focal / depth so that they weigh pixel errors alike in every camera.
@@ -283,64 +362,62 @@ def triangulate_people(
     P, _, J, _ = keypoints.shape
     N = P * J
 
-    # 1. Flatten to (N, V, ...) joints x views; missing = NaN or low confidence.
-    kp = keypoints.transpose(0, 2, 1, 3).reshape(N, V, 3)
-    pixels, conf = kp[..., :2], kp[..., 2]
+    # 1. View-major (V, N) arrays, N = P * J joints; missing = NaN or low confidence.
+    u, v, conf = keypoints.transpose(3, 1, 0, 2).reshape(3, V, N)
     with np.errstate(invalid="ignore"):
-        valid = np.isfinite(pixels).all(-1) & (conf >= min_confidence)  # NaN conf -> False
-    pixels = np.where(valid[..., None], pixels, np.nan)
-    w = np.where(valid, conf, 0.0)
+        valid = np.isfinite(u) & np.isfinite(v) & (conf >= min_confidence)  # NaN conf: False
     used = valid.copy()
-
-    points = np.full((N, 3), np.nan)
-    err = np.full((N, V), np.nan)
-    solvable = np.flatnonzero(valid.sum(-1) >= min_views)
-    if len(solvable):
+    points = np.full((3, N), np.nan)
+    err = np.full((V, N), np.nan)
+    cols = np.flatnonzero(valid.sum(0) >= min_views)  # the joints that can be solved
+    if len(cols):
         arrays = _rig_arrays(rig)
-        # 2. Undistort once; unused entries become 0 so that they add exact zeros.
-        xy = _normalise(rig, arrays, pixels[solvable])
-        xy[~valid[solvable]] = 0.0
-        # 3. A first solve with the confidences as weights gives each joint's depth in every
-        #    camera. The DLT residual of a view is its image error times depth / focal, so
-        #    far cameras would count more; rescaling each view's rows by focal / depth makes
-        #    every residual a pixel error (this brings the linear solution to within ~1% of
-        #    the maximum-likelihood one; without it, ~6% larger mean error on the Shelf rig).
-        conf_s = w[solvable]
-        X = _solve_normal(arrays.basis, xy, conf_s)
-        # 4. Solve with every usable view, then reject: each round drops the worst view of
-        #    each joint that is over the threshold and can spare a view, and re-solves only
-        #    those joints. At most V - min_views rounds.
-        idx, pos = solvable, np.arange(len(solvable))  # joint ids; their rows in xy
-        sub_xy, sub_w = xy, conf_s
-        for _ in range(V - min_views + 1):
-            X = _solve_normal(arrays.basis, sub_xy, sub_w * _pixel_scale(arrays, X))
-            points[idx] = X
-            err[idx] = _reprojection_error(arrays, X, pixels[idx])
-            sub_used = used[idx]
-            e = np.where(sub_used, err[idx], -1.0)
-            e[np.isnan(e)] = np.inf  # a used view without a projection is the worst one
-            worst = e.argmax(-1)
-            drop = (
-                (e[np.arange(len(idx)), worst] > outlier_threshold_px)
-                & (sub_used.sum(-1) > min_views)
-                & np.isfinite(X[:, 0])  # singular geometry: dropping views cannot help
+        ok = valid[:, cols]
+        u, v = np.where(ok, u[:, cols], np.nan), np.where(ok, v[:, cols], np.nan)
+        w = np.where(ok, conf[:, cols], 0.0)
+        # 2. Undistort once; missing entries become 0 so that they add exact zeros.
+        x, y = _normalise(rig, arrays, u, v)
+        x[~ok] = 0.0
+        y[~ok] = 0.0
+        # 3. Solve with the confidences, then again with the rows in pixel units.
+        X = _solve_normal(arrays.basis, x, y, w)
+        X = _solve_normal(arrays.basis, x, y, w * _pixel_scale(arrays, X))
+        e = _reprojection_error(arrays, X, u, v)
+        points[:, cols], err[:, cols] = X, e
+        # 4. Rejection rounds, only over the joints still over the threshold; each round
+        #    drops one view per joint, so at most V - min_views rounds.
+        sub = np.arange(len(cols))  # positions in cols / x / y / w of the joints in play
+        for _ in range(V - min_views):
+            sub_used = used[:, cols[sub]]
+            worst = np.where(sub_used, e, -1.0)
+            worst[np.isnan(worst)] = np.inf  # a used view without a projection is the worst
+            over = (
+                (worst.max(0) > outlier_threshold_px)
+                & (sub_used.sum(0) > min_views)
+                & np.isfinite(X[0])  # singular geometry: dropping views cannot help
             )
-            if not drop.any():
+            if not over.any():
                 break
-            idx, pos, X = idx[drop], pos[drop], X[drop]
-            used[idx, worst[drop]] = False
-            sub_xy, sub_w = xy[pos], conf_s[pos] * used[idx]
+            sub, sub_used, X = sub[over], sub_used[:, over], X[:, over]
+            scaled_w = np.where(sub_used, w[:, sub], 0.0) * _pixel_scale(arrays, X)
+            X, e, dropped = _candidate_solves(
+                arrays, x[:, sub], y[:, sub], scaled_w, sub_used, u[:, sub], v[:, sub]
+            )
+            solved = dropped >= 0  # else keep the joint as it was, with all its views
+            sub, X, e, dropped = sub[solved], X[:, solved], e[:, solved], dropped[solved]
+            used[dropped, cols[sub]] = False
+            points[:, cols[sub]], err[:, cols[sub]] = X, e
 
     # 5. Points with too few views (or singular geometry) are NaN, never invented.
-    num_views = used.sum(-1)
-    bad = (num_views < min_views) | ~np.isfinite(points).all(-1)
-    points[bad] = np.nan
-    err[bad] = np.nan
-    used[bad] = False
+    num_views = used.sum(0)
+    bad = (num_views < min_views) | ~np.isfinite(points).all(0)
+    points[:, bad] = np.nan
+    err[:, bad] = np.nan
+    used[:, bad] = False
     num_views[bad] = 0
     return Triangulation(
-        points=points.reshape(P, J, 3),
-        reprojection_error=err.reshape(P, J, V),
-        used=used.reshape(P, J, V),
+        points=points.T.reshape(P, J, 3),
+        reprojection_error=err.T.reshape(P, J, V),
+        used=used.T.reshape(P, J, V),
         num_views=num_views.reshape(P, J),
     )

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.cameras import Camera, distort_and_project
+from pipeline.cameras import Camera, distort_and_project, max_valid_radius2
 
 __all__ = [
     "MeshInstance",
@@ -145,20 +145,6 @@ def _camera_for(render_hw: tuple[int, int], camera: Camera) -> Camera:
             f"({camera.width}x{camera.height})"
         )
     return scaled
-
-
-def _max_valid_radius2(dist: np.ndarray) -> float:
-    """Squared normalised radius beyond which the radial distortion folds back.
-
-    ``r_d = r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` stops increasing where its derivative
-    ``1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6`` first reaches 0; points beyond would land
-    back inside the image. Returns inf when it never folds (within r <= 10).
-    """
-    k1, k2, _, _, k3 = (float(x) for x in dist)
-    r2 = np.linspace(0.0, 100.0, 20001)
-    slope = 1 + r2 * (3 * k1 + r2 * (5 * k2 + r2 * 7 * k3))
-    bad = np.flatnonzero(slope <= 0)
-    return float(r2[bad[0]]) if bad.size else np.inf
 
 
 # --------------------------------------------------------------------------- rasteriser
@@ -378,7 +364,7 @@ def render_meshes(
     u, v = uv[:, 0].copy(), uv[:, 1].copy()
     with np.errstate(divide="ignore", invalid="ignore"):
         r2 = (p_cam[:, 0] ** 2 + p_cam[:, 1] ** 2) / z**2
-        good = (z > near_mm) & (r2 <= _max_valid_radius2(cam.dist)) & np.isfinite(u + v)
+        good = (z > near_mm) & (r2 <= max_valid_radius2(cam.dist)) & np.isfinite(u + v)
         inv_z = np.where(good, 1.0 / z, 1.0)
     keep = good[f[0]] & good[f[1]] & good[f[2]]
     fu = [u[i] for i in f]
