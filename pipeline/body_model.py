@@ -162,9 +162,7 @@ class BodyModel(torch.nn.Module):
         if betas.shape[1] < self.num_betas:  # fewer betas than the model has: pad with zeros
             betas = torch.nn.functional.pad(betas, (0, self.num_betas - betas.shape[1]))
         betas = betas[:, : self.num_betas]
-        transl = (
-            None if transl is None else torch.as_tensor(transl, dtype=pose.dtype).reshape(B, 3)
-        )
+        transl = None if transl is None else torch.as_tensor(transl, dtype=pose.dtype).reshape(B, 3)
         return pose, betas, transl
 
     def rest_joints(self, betas: torch.Tensor) -> torch.Tensor:
@@ -244,9 +242,7 @@ def _check_model_arrays(a: dict, source: str) -> dict[str, np.ndarray]:
         raise SceneFormatError(source, "faces", f"expected shape (F, 3), got {out['faces'].shape}")
     pd = out.get("posedirs")
     if pd is not None and pd.shape != (V, 3, 9 * (NUM_JOINTS - 1)):
-        raise SceneFormatError(
-            source, "posedirs", f"expected shape ({V}, 3, 207), got {pd.shape}"
-        )
+        raise SceneFormatError(source, "posedirs", f"expected shape ({V}, 3, 207), got {pd.shape}")
     return out
 
 

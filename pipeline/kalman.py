@@ -442,9 +442,7 @@ def kalman_filter_filterpy(
         if cv:  # state [x, y, z, vx, vy, vz]
             kf.F = np.block([[I3, I3], [0 * I3, I3]])
             kf.H = np.hstack([I3, 0 * I3])
-            kf.Q = Q_discrete_white_noise(
-                2, dt=1.0, var=params.q, block_size=3, order_by_dim=False
-            )
+            kf.Q = Q_discrete_white_noise(2, dt=1.0, var=params.q, block_size=3, order_by_dim=False)
             kf.P = np.diag([params.p0] * 3 + [params.p0_velocity] * 3)
         else:
             kf.F, kf.H, kf.Q = I3.copy(), I3.copy(), params.q * I3

@@ -112,10 +112,14 @@ def restore_joints_2d(
     for s in range(0, rows.size, batch):
         r = rows[s : s + batch]
         with torch.no_grad():
-            joints = model.joints(
-                torch.as_tensor(smpl_pose[r], dtype=torch.float32),
-                torch.as_tensor(smpl_betas[r], dtype=torch.float32),
-            ).double().numpy()
+            joints = (
+                model.joints(
+                    torch.as_tensor(smpl_pose[r], dtype=torch.float32),
+                    torch.as_tensor(smpl_betas[r], dtype=torch.float32),
+                )
+                .double()
+                .numpy()
+            )
         out[r, :, :2] = weak_perspective_project(joints, cam_weak[r], bbox[r])
         out[r, :, 2] = 1.0 if score is None else np.clip(score[r], 0, 1)[:, None]
     return out

@@ -10,6 +10,7 @@ Units: mm, pixels, frames.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,7 +53,8 @@ class SequenceResult:
     Attributes:
         person_track: (Q,) track of each person-frame (rows of the per-frame people).
         tracks: raw joints per track (K, F, J, 3) and lifetimes.
-        filtered: Kalman result over (F, K, J, 3) measurements.
+        filtered: Kalman result over (F, K, J, 3) measurements; ``forward`` is the
+            forward filter, ``filtered`` the RTS-smoothed one.
     """
 
     person_track: np.ndarray
@@ -122,9 +124,7 @@ def run_frame(
     views = scene.detections.view[rows]
     joints2d = joints2d_all[rows].copy()
     joints2d[~enabled[views], :, 2] = 0.0  # a disabled camera contributes nothing
-    assoc = associate_frame(
-        scene.rig, views, joints2d, config.association, enabled_views=enabled
-    )
+    assoc = associate_frame(scene.rig, views, joints2d, config.association, enabled_views=enabled)
     P, V, J = assoc.num_people, len(scene.rig), joints2d.shape[1]
     kp = np.full((P, V, J, 3), np.nan)
     kp[..., 2] = 0.0
@@ -176,5 +176,7 @@ def run_sequence(
     )
     tracks = track_people(person_frame, person_joints, num_frames, config.tracking)
     measurements = np.moveaxis(tracks.joints, 1, 0)  # (F, K, J, 3)
-    filtered = kalman_filter(measurements, config.kalman)
+    # Always smooth too: the forward and RTS outputs are both in the result, and the
+    # configured ``smoother`` flag only picks which one is "the" filtered trajectory.
+    filtered = kalman_filter(measurements, dataclasses.replace(config.kalman, smoother=True))
     return SequenceResult(person_track=tracks.track_of, tracks=tracks, filtered=filtered)

@@ -90,6 +90,8 @@ class GroundTruth:
         joints3d: (M, 24, 3) world mm, SMPL-24 order.
         smpl_pose: (M, 72) axis-angle; smpl_betas: (M, 10); transl: (M, 3) world mm.
             The body is ``1000 * body_model(pose, betas) + transl`` (the model is in metres).
+        keypoints3d: (M, K, 3) optional, world mm: the truth in the detections' joint set
+            (e.g. COCO-17 read off the true mesh), to score keypoint triangulation.
     """
 
     frame: np.ndarray
@@ -98,10 +100,11 @@ class GroundTruth:
     smpl_pose: np.ndarray | None = None
     smpl_betas: np.ndarray | None = None
     transl: np.ndarray | None = None
+    keypoints3d: np.ndarray | None = None
 
     def arrays(self) -> dict[str, np.ndarray]:
         out = {"frame": self.frame, "person_id": self.person_id, "joints3d": self.joints3d}
-        for k in ("smpl_pose", "smpl_betas", "transl"):
+        for k in ("smpl_pose", "smpl_betas", "transl", "keypoints3d"):
             if getattr(self, k) is not None:
                 out[k] = getattr(self, k)
         return out
@@ -227,6 +230,10 @@ def check_ground_truth(arrays: dict[str, np.ndarray], *, source) -> GroundTruth:
             if k in arrays
             else None
         )
+    if "keypoints3d" in arrays:
+        opt["keypoints3d"] = _check_array(
+            source, "keypoints3d", np.asarray(arrays["keypoints3d"]), ndim_shape=(m, None, 3)
+        )
     pairs = frame * (pid.max(initial=0) + 1) + pid
     if np.unique(pairs).size != m:
         raise SceneFormatError(source, "person_id", "a person appears twice in one frame")
@@ -282,6 +289,13 @@ def load_scene(root: str | os.PathLike) -> Scene:
     if meta.get("gt"):
         gt_path = root / meta["gt"]
         gt = check_ground_truth(load_npz(gt_path), source=gt_path)
+        if gt.keypoints3d is not None and gt.keypoints3d.shape[1] != joint_set.num_joints:
+            raise SceneFormatError(
+                gt_path,
+                "keypoints3d",
+                f"expected {joint_set.num_joints} joints ({joint_set.name}), "
+                f"got {gt.keypoints3d.shape[1]}",
+            )
 
     num_frames = meta.get("num_frames")
     if num_frames is None:

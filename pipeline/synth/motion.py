@@ -242,7 +242,7 @@ def plan_person(
             else:
                 cand = area[rng.integers(len(area), size=16)]
                 dist = np.linalg.norm(cand - pos, axis=1)
-                ok = cand[(dist > 1500) & (dist < 4500)]
+                ok = cand[(dist > 1000) & (dist < 4000)]
                 target = ok[0] if len(ok) else cand[np.argmax(dist)]
             speed_max = rng.uniform(0.9, 1.5) * 1000  # mm/s
             steps = 0

@@ -56,45 +56,44 @@ class SynthConfig:
     render_video: bool = True
     video_scale: float = 1.0
     noise: DetectorNoise = field(default_factory=DetectorNoise)
-    min_views: int = 3
+    min_views: int = 2
+    """Waypoints lie where at least this many cameras see a whole standing person."""
 
 
 @dataclass(frozen=True, eq=False)
 class SynthPeople:
     """Ground-truth bodies. pose (P, F, 24, 3) world root; betas (P, 10); transl (P, F, 3) mm;
-    joints (P, F, 24, 3) mm."""
+    joints (P, F, 24, 3) mm; keypoints (P, F, 17, 3) COCO-17 read off the mesh, mm."""
 
     pose: np.ndarray
     betas: np.ndarray
     transl: np.ndarray
     joints: np.ndarray
+    keypoints: np.ndarray
 
 
 def visible_floor_area(
-    rig: CameraRig, *, min_views: int = 3, spacing_mm: float = 200.0, margin_px: float = 40.0
+    rig: CameraRig, *, min_views: int = 2, spacing_mm: float = 200.0, margin_px: float = 10.0
 ) -> np.ndarray:
-    """(K, 2) floor points where a standing person (feet to head) is inside >= min_views images."""
+    """(K, 2) floor points where a standing person (feet, pelvis and head) is inside the
+    image of at least ``min_views`` cameras, 1.2 m or more away from each of them."""
     centres = rig.centers[:, :2]
     lo, hi = centres.min(0) - 3000, centres.max(0) + 3000
     gx, gy = np.meshgrid(np.arange(lo[0], hi[0], spacing_mm), np.arange(lo[1], hi[1], spacing_mm))
     pts = np.stack([gx.ravel(), gy.ravel()], -1)
     count = np.zeros(len(pts), int)
     for cam in rig:
-        ok = np.ones(len(pts), bool)
-        for h in (0.0, 900.0, 1800.0):  # feet, pelvis, above the head
-            for dx, dy in ((-350, 0), (350, 0), (0, -350), (0, 350)):
-                p3 = np.column_stack([pts[:, 0] + dx, pts[:, 1] + dy, np.full(len(pts), h)])
-                uv = cam.project(p3)
-                ok &= (
-                    np.isfinite(uv).all(1)
-                    & (uv[:, 0] > margin_px)
-                    & (uv[:, 0] < cam.width - margin_px)
-                    & (uv[:, 1] > margin_px)
-                    & (uv[:, 1] < cam.height - margin_px)
-                )
-        # A camera too close sees only part of a body: require a sensible distance too.
-        dist = np.linalg.norm(pts - cam.center[:2], axis=1)
-        count += ok & (dist > 1500)
+        ok = np.linalg.norm(pts - cam.center[:2], axis=1) > 1200
+        for h in (0.0, 900.0, 1700.0):  # feet, pelvis, head
+            uv = cam.project(np.column_stack([pts, np.full(len(pts), h)]))
+            ok &= (
+                np.isfinite(uv).all(1)
+                & (uv[:, 0] > margin_px)
+                & (uv[:, 0] < cam.width - margin_px)
+                & (uv[:, 1] > margin_px)
+                & (uv[:, 1] < cam.height - margin_px)
+            )
+        count += ok
     area = pts[count >= min(min_views, len(rig))]
     if len(area) < 10:
         raise ValueError(
@@ -112,6 +111,7 @@ def bodies_from_motion(
     pose = np.zeros((P, F, 24, 3))
     transl = np.zeros((P, F, 3))
     joints = np.zeros((P, F, 24, 3))
+    keypoints = np.zeros((P, F, COCO17.num_joints, 3))
     for p, m in enumerate(motions):
         local = pose_from_params(m.params)
         local[:, 0] = root_to_world(m.heading, local[:, 0])
@@ -121,6 +121,7 @@ def bodies_from_motion(
             sl = slice(s, s + chunk)
             with torch.no_grad():
                 out = model(torch.as_tensor(local[sl], dtype=torch.float32), betas[sl])
+                coco = model.coco_keypoints(out.vertices).numpy() * 1000
             v = out.vertices.numpy() * 1000
             j = out.joints.numpy() * 1000
             # Lowest vertex on the floor; pelvis over the planned floor position.
@@ -129,8 +130,13 @@ def bodies_from_motion(
             t[:, :2] = m.position[sl] - j[:, 0, :2]
             transl[p, sl] = t
             joints[p, sl] = j + t[:, None]
+            keypoints[p, sl] = coco + t[:, None]
     return SynthPeople(
-        pose=pose, betas=np.stack([m.betas for m in motions]), transl=transl, joints=joints
+        pose=pose,
+        betas=np.stack([m.betas for m in motions]),
+        transl=transl,
+        joints=joints,
+        keypoints=keypoints,
     )
 
 
@@ -163,12 +169,7 @@ def synthesize(
     rng = np.random.default_rng(config.seed)
     noise = config.noise
     area = visible_floor_area(rig, min_views=config.min_views)
-    # Keep waypoints away from the edge of the seen area.
-    centre = area.mean(0)
-    core = area[
-        np.linalg.norm(area - centre, axis=1) < 0.8 * np.linalg.norm(area - centre, axis=1).max()
-    ]
-    motions = plan_people(rng, core, config.num_people, config.num_frames, config.fps)
+    motions = plan_people(rng, area, config.num_people, config.num_frames, config.fps)
     people = bodies_from_motion(motions, model)
     library = sample_pose_library(200, seed=config.seed)
     faces = model.faces.numpy()
@@ -294,6 +295,7 @@ def ground_truth(people: SynthPeople) -> GroundTruth:
         smpl_pose=people.pose.reshape(P * F, 72),
         smpl_betas=np.repeat(people.betas, F, axis=0),
         transl=people.transl.reshape(P * F, 3),
+        keypoints3d=people.keypoints.reshape(P * F, COCO17.num_joints, 3),
     )
 
 
