@@ -1,6 +1,7 @@
 """Benchmark pipeline.triangulate.triangulate_people against aniposelib's CameraGroup.triangulate.
 
-Scene: the real 5-camera Shelf rig (/work/shared/data/calibration/shelf_voxelpose.json),
+Scene: the real 5-camera Shelf rig (sample_data/rigs/shelf_voxelpose.json, the same file as
+/work/shared/data/calibration/shelf_voxelpose.json; no lens distortion in this rig),
 4 people x 24 SMPL joints per frame, standing at random places on the floor that at least
 3 cameras see, random heading, limbs jittered around a rest skeleton. 2D joints: the exact
 projections plus 2 px Gaussian noise; joints outside an image are missing (NaN); 5% of the
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -41,7 +43,9 @@ from pipeline.cameras import CameraRig  # noqa: E402
 from pipeline.importers.calibration import read_voxelpose_calibration  # noqa: E402
 from pipeline.triangulate import triangulate_people  # noqa: E402
 
-SHELF = Path(__file__).resolve().parents[2] / "shared/data/calibration/shelf_voxelpose.json"
+# The real Shelf calibration; the repository's copy is identical to
+# /work/shared/data/calibration/shelf_voxelpose.json.
+SHELF = Path(__file__).resolve().parents[1] / "sample_data/rigs/shelf_voxelpose.json"
 NUM_PEOPLE, NUM_JOINTS = 4, 24
 NOISE_PX, OUTLIER_RATE, OUTLIER_PX = 2.0, 0.05, (40.0, 200.0)
 
@@ -77,7 +81,8 @@ def floor_area(rig: CameraRig, min_views: int = 3) -> np.ndarray:
 
 
 def make_data(rig: CameraRig, frames: int, seed: int):
-    """Truth (F, P, J, 3) mm and keypoints (F, P, V, J, 3) distorted px + confidence."""
+    """Truth (F, P, J, 3) mm; keypoints (F, P, V, J, 3) distorted px + confidence, with
+    outliers and without (the same noise otherwise)."""
     rng = np.random.default_rng(seed)
     area = floor_area(rig)
     truth = np.empty((frames, NUM_PEOPLE, NUM_JOINTS, 3))
@@ -100,21 +105,23 @@ def make_data(rig: CameraRig, frames: int, seed: int):
     angle = rng.uniform(0, 2 * np.pi, outlier.shape)
     radius = rng.uniform(*OUTLIER_PX, outlier.shape)
     shift = np.stack([np.cos(angle), np.sin(angle)], -1) * radius[..., None]
-    uv = np.where(outlier[..., None], uv + shift, uv)
     uv[~inside] = np.nan
-    conf = np.where(inside, rng.uniform(0.5, 1.0, inside.shape), 0.0)
-    return truth, np.concatenate([uv, conf[..., None]], -1)
+    conf = np.where(inside, rng.uniform(0.5, 1.0, inside.shape), 0.0)[..., None]
+    clean = np.concatenate([uv, conf], -1)
+    return truth, np.concatenate([np.where(outlier[..., None], uv + shift, uv), conf], -1), clean
 
 
-def timed(fn, repeats: int) -> tuple[float, object]:
-    """Median seconds of ``repeats`` runs after one warm-up run, and the last result."""
-    out = fn()
-    times = []
+def timed(fns: dict, repeats: int) -> tuple[dict, dict]:
+    """Median seconds of ``repeats`` runs of each function, after one warm-up run each, and
+    their results. The functions take turns, so that a change of machine load hits all."""
+    results = {name: fn() for name, fn in fns.items()}
+    times: dict = {name: [] for name in fns}
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), out
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            results[name] = fn()
+            times[name].append(time.perf_counter() - t0)
+    return {name: float(np.median(t)) for name, t in times.items()}, results
 
 
 def mpjpe(estimate: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
@@ -131,8 +138,12 @@ def anipose_group(rig: CameraRig):
         return None
     cams = [
         AniposeCamera(
-            matrix=c.K, dist=c.dist, rvec=cv2.Rodrigues(c.R)[0].ravel(), tvec=c.t,
-            size=(c.width, c.height), name=c.name,
+            matrix=c.K,
+            dist=c.dist,
+            rvec=cv2.Rodrigues(c.R)[0].ravel(),
+            tvec=c.t,
+            size=(c.width, c.height),
+            name=c.name,
         )  # fmt: skip
         for c in rig
     ]
@@ -149,7 +160,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     rig = read_voxelpose_calibration(SHELF)
     F, V = args.frames, len(rig)
-    truth, kp = make_data(rig, F, args.seed)
+    truth, kp, kp_clean = make_data(rig, F, args.seed)
     n_obs = np.isfinite(kp[..., 0]).sum()
     print(
         f"Shelf rig, {F} frames x {NUM_PEOPLE} people x {V} views x {NUM_JOINTS} joints; "
@@ -158,62 +169,70 @@ def main(argv: list[str] | None = None) -> dict:
     )
 
     # Ours: one call per frame, and one call for all frames stacked as people.
-    def ours_per_frame():
-        return np.stack([triangulate_people(rig, kp[f]).points for f in range(F)])
+    def ours_per_frame(keypoints=kp):
+        return np.stack([triangulate_people(rig, keypoints[f]).points for f in range(F)])
 
-    def ours_batched():
-        stacked = kp.reshape(F * NUM_PEOPLE, V, NUM_JOINTS, 3)
+    def ours_batched(keypoints=kp):
+        stacked = keypoints.reshape(F * NUM_PEOPLE, V, NUM_JOINTS, 3)
         return triangulate_people(rig, stacked).points.reshape(truth.shape)
 
-    results: dict = {"frames": F, "views": V, "people": NUM_PEOPLE, "joints": NUM_JOINTS}
-    t_ours_f, ours = timed(ours_per_frame, args.repeats)
-    t_ours_b, ours_b = timed(ours_batched, args.repeats)
-    assert np.array_equal(np.isnan(ours), np.isnan(ours_b))
-
+    fns = {"ours_per_frame": ours_per_frame, "ours_batched": ours_batched}
     group = anipose_group(rig)
     if group is not None:
-        # (V, N, 2) per frame / for the whole sequence; NaN marks missing.
-        pts = np.moveaxis(kp[..., :2], 2, 0).reshape(V, F, NUM_PEOPLE * NUM_JOINTS, 2)
 
-        def anipose_per_frame():
-            return np.stack([group.triangulate(pts[:, f], undistort=True) for f in range(F)])
+        def anipose_points(keypoints):  # (V, F, N, 2); NaN marks missing
+            return np.moveaxis(keypoints[..., :2], 2, 0).reshape(V, F, -1, 2)
 
-        def anipose_batched():
-            return group.triangulate(pts.reshape(V, -1, 2), undistort=True)
+        def anipose_per_frame(keypoints=kp):
+            pts = anipose_points(keypoints)
+            out = [group.triangulate(pts[:, f], undistort=True) for f in range(F)]
+            return np.stack(out).reshape(truth.shape)
 
-        t_ani_f, ani = timed(anipose_per_frame, args.repeats)
-        t_ani_b, _ = timed(anipose_batched, args.repeats)
-        ani = ani.reshape(truth.shape)
-    both = np.isfinite(ours[..., 0]) & (group is None or np.isfinite(ani[..., 0]))
-    results["joints_triangulated"] = int(both.sum())
-    results["ours"] = {
-        "fps_per_frame": F / t_ours_f,
-        "fps_batched": F / t_ours_b,
-        "mpjpe_mm": mpjpe(ours, truth, both),
-    }
-    rows = [("ours (triangulate_people)", results["ours"])]
+        def anipose_batched(keypoints=kp):
+            pts = anipose_points(keypoints).reshape(V, -1, 2)
+            return group.triangulate(pts, undistort=True).reshape(truth.shape)
+
+        fns |= {"anipose_per_frame": anipose_per_frame, "anipose_batched": anipose_batched}
+    seconds, out = timed(fns, args.repeats)
+    assert np.allclose(out["ours_per_frame"], out["ours_batched"], atol=1e-6, equal_nan=True)
+
+    # MPJPE over the joints that every method triangulates, with and without outliers.
+    estimates = {"ours": (out["ours_per_frame"], ours_per_frame(kp_clean))}
     if group is not None:
-        results["aniposelib"] = {
-            "fps_per_frame": F / t_ani_f,
-            "fps_batched": F / t_ani_b,
-            "mpjpe_mm": mpjpe(ani, truth, both),
+        estimates["aniposelib"] = (out["anipose_per_frame"], anipose_per_frame(kp_clean))
+    both = np.ones(truth.shape[:-1], bool)
+    for est in estimates.values():
+        both &= np.isfinite(est[0][..., 0]) & np.isfinite(est[1][..., 0])
+    results: dict = {"frames": F, "views": V, "people": NUM_PEOPLE, "joints": NUM_JOINTS}
+    results["joints_evaluated"] = int(both.sum())
+    names = {"ours": "ours (triangulate_people)", "aniposelib": "aniposelib triangulate"}
+    prefix = {"ours": "ours", "aniposelib": "anipose"}
+    print(
+        f"{'':28s} {'frames/s per frame':>18s} {'frames/s batched':>17s} {'MPJPE mm':>9s}"
+        f" {'MPJPE, no outliers':>19s}"
+    )
+    for key, (with_outliers, without) in estimates.items():
+        r = results[key] = {
+            "fps_per_frame": F / seconds[f"{prefix[key]}_per_frame"],
+            "fps_batched": F / seconds[f"{prefix[key]}_batched"],
+            "mpjpe_mm": mpjpe(with_outliers, truth, both),
+            "mpjpe_no_outliers_mm": mpjpe(without, truth, both),
         }
-        results["speed_ratio_per_frame"] = t_ani_f / t_ours_f
-        results["speed_ratio_batched"] = t_ani_b / t_ours_b
-        rows.append(("aniposelib CameraGroup.triangulate", results["aniposelib"]))
-
-    print(f"{'':36s} {'frames/s per frame':>18s} {'frames/s batched':>17s} {'MPJPE mm':>9s}")
-    for name, r in rows:
         print(
-            f"{name:36s} {r['fps_per_frame']:18.0f} {r['fps_batched']:17.0f} "
-            f"{r['mpjpe_mm']:9.2f}"
+            f"{names[key]:28s} {r['fps_per_frame']:18.0f} {r['fps_batched']:17.0f} "
+            f"{r['mpjpe_mm']:9.2f} {r['mpjpe_no_outliers_mm']:19.2f}"
         )
-    print(f"(MPJPE over the {both.sum()} joints both triangulate)")
+    print(f"(MPJPE over the {both.sum()} joints both triangulate; median of {args.repeats} runs)")
     if group is not None:
+        results["speed_ratio_per_frame"] = seconds["anipose_per_frame"] / seconds["ours_per_frame"]
+        results["speed_ratio_batched"] = seconds["anipose_batched"] / seconds["ours_batched"]
         print(
             f"speed ratio ours / aniposelib: {results['speed_ratio_per_frame']:.1f}x per frame, "
             f"{results['speed_ratio_batched']:.1f}x batched"
         )
+    load = os.getloadavg()[0]
+    print(f"(wall clock on {os.cpu_count()} CPUs, load average {load:.1f} during the run)")
+    results["load_average"] = load
     if args.json:
         args.json.write_text(json.dumps(results, indent=1) + "\n")
     return results

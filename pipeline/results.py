@@ -180,7 +180,7 @@ def run_pipeline(
     restored = restored_joints(scene, model)
     joints2d = select_2d(scene, config, restored)
     frames = run_frames(scene, config, joints2d, progress=progress)
-    seq = run_sequence(frames, scene.num_frames, config)
+    seq = run_sequence(frames, scene.num_frames, config, source_joint_set(scene, config))
     return pack(
         frames,
         seq,

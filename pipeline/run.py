@@ -161,7 +161,7 @@ def run_frames(
 
 
 def run_sequence(
-    frames: list[FrameResult], num_frames: int, config: PipelineConfig
+    frames: list[FrameResult], num_frames: int, config: PipelineConfig, joint_set: JointSet
 ) -> SequenceResult:
     """Tracking and filtering over the per-frame people."""
     if frames and frames[0].triangulation.points.ndim == 3:
@@ -174,7 +174,9 @@ def run_sequence(
     person_joints = np.concatenate(
         [fr.triangulation.points.reshape(-1, J, 3) for fr in frames] or [np.zeros((0, J, 3))]
     )
-    tracks = track_people(person_frame, person_joints, num_frames, config.tracking)
+    tracks = track_people(
+        person_frame, person_joints, num_frames, config.tracking, bones=np.array(joint_set.bones)
+    )
     measurements = np.moveaxis(tracks.joints, 1, 0)  # (F, K, J, 3)
     # Always smooth too: the forward and RTS outputs are both in the result, and the
     # configured ``smoother`` flag only picks which one is "the" filtered trajectory.

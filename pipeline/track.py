@@ -31,6 +31,12 @@ class TrackingParams:
     """A person needs this many triangulated joints to be matched or to start a track."""
     velocity_damping: float = 0.7
     """Weight of the last velocity when predicting across a gap (1 = constant velocity)."""
+    reid_max_gap: int = 100
+    """Frames a lost track can still be re-identified (0 disables re-identification)."""
+    reid_radius_mm: float = 1000.0
+    """A re-identified person reappears within this distance (mean joint) of where lost."""
+    reid_bone_mm: float = 25.0
+    """Mean bone-length difference allowed when re-identifying."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,11 +70,20 @@ def _mean_joint_distance(a: np.ndarray, b: np.ndarray, min_shared: int = 3) -> n
     return np.where(n >= min_shared, mean, np.inf)
 
 
+def bone_lengths(joints: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """(..., J, 3) joints, (B, 2) bone index pairs -> (..., B) lengths, NaN if an end is missing."""
+    if len(bones) == 0:
+        return np.zeros(joints.shape[:-2] + (0,))
+    return np.linalg.norm(joints[..., bones[:, 0], :] - joints[..., bones[:, 1], :], axis=-1)
+
+
 def track_people(
     frames: np.ndarray,
     joints: np.ndarray,
     num_frames: int,
     params: TrackingParams = TrackingParams(),
+    *,
+    bones: np.ndarray | None = None,
 ) -> Tracks:
     """Assign track IDs to triangulated people.
 
@@ -76,7 +91,10 @@ def track_people(
         frames: (Q,) frame of each person row (any order).
         joints: (Q, J, 3) triangulated joints, mm, NaN where missing.
         num_frames: length of the sequence.
+        bones: (B, 2) joint index pairs used to compare body proportions when
+            re-identifying a lost track; None disables re-identification.
     """
+    bones = np.zeros((0, 2), int) if bones is None else np.asarray(bones, int).reshape(-1, 2)
     frames = np.asarray(frames, int)
     Q, J = joints.shape[0], joints.shape[1] if joints.ndim == 3 else 0
     track_of = np.full(Q, -1)
@@ -84,6 +102,8 @@ def track_people(
     velocity: list[np.ndarray] = []  # (J, 3) per track, mm/frame
     last_seen: list[int] = []
     first_seen: list[int] = []
+    bone_sum: list[np.ndarray] = []  # running sums of bone lengths, for re-identification
+    bone_count: list[np.ndarray] = []
     enough = np.isfinite(joints).all(-1).sum(-1) >= params.min_joints if Q else np.zeros(0, bool)
     for f in range(num_frames):
         rows = np.flatnonzero((frames == f) & enough)
@@ -118,14 +138,32 @@ def track_people(
                 last_seen[k] = f
                 track_of[r] = k
                 matched_rows.add(int(r))
-        for r in rows:
-            if int(r) in matched_rows:
-                continue
+                _add_bones(bone_sum, bone_count, k, new, bones)
+        unmatched = [int(r) for r in rows if int(r) not in matched_rows]
+        lost = [
+            k
+            for k in range(len(last_seen))
+            if params.max_gap < f - last_seen[k] <= params.reid_max_gap and len(bones)
+        ]
+        if unmatched and lost:
+            for k, r in _reidentify(
+                unmatched, lost, joints, last_pose, bone_sum, bone_count, bones, params
+            ):
+                last_pose[k] = np.where(np.isfinite(joints[r]), joints[r], last_pose[k])
+                velocity[k] = np.zeros_like(velocity[k])
+                last_seen[k] = f
+                track_of[r] = k
+                _add_bones(bone_sum, bone_count, k, joints[r], bones)
+                unmatched.remove(r)
+        for r in unmatched:
             track_of[r] = len(last_seen)
             last_pose.append(joints[r].copy())
-            velocity.append(np.where(np.isfinite(joints[r]), 0.0, 0.0))
+            velocity.append(np.zeros_like(joints[r]))
             last_seen.append(f)
             first_seen.append(f)
+            bone_sum.append(np.zeros(len(bones)))
+            bone_count.append(np.zeros(len(bones)))
+            _add_bones(bone_sum, bone_count, track_of[r], joints[r], bones)
     K = len(last_seen)
     out = np.full((K, num_frames, J, 3), np.nan)
     tracked = track_of >= 0
@@ -136,3 +174,28 @@ def track_people(
         first_frame=np.array(first_seen, int),
         last_frame=np.array(last_seen, int),
     )
+
+
+def _add_bones(bone_sum, bone_count, k, pose, bones) -> None:
+    lengths = bone_lengths(pose, bones)
+    ok = np.isfinite(lengths)
+    bone_sum[k][ok] += lengths[ok]
+    bone_count[k][ok] += 1
+
+
+def _reidentify(unmatched, lost, joints, last_pose, bone_sum, bone_count, bones, params):
+    """Hungarian between unmatched people and lost tracks on place + body proportions."""
+    cost = np.full((len(lost), len(unmatched)), np.inf)
+    place = _mean_joint_distance(np.stack([last_pose[k] for k in lost]), joints[unmatched])
+    for i, k in enumerate(lost):
+        mean_bones = np.where(bone_count[k] > 0, bone_sum[k] / np.maximum(bone_count[k], 1), np.nan)
+        for j, r in enumerate(unmatched):
+            diff = np.abs(bone_lengths(joints[r], bones) - mean_bones)
+            if np.isfinite(diff).sum() < 3:
+                continue
+            bone_diff = float(np.nanmean(diff))
+            if place[i, j] <= params.reid_radius_mm and bone_diff <= params.reid_bone_mm:
+                cost[i, j] = place[i, j] + 20.0 * bone_diff  # 1 mm of bone ~ 2 cm of place
+    c = np.where(np.isfinite(cost), cost, 1e12)
+    ti, pi = linear_sum_assignment(c)
+    return [(lost[t], unmatched[p]) for t, p in zip(ti, pi, strict=True) if c[t, p] < 1e12]

@@ -56,7 +56,7 @@ class SynthConfig:
     render_video: bool = True
     video_scale: float = 1.0
     noise: DetectorNoise = field(default_factory=DetectorNoise)
-    min_views: int = 2
+    min_views: int = 3
     """Waypoints lie where at least this many cameras see a whole standing person."""
 
 
@@ -73,7 +73,7 @@ class SynthPeople:
 
 
 def visible_floor_area(
-    rig: CameraRig, *, min_views: int = 2, spacing_mm: float = 200.0, margin_px: float = 10.0
+    rig: CameraRig, *, min_views: int = 3, spacing_mm: float = 200.0, margin_px: float = 10.0
 ) -> np.ndarray:
     """(K, 2) floor points where a standing person (feet, pelvis and head) is inside the
     image of at least ``min_views`` cameras, 1.2 m or more away from each of them."""

@@ -1,0 +1,64 @@
+"""Tracking: stable IDs through close passes and gaps, births and deaths."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.track import TrackingParams, track_people
+
+
+def _walkers(num_frames: int, sep_mm: float, seed: int = 0) -> np.ndarray:
+    """Two 17-joint 'people' walking towards each other and passing at ``sep_mm``."""
+    rng = np.random.default_rng(seed)
+    body = rng.normal(0, 200, (17, 3))
+    t = np.arange(num_frames)
+    a = np.stack([-3000 + 50 * t, np.full_like(t, -sep_mm / 2), np.zeros_like(t)], -1)
+    b = np.stack([3000 - 50 * t, np.full_like(t, sep_mm / 2), np.zeros_like(t)], -1)
+    return np.stack([a[:, None] + body, b[:, None] + body[::-1]], 1).astype(float)  # (F, 2, 17, 3)
+
+
+def _rows(people: np.ndarray, noise: float, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    F, P = people.shape[:2]
+    frames = np.repeat(np.arange(F), P)
+    joints = people.reshape(F * P, -1, 3) + rng.normal(0, noise, (F * P, people.shape[2], 3))
+    truth = np.tile(np.arange(P), F)
+    order = rng.permutation(F * P)
+    return frames[order], joints[order], truth[order]
+
+
+def test_close_pass_keeps_identities():
+    people = _walkers(120, sep_mm=650)
+    frames, joints, truth = _rows(people, noise=20)
+    tr = track_people(frames, joints, 120)
+    assert tr.num_tracks == 2
+    for p in range(2):
+        assert len(set(tr.track_of[truth == p].tolist())) == 1
+
+
+def test_gap_is_bridged_and_long_gap_starts_a_new_track():
+    people = _walkers(60, sep_mm=2000)
+    frames, joints, truth = _rows(people, noise=10)
+    hidden = (truth == 0) & (frames >= 20) & (frames < 28)  # 8 frames unseen
+    tr = track_people(frames[~hidden], joints[~hidden], 60, TrackingParams(max_gap=12))
+    assert tr.num_tracks == 2
+    assert len(set(tr.track_of[truth[~hidden] == 0].tolist())) == 1
+    track0 = tr.track_of[truth[~hidden] == 0][0]
+    assert np.isnan(tr.joints[track0, 22]).all() and np.isfinite(tr.joints[track0, 30]).all()
+    hidden = (truth == 0) & (frames >= 20) & (frames < 40)  # 20 frames: the track dies
+    tr = track_people(frames[~hidden], joints[~hidden], 60, TrackingParams(max_gap=12))
+    assert tr.num_tracks == 3
+    assert sorted(tr.first_frame.tolist()) == [0, 0, 40]
+
+
+def test_people_with_too_few_joints_are_not_tracked():
+    people = _walkers(10, sep_mm=2000)
+    frames, joints, truth = _rows(people, noise=5)
+    joints[truth == 1, 3:] = np.nan  # person 1: 3 joints only
+    tr = track_people(frames, joints, 10, TrackingParams(min_joints=6))
+    assert tr.num_tracks == 1 and (tr.track_of[truth == 1] == -1).all()
+
+
+def test_empty_input():
+    tr = track_people(np.zeros(0, int), np.zeros((0, 17, 3)), 5)
+    assert tr.num_tracks == 0 and tr.joints.shape == (0, 5, 17, 3)
