@@ -482,8 +482,9 @@ def export_rrd(
             (25 mm keeps ~1/4 of the open model's vertices); ``None`` keeps them all.
             Vertex positions dominate the file size: 12 bytes per vertex per frame.
         frames: the scene frames to log (default all), e.g. ``range(100, 150)``.
-        images: log each camera's video frame, downscaled to ``image_width`` pixels and
-            JPEG-encoded; without images the pinholes keep the full camera resolution.
+        images: log each camera's video frame, downscaled to ``image_width`` pixels (never
+            upscaled) and JPEG-encoded; without images the pinholes keep the camera's
+            full resolution.
         extra_meshes: name -> MeshSequence, logged at ``world/meshes/<name>``.
         plot_joints: joints plotted per track (aliases such as ``pelvis`` resolve per set).
     Returns:
@@ -516,7 +517,7 @@ def export_rrd(
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         rec.log("world", annotation_context(layout, joint_set), static=True)
 
-        widths = {c.name: (image_width if images else c.width) for c in scene.rig}
+        widths = {c.name: (min(image_width, c.width) if images else c.width) for c in scene.rig}
         cam_size = _log_cameras(rec, scene, widths)
         if images:
             for cam in scene.rig:

@@ -92,7 +92,9 @@ def _build(cls, data: dict, source: str, prefix: str):
     kwargs = {}
     for name, value in data.items():
         default = getattr(cls(), name) if name not in ("disabled_views",) else ()
-        if dataclasses.is_dataclass(default):
+        if value is None:
+            kwargs[name] = None  # e.g. kalman.q = null: the model's own default
+        elif dataclasses.is_dataclass(default):
             kwargs[name] = _build(type(default), value, source, f"{prefix}{name}.")
         elif isinstance(default, tuple):
             kwargs[name] = tuple(value)

@@ -1,0 +1,204 @@
+"""Benchmark the per-frame and sequence stages on the shipped sample scene.
+
+Prints frames per second of each stage (2D restoration, association, triangulation,
+tracking, Kalman filtering) and of stages 1-5 end to end, on sample_data/shelf_synth
+(5 views x 4 people; COCO-17 keypoints, 24 SMPL joints for the restored source), as
+the median of --repeats runs. In the same run, on the same clustered 2D input:
+
+- aniposelib's CameraGroup.triangulate (time and MPJPE against the true keypoints),
+  if aniposelib is installed (``pip install -e ".[bench]"``);
+- the filterpy loop (pipeline.kalman.kalman_filter_filterpy, one trajectory at a time)
+  against the vectorised filter, on every track and joint of the run.
+
+Usage:
+    python bench/bench_pipeline.py [--scene DIR] [--repeats R] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_triangulate import anipose_group  # noqa: E402
+
+from pipeline.associate import associate_frame  # noqa: E402
+from pipeline.body_model import load_body_model  # noqa: E402
+from pipeline.config import PipelineConfig  # noqa: E402
+from pipeline.kalman import kalman_filter, kalman_filter_filterpy  # noqa: E402
+from pipeline.run import frame_rows, restored_joints, run_frame, run_sequence  # noqa: E402
+from pipeline.scene import load_scene  # noqa: E402
+from pipeline.triangulate import triangulate_people  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def median_time(fn, repeats: int) -> tuple[float, object]:
+    times, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), out
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--scene", type=Path, default=REPO / "sample_data" / "shelf_synth")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+
+    scene = load_scene(args.scene)
+    model = load_body_model()
+    config = PipelineConfig()
+    F = scene.num_frames
+    rows = frame_rows(scene)
+    kp = scene.detections.keypoints
+    figures: dict[str, dict] = {}
+
+    t_restore, restored = median_time(lambda: restored_joints(scene, model), args.repeats)
+
+    def associate_all():
+        return [
+            associate_frame(scene.rig, scene.detections.view[r], kp[r], config.association)
+            for r in rows
+        ]
+
+    t_assoc, assocs = median_time(associate_all, args.repeats)
+
+    # Triangulation input: per frame (people, views, joints, 3) from the clusters.
+    V = len(scene.rig)
+    inputs = []
+    for r, a in zip(rows, assocs, strict=True):
+        x = np.full((a.num_people, V, kp.shape[1], 3), np.nan)
+        x[..., 2] = 0
+        for p in range(a.num_people):
+            for v in range(V):
+                if a.members[p, v] >= 0:
+                    x[p, v] = kp[r[a.members[p, v]]]
+        inputs.append(x)
+    tp = config.triangulation
+
+    def triangulate_all():
+        return [
+            triangulate_people(
+                scene.rig,
+                x,
+                min_confidence=tp.min_confidence,
+                outlier_threshold_px=tp.outlier_threshold_px,
+                min_views=tp.min_views,
+            )
+            for x in inputs
+        ]
+
+    t_tri, tris = median_time(triangulate_all, args.repeats)
+    frames = [run_frame(scene, f, config, kp, rows=rows[f]) for f in range(F)]
+    t_seq, seq = median_time(lambda: run_sequence(frames, F, config, scene.joint_set), args.repeats)
+    meas = np.moveaxis(seq.tracks.joints, 1, 0)
+    t_kal, _ = median_time(lambda: kalman_filter(meas, config.kalman), args.repeats)
+    t_track = max(t_seq - t_kal, 1e-9)
+
+    def end_to_end():
+        r = restored_joints(scene, model)
+        fr = [run_frame(scene, f, config, kp, rows=rows[f]) for f in range(F)]
+        return r, run_sequence(fr, F, config, scene.joint_set)
+
+    t_e2e, _ = median_time(end_to_end, args.repeats)
+    for name, t in (
+        ("restoration", t_restore),
+        ("association", t_assoc),
+        ("triangulation", t_tri),
+        ("tracking", t_track),
+        ("kalman", t_kal),
+        ("stages 1-5 end to end", t_e2e),
+    ):
+        figures[name] = {"seconds": t, "fps": F / t}
+
+    # Accuracy of our triangulation vs aniposelib on the same clusters (vs true keypoints).
+    det, gt = scene.detections, scene.gt
+    ours_err, anip_err = [], []
+    group = anipose_group(scene.rig)
+    pts2d, truth, ours = [], [], []
+    for f, (r, a, tri) in enumerate(zip(rows, assocs, tris, strict=True)):
+        for p in range(a.num_people):
+            members = a.members[p]
+            ids = det.gt_person_id[r[members[members >= 0]]]
+            if len(set(ids.tolist())) != 1 or ids[0] < 0:
+                continue
+            g = gt.keypoints3d[(gt.frame == f) & (gt.person_id == ids[0])][0]
+            x = inputs[f][p]  # (V, J, 3)
+            xy = np.where(x[..., 2:] >= tp.min_confidence, x[..., :2], np.nan)
+            pts2d.append(xy)
+            truth.append(g)
+            ours.append(tri.points[p])
+    pts2d = np.stack(pts2d, 1)  # (V, people, J, 2)
+    truth, ours = np.stack(truth), np.stack(ours)
+    out = {"stages": figures}
+    if group is not None:
+        flat = pts2d.reshape(V, -1, 2)
+        group.triangulate(flat[:, :50], undistort=True, progress=False)  # warm-up (JIT)
+        t_anip, anip = median_time(
+            lambda: group.triangulate(flat, undistort=True, progress=False), args.repeats
+        )
+        anip = anip.reshape(truth.shape)
+        both = np.isfinite(anip).all(-1) & np.isfinite(ours).all(-1)
+        ours_err = np.linalg.norm(ours - truth, axis=-1)[both]
+        anip_err = np.linalg.norm(anip - truth, axis=-1)[both]
+        out["aniposelib"] = {
+            "seconds": t_anip,
+            "fps": F / t_anip,
+            "mpjpe_mm": float(anip_err.mean()),
+            "ours_mpjpe_mm": float(ours_err.mean()),
+            "speed_ratio": t_anip / t_tri,
+        }
+    # filterpy loop vs vectorised, on every track x joint trajectory of the run.
+    traj = meas.reshape(F, -1, 3)
+    traj = traj[:, np.isfinite(traj).all(-1).any(0)]
+
+    def filterpy_all():
+        return [kalman_filter_filterpy(traj[:, i], config.kalman) for i in range(traj.shape[1])]
+
+    t_fp, _ = median_time(filterpy_all, 1)
+    t_vec, _ = median_time(lambda: kalman_filter(traj, config.kalman), args.repeats)
+    out["kalman_filterpy_vs_vectorised"] = {
+        "trajectories": int(traj.shape[1]),
+        "filterpy_seconds": t_fp,
+        "vectorised_seconds": t_vec,
+        "speed_ratio": t_fp / t_vec,
+    }
+
+    print(f"scene {scene.name}: {F} frames, {V} views, {len(det)} detections")
+    print(f"{'stage':<24} {'ms total':>9} {'frames/s':>10}")
+    for name, v in figures.items():
+        print(f"{name:<24} {1000 * v['seconds']:9.1f} {v['fps']:10.0f}")
+    if "aniposelib" in out:
+        a = out["aniposelib"]
+        print(
+            f"triangulation vs aniposelib: ours {F / t_tri:.0f} frames/s, MPJPE "
+            f"{a['ours_mpjpe_mm']:.2f} mm; aniposelib {a['fps']:.0f} frames/s, MPJPE "
+            f"{a['mpjpe_mm']:.2f} mm; speed ratio {a['speed_ratio']:.1f}x"
+        )
+    else:
+        print("aniposelib not installed (pip install -e '.[bench]'): no baseline")
+    k = out["kalman_filterpy_vs_vectorised"]
+    print(
+        f"kalman on {k['trajectories']} trajectories: "
+        f"filterpy loop {1000 * k['filterpy_seconds']:.0f} ms, vectorised {1000 * k['vectorised_seconds']:.1f} ms, ratio {k['speed_ratio']:.0f}x"
+    )
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1))
+    return out
+
+
+if __name__ == "__main__":
+    main()

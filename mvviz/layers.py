@@ -1,0 +1,799 @@
+"""Scene layers: what to draw for a frame (pure functions over arrays), and the viser
+nodes that show it.
+
+Units: the pipeline works in world millimetres (z up); the viewer draws in world
+**metres** (z up), which is the scale viser's grid and camera controls expect. Every 3D
+array this module returns is in metres; 2D arrays stay in pixels.
+
+The scene tree is the layer system (hiding a parent hides its children)::
+
+    /world/grid
+    /world/cameras/<name>/frustum       current video frame on the image plane
+    /world/cameras/<name>/label
+    /world/detections2d/<name>          2D joints drawn on that frustum's image plane
+    /world/rays                         camera centre -> used 2D joint (outliers in red)
+    /world/skeletons/raw/<track>        triangulated, before filtering (thin, pale)
+    /world/skeletons/filtered/<track>   Kalman output (solid, clickable joints)
+    /world/skeletons/gt/<person>        ground truth (neutral colour)
+    /world/trails/<track>/{raw,filtered}  selected joint over +-N frames
+    /world/meshes/gt/<person>           ground-truth body, skinned in the browser
+
+:func:`frame_geometry` computes a :class:`FrameGeometry` from the viewer state without
+touching viser (unit-testable); :class:`SceneLayers` owns the nodes and applies one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+import trimesh
+import viser
+import viser.transforms as vtf
+
+from pipeline.body_model import BodyModel, axis_angle_to_matrix, rigid_chain
+from pipeline.cameras import Camera
+from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
+from pipeline.results import PipelineResults
+from pipeline.run import frame_rows
+from pipeline.scene import Scene
+
+if TYPE_CHECKING:
+    from mvviz.app import ViewerState
+
+MM = 1e-3  # millimetres -> metres
+
+# One colour per track id (no red: red means "outlier"; no grey: grey means "unassigned").
+PALETTE = np.array(
+    [
+        (31, 119, 180),  # blue
+        (255, 127, 14),  # orange
+        (44, 160, 44),  # green
+        (148, 103, 189),  # purple
+        (23, 190, 207),  # cyan
+        (227, 119, 194),  # pink
+        (188, 189, 34),  # olive
+        (140, 86, 75),  # brown
+    ],
+    dtype=np.uint8,
+)
+UNASSIGNED = np.array((150, 150, 150), np.uint8)  # detection in no cluster
+UNTRACKED = np.array((70, 70, 70), np.uint8)  # clustered person that no track kept
+OUTLIER = np.array((230, 20, 20), np.uint8)  # view rejected for a joint
+GT_SKELETON = np.array((40, 40, 40), np.uint8)
+GT_MESH = (205, 205, 200)
+
+
+def track_color(track: int | np.ndarray) -> np.ndarray:
+    """(3,) or (n, 3) uint8 colour of track id(s); -1 gets :data:`UNTRACKED`."""
+    t = np.asarray(track)
+    out = PALETTE[np.maximum(t, 0) % len(PALETTE)]
+    return np.where((t < 0)[..., None], UNTRACKED, out).astype(np.uint8)
+
+
+def pale(color: np.ndarray, amount: float = 0.5) -> np.ndarray:
+    """Blend uint8 colour(s) toward white."""
+    c = np.asarray(color, float)
+    return (c + (255.0 - c) * amount).astype(np.uint8)
+
+
+# --------------------------------------------------------------------------- options
+
+
+@dataclass
+class LayerToggles:
+    """Which layers are drawn, and their options (one GUI control each)."""
+
+    grid: bool = True
+    cameras: bool = True
+    camera_labels: bool = True
+    frustum_images: bool = True
+    detections2d: bool = True
+    rays: bool = True
+    rays_selected_only: bool = False
+    raw: bool = True
+    filtered: bool = True
+    offset_filtered: bool = False
+    gt: bool = True
+    trails: bool = True
+    trail_window: int = 25
+    meshes: bool = True
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The selected track (None: none) and joint (index into the results' joint set),
+    and optionally a view (camera index) another panel asked to look at."""
+
+    track: int | None = None
+    joint: int = 0
+    view: int | None = None
+
+
+OFFSET_FILTERED_M = np.array([1.0, 0.0, 0.0])  # "side by side": filtered shifted 1 m in x
+
+
+# --------------------------------------------------------------------------- static data
+
+
+@dataclass(frozen=True, eq=False)
+class CameraGeometry:
+    """How a camera is drawn: its pose (metres) and its frustum's image plane.
+
+    ``plane_depth`` is the distance of the frustum's image plane from the centre;
+    ``half_size`` its half width and half height, metres (the plane spans the image).
+    """
+
+    name: str
+    wxyz: np.ndarray  # (4,) R_world_camera
+    position: np.ndarray  # (3,) camera centre, m
+    fov: float  # vertical, radians
+    aspect: float  # width / height
+    frustum_scale: float
+    plane_depth: float
+    half_size: np.ndarray  # (2,)
+    image_size: np.ndarray  # (2,) width, height px
+
+    def pixels_to_plane(self, pixels: np.ndarray, *, lift: float = 0.99) -> np.ndarray:
+        """(..., 2) pixels -> (..., 3) camera-frame metres on the frustum's image plane."""
+        uv = (np.asarray(pixels, float) + 0.5) / self.image_size * 2.0 - 1.0
+        xy = uv * self.half_size
+        z = np.full(xy.shape[:-1] + (1,), self.plane_depth * lift)
+        return np.concatenate([xy, z], -1)
+
+
+def camera_geometry(camera: Camera, *, plane_depth: float = 0.35) -> CameraGeometry:
+    """Frustum parameters so that its image plane lies ``plane_depth`` metres ahead.
+
+    Mirrors viser's client: the frustum is normalised to unit volume, so
+    ``depth = scale / cbrt(tan(fov/2)^2 * aspect / 3)``.
+    """
+    W, H = camera.width, camera.height
+    fov = 2.0 * np.arctan2(H / 2.0, camera.K[1, 1])
+    aspect = W / H
+    t = np.tan(fov / 2.0)
+    volume_scale = np.cbrt(t * t * aspect / 3.0)
+    return CameraGeometry(
+        name=camera.name,
+        wxyz=vtf.SO3.from_matrix(camera.R.T).wxyz,
+        position=camera.center * MM,
+        fov=float(fov),
+        aspect=float(aspect),
+        frustum_scale=float(plane_depth * volume_scale),
+        plane_depth=plane_depth,
+        half_size=np.array([t * aspect * plane_depth, t * plane_depth]),
+        image_size=np.array([W, H], float),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class GtBodies:
+    """Ground-truth bodies as skinned meshes: bind pose per person, bone poses per frame.
+
+    A bone's world pose is the joint's global rotation and posed position (metres) from
+    forward kinematics; the browser skins ``vertices`` (bind pose: identity rotations at
+    ``rest_joints``) with ``T_world_bone(t) @ T_world_bone(bind)^-1``, which is linear
+    blend skinning without pose blend shapes.
+    """
+
+    person_ids: np.ndarray  # (P,)
+    vertices: np.ndarray  # (P, V, 3) shaped rest vertices, m
+    rest_joints: np.ndarray  # (P, 24, 3) m
+    faces: np.ndarray  # (T, 3)
+    weights: np.ndarray  # (V, 24)
+    bone_wxyz: np.ndarray  # (P, F, 24, 4)
+    bone_position: np.ndarray  # (P, F, 24, 3) m
+    present: np.ndarray  # (P, F) bool
+
+
+def gt_bodies(scene: Scene, model: BodyModel) -> GtBodies | None:
+    """Bone poses of every ground-truth person-frame (None without GT SMPL parameters)."""
+    gt = scene.gt
+    if gt is None or gt.smpl_pose is None or gt.smpl_betas is None or gt.transl is None:
+        return None
+    ok = np.isfinite(gt.smpl_pose).all(1) & np.isfinite(gt.transl).all(1)
+    ok &= np.isfinite(gt.smpl_betas).all(1) & (gt.frame < scene.num_frames)
+    ids = np.unique(gt.person_id[ok])
+    P, F = len(ids), scene.num_frames
+    if P == 0:
+        return None
+
+    def betas_tensor(b: np.ndarray) -> torch.Tensor:
+        b = torch.as_tensor(b, dtype=torch.float32).reshape(len(b), -1)[:, : model.num_betas]
+        return torch.nn.functional.pad(b, (0, model.num_betas - b.shape[1]))
+
+    with torch.no_grad():
+        rows = np.flatnonzero(ok)
+        # 1. forward kinematics of every valid person-frame
+        pose = torch.as_tensor(gt.smpl_pose[rows], dtype=torch.float32).reshape(-1, 24, 3)
+        rest = model.rest_joints(betas_tensor(gt.smpl_betas[rows]))
+        posed, T = rigid_chain(axis_angle_to_matrix(pose), rest, model.parents, model.levels)
+        glob_rot = T[..., :3, :3].numpy().astype(np.float64)
+        pos = posed.numpy() + gt.transl[rows, None, :] * MM
+        # 2. bind pose per person, from the person's first valid frame
+        first = np.array([rows[gt.person_id[rows] == p][0] for p in ids])
+        b0 = betas_tensor(gt.smpl_betas[first])
+        verts = model.v_template + torch.einsum("vcb,nb->nvc", model.shapedirs, b0)
+        rest0 = model.rest_joints(b0)
+    wxyz = vtf.SO3.from_matrix(glob_rot.reshape(-1, 3, 3)).wxyz.reshape(len(rows), 24, 4)
+    bone_wxyz = np.tile(np.array([1.0, 0, 0, 0]), (P, F, 24, 1))
+    bone_pos = np.zeros((P, F, 24, 3))
+    present = np.zeros((P, F), bool)
+    pi = np.searchsorted(ids, gt.person_id[rows])
+    bone_wxyz[pi, gt.frame[rows]] = wxyz
+    bone_pos[pi, gt.frame[rows]] = pos
+    present[pi, gt.frame[rows]] = True
+    return GtBodies(
+        person_ids=ids,
+        vertices=verts.numpy(),
+        rest_joints=rest0.numpy(),
+        faces=model.faces.numpy(),
+        weights=model.weights.numpy(),
+        bone_wxyz=bone_wxyz,
+        bone_position=bone_pos,
+        present=present,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class ViewerData:
+    """Everything the viewer derives once from a scene and its results (read-only).
+
+    Shapes: N detection rows, Q person-frames, K tracks, F frames, V views, J joints of
+    the results' joint set. 3D arrays here are still millimetres, as in the results.
+    """
+
+    scene: Scene
+    results: PipelineResults
+    joint_set: JointSet  # of the results (what was triangulated)
+    gt_joint_set: JointSet  # of ``gt_points``
+    rows_per_frame: list[np.ndarray]  # detection rows of each frame
+    people_per_frame: list[np.ndarray]  # person-frame rows (q) of each frame
+    gt_rows_per_frame: list[np.ndarray]
+    det_track: np.ndarray  # (N,) track of the row's person; -1 untracked / unassigned
+    track_person: np.ndarray  # (K, F) person-frame row of each track and frame, -1
+    filtered: np.ndarray  # (K, F, J, 3) the configured filter's output, mm
+    gt_points: np.ndarray | None  # (M, Jg, 3) mm
+    cameras: list[CameraGeometry]
+    bodies: GtBodies | None
+    min_confidence: float
+    center: np.ndarray  # (3,) m, middle of the action
+    extent: float  # m, radius of the rig
+
+    @property
+    def num_frames(self) -> int:
+        return self.scene.num_frames
+
+    @property
+    def num_tracks(self) -> int:
+        return self.results.num_tracks
+
+
+def prepare(scene: Scene, results: PipelineResults, model: BodyModel | None) -> ViewerData:
+    """Precompute per-frame indices, colours, camera geometry and GT bone poses."""
+    F = scene.num_frames
+    if results.num_frames != F:
+        raise ValueError(f"results have {results.num_frames} frames, the scene {F}")
+    joint_set = get_joint_set(results.joint_set)
+    det_person = results.det_person
+    det_track = np.full(len(det_person), -1)
+    assigned = det_person >= 0
+    det_track[assigned] = results.person_track[det_person[assigned]]
+    order = np.argsort(results.person_frame, kind="stable")
+    bounds = np.searchsorted(results.person_frame[order], np.arange(F + 1))
+    people = [order[bounds[i] : bounds[i + 1]] for i in range(F)]
+    track_person = np.full((results.num_tracks, F), -1)
+    tracked = np.flatnonzero(results.person_track >= 0)
+    track_person[results.person_track[tracked], results.person_frame[tracked]] = tracked
+
+    gt, gt_points, gt_js, gt_rows = scene.gt, None, SMPL24, [np.zeros(0, int)] * F
+    if gt is not None:
+        if gt.keypoints3d is not None and results.joint_set == scene.joint_set.name:
+            gt_points, gt_js = gt.keypoints3d, scene.joint_set
+        else:
+            gt_points = gt.joints3d
+        o = np.argsort(gt.frame, kind="stable")
+        b = np.searchsorted(gt.frame[o], np.arange(F + 1))
+        gt_rows = [o[b[i] : b[i + 1]] for i in range(F)]
+
+    centers = scene.rig.centers * MM
+    pts = results.track_raw.reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(1)]
+    if len(pts) == 0 and gt_points is not None:
+        pts = gt_points.reshape(-1, 3)
+    center = np.median(pts, 0) * MM if len(pts) else np.array([0.0, 0.0, 1.0])
+    extent = float(np.max(np.linalg.norm((centers - center)[:, :2], axis=1), initial=3.0))
+    return ViewerData(
+        scene=scene,
+        results=results,
+        joint_set=joint_set,
+        gt_joint_set=gt_js,
+        rows_per_frame=frame_rows(scene),
+        people_per_frame=people,
+        gt_rows_per_frame=gt_rows,
+        det_track=det_track,
+        track_person=track_person,
+        filtered=results.track_filtered,
+        gt_points=gt_points,
+        cameras=[camera_geometry(c) for c in scene.rig],
+        bodies=gt_bodies(scene, model) if model is not None else None,
+        min_confidence=results.config.triangulation.min_confidence,
+        center=center,
+        extent=extent,
+    )
+
+
+# --------------------------------------------------------------------------- per frame
+
+
+@dataclass(frozen=True, eq=False)
+class Skeleton:
+    """One person's joints and the bones between joints that exist, metres."""
+
+    joints: np.ndarray  # (J, 3), NaN where missing
+    segments: np.ndarray  # (S, 2, 3)
+    color: np.ndarray  # (3,) uint8
+
+
+@dataclass(frozen=True, eq=False)
+class Detections2D:
+    """One view's 2D joints on its frustum's image plane, in that camera's frame (m)."""
+
+    points: np.ndarray  # (n, 3)
+    colors: np.ndarray  # (n, 3) uint8
+    segments: np.ndarray  # (s, 2, 3)
+    segment_colors: np.ndarray  # (s, 2, 3) uint8
+
+
+@dataclass(frozen=True, eq=False)
+class Rays:
+    """Rays from camera centres through 2D joints, to a little past the 3D joint (m)."""
+
+    segments: np.ndarray  # (R, 2, 3)
+    colors: np.ndarray  # (R, 3) uint8
+    outlier: np.ndarray  # (R,) bool: the view was rejected for this joint
+    view: np.ndarray  # (R,)
+    joint: np.ndarray  # (R,)
+    track: np.ndarray  # (R,) -1 untracked
+    person: np.ndarray  # (R,) person-frame row q
+
+
+@dataclass(frozen=True, eq=False)
+class Trail:
+    """The selected joint of one track over a window of frames (segments, metres)."""
+
+    raw: np.ndarray  # (a, 2, 3)
+    filtered: np.ndarray  # (b, 2, 3)
+    color: np.ndarray  # (3,) uint8
+
+
+@dataclass(frozen=True, eq=False)
+class BonePoses:
+    wxyz: np.ndarray  # (24, 4)
+    position: np.ndarray  # (24, 3) m
+
+
+@dataclass(frozen=True, eq=False)
+class FrameGeometry:
+    """What every layer draws for one frame; a layer that is off is empty."""
+
+    frame: int
+    detections2d: dict[str, Detections2D] = field(default_factory=dict)
+    rays: Rays | None = None
+    raw: dict[int, Skeleton] = field(default_factory=dict)
+    filtered: dict[int, Skeleton] = field(default_factory=dict)
+    gt: dict[int, Skeleton] = field(default_factory=dict)
+    trails: dict[int, Trail] = field(default_factory=dict)
+    meshes: dict[int, BonePoses] = field(default_factory=dict)
+
+
+def bone_segments(joints: np.ndarray, bones: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """(J, 3) joints -> (S, 2, 3) segments of the bones whose two ends are finite."""
+    if not bones:
+        return np.zeros((0, 2, 3))
+    b = np.asarray(bones)
+    seg = np.stack([joints[b[:, 0]], joints[b[:, 1]]], 1)
+    return seg[np.isfinite(seg).all((1, 2))]
+
+
+def polyline_segments(points: np.ndarray) -> np.ndarray:
+    """(n, 3) points with NaN gaps -> (s, 2, 3) segments between consecutive finite points."""
+    seg = np.stack([points[:-1], points[1:]], 1) if len(points) > 1 else np.zeros((0, 2, 3))
+    return seg[np.isfinite(seg).all((1, 2))]
+
+
+def _skeletons(points: np.ndarray, ids, js: JointSet, colors) -> dict[int, Skeleton]:
+    out = {}
+    for pid, pts, col in zip(ids, points, colors, strict=True):
+        if np.isfinite(pts).any():
+            out[int(pid)] = Skeleton(pts * MM, bone_segments(pts * MM, js.bones), col)
+    return out
+
+
+def detections_2d(data: ViewerData, frame: int) -> dict[str, Detections2D]:
+    """Each view's 2D joints (confidence > 0) of ``frame`` on its frustum's image plane."""
+    rows = data.rows_per_frame[frame]
+    res, bones = data.results, np.asarray(data.joint_set.bones).reshape(-1, 2)
+    out = {}
+    for v, cam in enumerate(data.cameras):
+        r = rows[data.scene.detections.view[rows] == v]
+        kp = res.det_joints2d[r]  # (n, J, 3)
+        col = np.where(
+            (res.det_person[r] < 0)[:, None], UNASSIGNED, track_color(data.det_track[r])
+        )  # (n, 3)
+        ok = (kp[..., 2] > 0) & np.isfinite(kp[..., :2]).all(-1)  # (n, J)
+        plane = cam.pixels_to_plane(np.nan_to_num(kp[..., :2]))  # (n, J, 3)
+        pts = plane[ok]
+        pcol = np.broadcast_to(col[:, None], ok.shape + (3,))[ok]
+        bok = ok[:, bones[:, 0]] & ok[:, bones[:, 1]]  # (n, B)
+        seg = np.stack([plane[:, bones[:, 0]], plane[:, bones[:, 1]]], 2)[bok]
+        scol = np.broadcast_to(col[:, None, None], bok.shape + (2, 3))[bok]
+        out[cam.name] = Detections2D(pts, pcol.astype(np.uint8), seg, scol.astype(np.uint8))
+    return out
+
+
+def rays(data: ViewerData, frame: int, *, track: int | None = None) -> Rays:
+    """Rays of ``frame``: for each person-frame q, joint j and view v that observed j
+    (confidence >= the triangulation threshold) where q's joint j was triangulated:
+    coloured by q's track if v was used, :data:`OUTLIER` if v was rejected.
+    ``track`` keeps only that track's rays."""
+    res = data.results
+    qs = data.people_per_frame[frame]
+    if track is not None:
+        qs = qs[res.person_track[qs] == track]
+    segs, cols, outl, views, joints, tracks, people = [], [], [], [], [], [], []
+    for v, cam in enumerate(data.scene.rig):
+        members = res.person_members[qs, v]  # (n,)
+        has = members >= 0
+        q, m = qs[has], members[has]
+        if len(q) == 0:
+            continue
+        kp = res.det_joints2d[m]  # (n, J, 3)
+        X = res.person_joints[q]  # (n, J, 3) mm
+        obs = (kp[..., 2] >= data.min_confidence) & (kp[..., 2] > 0)
+        obs &= np.isfinite(kp[..., :2]).all(-1) & np.isfinite(X).all(-1)
+        qi, j = np.nonzero(obs)
+        if len(qi) == 0:
+            continue
+        d = cam.pixels_to_rays(kp[qi, j, :2])  # (r, 3) unit
+        c = cam.center
+        length = np.einsum("rc,rc->r", X[qi, j] - c, d) * 1.1
+        ok = np.isfinite(d).all(1) & (length > 0)
+        qi, j, d, length = qi[ok], j[ok], d[ok], length[ok]
+        used = res.person_used[q[qi], j, v]
+        trk = res.person_track[q[qi]]
+        segs.append(np.stack([np.broadcast_to(c, d.shape), c + d * length[:, None]], 1) * MM)
+        cols.append(np.where(used[:, None], track_color(trk), OUTLIER))
+        outl.append(~used)
+        views.append(np.full(len(qi), v))
+        joints.append(j)
+        tracks.append(trk)
+        people.append(q[qi])
+    if not segs:
+        z = np.zeros(0, int)
+        return Rays(np.zeros((0, 2, 3)), np.zeros((0, 3), np.uint8), z.astype(bool), z, z, z, z)
+    cat = np.concatenate
+    return Rays(
+        cat(segs),
+        cat(cols).astype(np.uint8),
+        cat(outl),
+        cat(views),
+        cat(joints),
+        cat(tracks),
+        cat(people),
+    )
+
+
+def trails(data: ViewerData, frame: int, joint: int, window: int) -> dict[int, Trail]:
+    """The selected joint of each track over ``[frame - window, frame + window]``."""
+    lo, hi = max(0, frame - window), min(data.num_frames, frame + window + 1)
+    raw = data.results.track_raw[:, lo:hi, joint] * MM  # (K, w, 3)
+    filt = data.filtered[:, lo:hi, joint] * MM
+    out = {}
+    for k in range(data.num_tracks):
+        a, b = polyline_segments(raw[k]), polyline_segments(filt[k])
+        if len(a) or len(b):
+            out[k] = Trail(a, b, track_color(k))
+    return out
+
+
+def frame_geometry(state: ViewerState, frame: int | None = None) -> FrameGeometry:
+    """What to draw for ``frame`` (default: the state's frame) given layers and selection."""
+    data, lay, sel = state.data, state.layers, state.selection
+    f = int(state.frame if frame is None else frame)
+    if not 0 <= f < data.num_frames:
+        raise ValueError(f"frame {f} outside [0, {data.num_frames})")
+    K = data.num_tracks
+    geom: dict = {"frame": f}
+    if lay.detections2d:
+        geom["detections2d"] = detections_2d(data, f)
+    if lay.rays:
+        geom["rays"] = rays(data, f, track=sel.track if lay.rays_selected_only else None)
+    colors = track_color(np.arange(K))
+    if lay.raw:
+        geom["raw"] = _skeletons(data.results.track_raw[:, f], range(K), data.joint_set, colors)
+    if lay.filtered:
+        geom["filtered"] = _skeletons(data.filtered[:, f], range(K), data.joint_set, colors)
+    if lay.gt and data.gt_points is not None:
+        r = data.gt_rows_per_frame[f]
+        pid = data.scene.gt.person_id[r]
+        geom["gt"] = _skeletons(
+            data.gt_points[r], pid, data.gt_joint_set, [GT_SKELETON] * len(r)
+        )
+    if lay.trails and lay.trail_window > 0 and data.joint_set.num_joints:
+        geom["trails"] = trails(data, f, sel.joint, lay.trail_window)
+    if lay.meshes and data.bodies is not None:
+        b = data.bodies
+        geom["meshes"] = {
+            int(p): BonePoses(b.bone_wxyz[i, f], b.bone_position[i, f])
+            for i, p in enumerate(b.person_ids)
+            if b.present[i, f]
+        }
+    return FrameGeometry(**geom)
+
+
+# --------------------------------------------------------------------------- viser nodes
+
+
+def _icosphere(radius: float) -> tuple[np.ndarray, np.ndarray]:
+    s = trimesh.creation.icosphere(subdivisions=1, radius=radius)
+    return np.asarray(s.vertices, np.float32), np.asarray(s.faces, np.uint32)
+
+
+def _set_segments(
+    handle: viser.LineSegmentsHandle, segments: np.ndarray, colors: np.ndarray | None = None
+) -> None:
+    """Show ``segments`` (S, 2, 3); hide the node when there are none.
+
+    ``colors``: None keeps the node's single colour; (S, 3) or (S, 2, 3) per segment.
+    """
+    if len(segments) == 0:
+        handle.visible = False
+        return
+    handle.points = segments.astype(np.float32)
+    if colors is not None:
+        c = np.asarray(colors, np.uint8)
+        if c.shape == (len(segments), 3):
+            c = np.broadcast_to(c[:, None], segments.shape)
+        handle.colors = np.ascontiguousarray(c)
+    handle.visible = True
+
+
+_EMPTY_SEG = np.zeros((1, 2, 3), np.float32)  # placeholder until the first frame
+_NO_SEG = np.zeros((0, 2, 3))
+
+
+@dataclass
+class SceneLayers:
+    """The viser scene nodes of every layer, created once; a frame change only assigns
+    properties (points, colours, bone poses, images, visibility)."""
+
+    server: viser.ViserServer
+    data: ViewerData
+    on_joint_click: Callable[[int, int], None] | None = None
+    groups: dict[str, viser.SceneNodeHandle] = field(default_factory=dict)
+    nodes: dict[str, viser.SceneNodeHandle] = field(default_factory=dict)
+    meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
+    _frustum_key: dict[str, object] = field(default_factory=dict)
+    _selected: tuple[int | None, int] = (None, -1)
+
+    def __post_init__(self) -> None:
+        scene, data = self.server.scene, self.data
+        group = lambda path: self.groups.setdefault(  # noqa: E731
+            path, scene.add_frame(path, show_axes=False)
+        )
+        group("/world")
+        r = max(6.0, 2.5 * data.extent)
+        self.groups["/world/grid"] = scene.add_grid(
+            "/world/grid", width=r, height=r, cell_size=0.5, section_size=1.0, plane="xy"
+        )
+        for path in (
+            "/world/cameras",
+            "/world/detections2d",
+            "/world/skeletons",
+            "/world/skeletons/raw",
+            "/world/skeletons/filtered",
+            "/world/skeletons/gt",
+            "/world/trails",
+            "/world/meshes",
+            "/world/meshes/gt",
+        ):
+            group(path)
+        for cam in data.cameras:
+            base = f"/world/cameras/{cam.name}"
+            scene.add_frame(base, show_axes=False, wxyz=cam.wxyz, position=cam.position)
+            self.nodes[f"{base}/frustum"] = scene.add_camera_frustum(
+                f"{base}/frustum",
+                fov=cam.fov,
+                aspect=cam.aspect,
+                scale=cam.frustum_scale,
+                thickness=1.5,
+                thickness_units="screen",
+                color=(60, 60, 60),
+            )
+            self.nodes[f"{base}/label"] = scene.add_label(
+                f"{base}/label", cam.name, anchor="bottom-center"
+            )
+            d2 = f"/world/detections2d/{cam.name}"
+            scene.add_frame(d2, show_axes=False, wxyz=cam.wxyz, position=cam.position)
+            self.nodes[f"{d2}/joints"] = scene.add_point_cloud(
+                f"{d2}/joints",
+                np.zeros((1, 3), np.float32),
+                np.zeros((1, 3), np.uint8),
+                point_size=0.008,
+                point_shape="circle",
+                precision="float32",
+                visible=False,
+            )
+            self.nodes[f"{d2}/bones"] = scene.add_line_segments(
+                f"{d2}/bones", _EMPTY_SEG, (0, 0, 0), thickness=1.5,
+                thickness_units="screen", visible=False,
+            )  # fmt: skip
+        group("/world/rays")
+        self.nodes["/world/rays/used"] = scene.add_line_segments(
+            "/world/rays/used", _EMPTY_SEG, (0, 0, 0), thickness=1.2, thickness_units="screen",
+            visible=False,
+        )  # fmt: skip
+        self.nodes["/world/rays/outliers"] = scene.add_line_segments(
+            "/world/rays/outliers", _EMPTY_SEG, OUTLIER, thickness=2.5,
+            thickness_units="screen", visible=False,
+        )  # fmt: skip
+        J = data.joint_set.num_joints
+        sv, sf = _icosphere(0.025)
+        for k in range(data.num_tracks):
+            col = track_color(k)
+            raw = f"/world/skeletons/raw/{k}"
+            self.nodes[f"{raw}/bones"] = scene.add_line_segments(
+                f"{raw}/bones", _EMPTY_SEG, pale(col, 0.45), thickness=2.0,
+                thickness_units="screen", visible=False,
+            )  # fmt: skip
+            self.nodes[f"{raw}/joints"] = scene.add_point_cloud(
+                f"{raw}/joints", np.zeros((1, 3), np.float32), pale(col, 0.45),
+                point_size=0.03, point_shape="circle", precision="float32", visible=False,
+            )  # fmt: skip
+            filt = f"/world/skeletons/filtered/{k}"
+            self.nodes[f"{filt}/bones"] = scene.add_line_segments(
+                f"{filt}/bones", _EMPTY_SEG, col, thickness=0.022, visible=False
+            )
+            joints = scene.add_batched_meshes_simple(
+                f"{filt}/joints",
+                sv,
+                sf,
+                batched_wxyzs=np.tile([1.0, 0, 0, 0], (max(J, 1), 1)),
+                batched_positions=np.zeros((max(J, 1), 3)),
+                batched_colors=col,
+                lod="off",
+                cast_shadow=False,
+                visible=False,
+            )
+            self.nodes[f"{filt}/joints"] = joints
+            joints.on_click(self._click_handler(k))
+            for kind, thick in (("raw", 2.0), ("filtered", 3.5)):
+                path = f"/world/trails/{k}/{kind}"
+                c = pale(col, 0.45) if kind == "raw" else col
+                self.nodes[path] = scene.add_line_segments(
+                    path, _EMPTY_SEG, c, thickness=thick, thickness_units="screen", visible=False
+                )
+        for pid in np.unique(data.scene.gt.person_id) if data.gt_points is not None else []:
+            path = f"/world/skeletons/gt/{pid}"
+            self.nodes[path] = scene.add_line_segments(
+                path, _EMPTY_SEG, GT_SKELETON, thickness=0.012, visible=False
+            )
+        b = data.bodies
+        if b is not None:
+            ident = np.tile([1.0, 0, 0, 0], (24, 1))
+            for i, pid in enumerate(b.person_ids):
+                self.meshes[int(pid)] = scene.add_mesh_skinned(
+                    f"/world/meshes/gt/{pid}",
+                    b.vertices[i],
+                    b.faces,
+                    bone_wxyzs=ident,
+                    bone_positions=b.rest_joints[i],
+                    skin_weights=b.weights,
+                    color=GT_MESH,
+                    opacity=0.45,
+                    cast_shadow=False,
+                    receive_shadow=False,
+                    visible=False,
+                )
+
+    def _click_handler(self, track: int):
+        def handler(event: viser.SceneNodePointerEvent) -> None:
+            if self.on_joint_click is not None and event.instance_index is not None:
+                self.on_joint_click(track, int(event.instance_index))
+
+        return handler
+
+    # ------------------------------------------------------------------ updates
+
+    def set_visibility(self, lay: LayerToggles) -> None:
+        g = self.groups
+        g["/world/grid"].visible = lay.grid
+        g["/world/cameras"].visible = lay.cameras
+        g["/world/detections2d"].visible = lay.detections2d
+        g["/world/rays"].visible = lay.rays
+        g["/world/skeletons/raw"].visible = lay.raw
+        g["/world/skeletons/filtered"].visible = lay.filtered
+        g["/world/skeletons/gt"].visible = lay.gt
+        g["/world/trails"].visible = lay.trails
+        g["/world/meshes"].visible = lay.meshes
+        offset = OFFSET_FILTERED_M if lay.offset_filtered else np.zeros(3)
+        g["/world/skeletons/filtered"].position = offset
+        for cam in self.data.cameras:
+            self.nodes[f"/world/cameras/{cam.name}/label"].visible = lay.camera_labels
+        for k in range(self.data.num_tracks):
+            self.nodes[f"/world/trails/{k}/filtered"].position = offset
+
+    def set_frustum_images(self, images: dict[str, tuple[object, np.ndarray | None]]) -> None:
+        """``images``: camera name -> (key, RGB image or None); re-encoded only when the key
+        (e.g. ``(frame, width)``) changes."""
+        for name, (key, img) in images.items():
+            if self._frustum_key.get(name) == key:
+                continue
+            self._frustum_key[name] = key
+            self.nodes[f"/world/cameras/{name}/frustum"].image = img
+
+    def apply(self, geom: FrameGeometry, selection: Selection) -> None:
+        """Assign one frame's geometry to the nodes (call inside ``server.atomic()``)."""
+        data, nodes = self.data, self.nodes
+        for cam in data.cameras:
+            d = geom.detections2d.get(cam.name)
+            pc = nodes[f"/world/detections2d/{cam.name}/joints"]
+            if d is None or len(d.points) == 0:
+                pc.visible = False
+            else:
+                pc.points = d.points.astype(np.float32)
+                pc.colors = d.colors
+                pc.visible = True
+            seg = d.segments if d is not None else _NO_SEG
+            cols = d.segment_colors if d is not None else None
+            _set_segments(nodes[f"/world/detections2d/{cam.name}/bones"], seg, cols)
+        if geom.rays is not None:
+            r = geom.rays
+            used = ~r.outlier
+            _set_segments(nodes["/world/rays/used"], r.segments[used], r.colors[used])
+            _set_segments(nodes["/world/rays/outliers"], r.segments[r.outlier])
+        J = data.joint_set.num_joints
+        for k in range(data.num_tracks):
+            raw, filt = f"/world/skeletons/raw/{k}", f"/world/skeletons/filtered/{k}"
+            s = geom.raw.get(k)
+            _set_segments(nodes[f"{raw}/bones"], s.segments if s else _NO_SEG)
+            pc = nodes[f"{raw}/joints"]
+            pts = s.joints[np.isfinite(s.joints).all(1)] if s else np.zeros((0, 3))
+            if len(pts):
+                pc.points = pts.astype(np.float32)
+            pc.visible = len(pts) > 0
+            s = geom.filtered.get(k)
+            _set_segments(nodes[f"{filt}/bones"], s.segments if s else _NO_SEG)
+            jm = nodes[f"{filt}/joints"]
+            if s is None or J == 0:
+                jm.visible = False
+            else:
+                ok = np.isfinite(s.joints).all(1)
+                scales = np.where(ok, 1.0, 0.0)
+                if selection.track == k and 0 <= selection.joint < J:
+                    scales[selection.joint] *= 1.8
+                jm.batched_positions = np.where(ok[:, None], s.joints, 0.0).astype(np.float32)
+                jm.batched_scales = scales.astype(np.float32)
+                jm.visible = True
+            t = geom.trails.get(k)
+            for kind in ("raw", "filtered"):
+                seg = getattr(t, kind) if t is not None else _NO_SEG
+                _set_segments(nodes[f"/world/trails/{k}/{kind}"], seg)
+        for path, h in nodes.items():
+            if path.startswith("/world/skeletons/gt/"):
+                s = geom.gt.get(int(path.rsplit("/", 1)[1]))
+                _set_segments(h, s.segments if s else _NO_SEG)
+        for pid, mesh in self.meshes.items():
+            bp = geom.meshes.get(pid)
+            if bp is None:
+                mesh.visible = False
+                continue
+            for i, bone in enumerate(mesh.bones):
+                bone.wxyz = bp.wxyz[i]
+                bone.position = bp.position[i]
+            mesh.visible = True
+
