@@ -34,6 +34,7 @@ import trimesh
 import viser
 import viser.transforms as vtf
 
+from mvviz.images import Overlay2D
 from pipeline.body_model import BodyModel, axis_angle_to_matrix, rigid_chain
 from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
@@ -533,6 +534,38 @@ def frame_geometry(state: ViewerState, frame: int | None = None) -> FrameGeometr
             if b.present[i, f]
         }
     return FrameGeometry(**geom)
+
+
+def image_overlay(data: ViewerData, view: int, frame: int, lay: LayerToggles) -> Overlay2D:
+    """2D overlay of one camera and frame: its detections (if the 2D layer is on), the
+    filtered tracks reprojected (if the filtered layer is on), the ground truth projected
+    (if the GT layer is on). Pixels of the full-resolution image."""
+    cam, res, J = data.scene.rig[view], data.results, data.joint_set.num_joints
+    rows = data.rows_per_frame[frame]
+    r = rows[data.scene.detections.view[rows] == view] if lay.detections2d else rows[:0]
+    det_col = np.where(
+        (res.det_person[r] < 0)[:, None], UNASSIGNED, track_color(data.det_track[r])
+    ).astype(np.uint8)
+    reproj, reproj_col = np.zeros((0, J, 2)), np.zeros((0, 3), np.uint8)
+    if lay.filtered:
+        pts = data.filtered[:, frame]  # (K, J, 3) mm
+        keep = np.flatnonzero(np.isfinite(pts).all(-1).any(-1))
+        reproj, reproj_col = cam.project(pts[keep]), track_color(keep)
+    gt_px = np.zeros((0, data.gt_joint_set.num_joints, 2))
+    if lay.gt and data.gt_points is not None:
+        gt_px = cam.project(data.gt_points[data.gt_rows_per_frame[frame]])
+    return Overlay2D(
+        camera=cam.name,
+        image_size=(cam.width, cam.height),
+        detections=res.det_joints2d[r],
+        detection_colors=det_col,
+        reprojections=reproj,
+        reprojection_colors=reproj_col,
+        gt=gt_px,
+        bones=data.joint_set.bones,
+        gt_bones=data.gt_joint_set.bones,
+        label=f"{cam.name}  frame {frame}",
+    )
 
 
 # --------------------------------------------------------------------------- viser nodes
