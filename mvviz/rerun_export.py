@@ -473,8 +473,9 @@ def export_rrd(
 ) -> Path:
     """Write ``scene`` and its ``results`` to the recording ``path``, atomically.
 
-    The file is written beside ``path`` under a temporary name and renamed when complete;
-    on any error the temporary file is removed and ``path`` is left as it was.
+    The file is written beside ``path`` under a temporary name and renamed when complete
+    (missing parent directories are created); on any error the temporary file is removed
+    and ``path`` is left as it was.
 
     Args:
         body_model: skins the GT meshes (``None`` or ``meshes=False``: no GT meshes).
@@ -505,6 +506,7 @@ def export_rrd(
         num_untracked=n_untracked,
     )
 
+    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     tmp = Path(tmp_name)
@@ -589,7 +591,10 @@ def export_rrd(
 
         _log_plots(rec, scene, results, frame_ids, plot_idx, person_by_frame, gt_by_frame)
         rec.flush()
-        rec.disconnect()
+        rec.disconnect()  # closes the file and writes its footer
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -601,6 +606,12 @@ def export_rrd(
         for src in sources.values():
             src.close()
     return path
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _group(values: np.ndarray) -> dict[int, np.ndarray]:

@@ -59,6 +59,7 @@ class Evaluation:
             "association": self.association,
             "reprojection_px": {
                 "per_view_mean": [float(x) for x in self.reprojection_view_mean],
+                "per_view_joint_mean": self.reprojection_view_joint_mean.tolist(),
             },
             "gt_source": self.gt_source,
         }

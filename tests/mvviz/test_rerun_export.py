@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import shutil
 import subprocess
 import sys
@@ -10,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import torch
 from rerun.chunk import RrdReader
 
 from mvviz import rerun_export
@@ -66,8 +69,16 @@ def rerun_cli() -> str | None:
     return str(beside) if beside.is_file() else shutil.which("rerun")
 
 
+def one(rows: list) -> np.ndarray:
+    """The value of a component logged once, with one instance."""
+    ((_, batch),) = rows
+    (value,) = batch
+    return np.asarray(value, float)
+
+
 def rows_of(path: Path, entity: str, component: str) -> list:
-    """Every logged value of ``component`` at ``entity``, in file order (static first)."""
+    """``(frame, batch)`` of every row of ``component`` at ``entity`` (frame None if static);
+    a batch is the list of the row's instances."""
     out = []
     for chunk in RrdReader(str(path)).stream():
         if str(chunk.entity_path) == entity:
@@ -129,6 +140,19 @@ def test_entities_cover_cameras_skeletons_meshes_and_plots(tiny, exported):
     assert {"AnnotationContext:context", "ViewCoordinates:xyz"} <= comp["/world"]
 
 
+def test_blueprint_has_a_3d_view_one_2d_view_per_camera_and_two_plots(tiny, exported):
+    scene, _, _ = tiny
+    path, _ = exported
+    reader = RrdReader(str(path))
+    (blueprint,) = reader.blueprints()
+    views = {
+        str(c.entity_path)
+        for c in reader.stream(store=blueprint)
+        if str(c.entity_path).startswith("/view/") and str(c.entity_path).count("/") == 2
+    }
+    assert len(views) == 1 + len(scene.rig) + 2
+
+
 def test_frame_timeline_has_every_scene_frame(tiny, exported):
     scene, _, _ = tiny
     _, summary = exported
@@ -141,21 +165,21 @@ def test_logged_numbers_match_the_scene_and_results(tiny, exported):
     path, _ = exported
     cam = scene.rig[1]
     # Camera pose in metres; pinhole scaled to the 240 px wide image.
-    (_, t), = rows_of(path, f"/world/cameras/{cam.name}", "Transform3D:translation")
+    t = one(rows_of(path, f"/world/cameras/{cam.name}", "Transform3D:translation"))
     np.testing.assert_allclose(t, cam.center / 1000, atol=1e-5)
-    (_, R), = rows_of(path, f"/world/cameras/{cam.name}", "Transform3D:mat3x3")
+    R = one(rows_of(path, f"/world/cameras/{cam.name}", "Transform3D:mat3x3"))
     np.testing.assert_allclose(np.reshape(R, (3, 3), order="F"), cam.R.T, atol=1e-6)
-    (_, K), = rows_of(path, f"/world/cameras/{cam.name}", "Pinhole:image_from_camera")
+    K = one(rows_of(path, f"/world/cameras/{cam.name}", "Pinhole:image_from_camera"))
     K = np.reshape(K, (3, 3), order="F")
     s = 240 / cam.width
     np.testing.assert_allclose(K[0, 0], s * cam.K[0, 0], rtol=1e-6)
     np.testing.assert_allclose(K[:2, 2], s * (cam.K[:2, 2] + 0.5), rtol=1e-6)
-    (_, res), = rows_of(path, f"/world/cameras/{cam.name}", "Pinhole:resolution")
-    assert res == [240, round(cam.height * s)]
+    res = one(rows_of(path, f"/world/cameras/{cam.name}", "Pinhole:resolution"))
+    np.testing.assert_array_equal(res, [240, round(cam.height * s)])
     # Images decode to that size.
-    frame, blob = rows_of(path, f"/world/cameras/{cam.name}/image", "EncodedImage:blob")[3]
+    _, (blob,) = rows_of(path, f"/world/cameras/{cam.name}/image", "EncodedImage:blob")[3]
     img = cv2.imdecode(np.frombuffer(bytes(blob), np.uint8), cv2.IMREAD_COLOR)
-    assert img.shape[:2] == (res[1], res[0])
+    assert img.shape[:2] == (int(res[1]), int(res[0]))
     # The filtered skeleton of track 0 at frame 4 in metres, joints kept by keypoint id.
     pos = dict(rows_of(path, "/world/skeletons/filtered/0", "Points3D:positions"))[4]
     ids = dict(rows_of(path, "/world/skeletons/filtered/0", "Points3D:keypoint_ids"))[4]
@@ -167,19 +191,31 @@ def test_logged_numbers_match_the_scene_and_results(tiny, exported):
     kp = results.det_joints2d[rows]
     kp = kp[kp[..., 2] > 0]
     pts = dict(rows_of(path, f"/world/cameras/{cam.name}/detections", "Points2D:positions"))[4]
-    np.testing.assert_allclose(np.sort(np.asarray(pts), 0), np.sort(s * (kp[:, :2] + 0.5), 0), atol=1e-3)
+    np.testing.assert_allclose(
+        np.sort(np.asarray(pts), 0), np.sort(s * (kp[:, :2] + 0.5), 0), atol=1e-3
+    )
     # Pelvis plot of track 0 (COCO-17: mean of the hips), mm.
     hips = [COCO17.index["left_hip"], COCO17.index["right_hip"]]
     z = dict(rows_of(path, "/plots/joints/0/pelvis/raw/z", "Scalars:scalars"))
-    for f, v in z.items():
+    assert len(z) >= NUM_FRAMES - 2
+    for f, (v,) in z.items():
         np.testing.assert_allclose(v, results.track_raw[0, f, hips, 2].mean(), rtol=1e-9)
-    # GT mesh vertices lie around the GT joints of that person (metres).
-    mesh = dict(rows_of(path, "/world/meshes/gt/0", "Mesh3D:vertex_positions"))[2]
+    # GT mesh: the body model's vertices (decimated at 25 mm) plus transl, metres.
+    mesh = np.asarray(dict(rows_of(path, "/world/meshes/gt/0", "Mesh3D:vertex_positions"))[2])
     row = np.flatnonzero((scene.gt.frame == 2) & (scene.gt.person_id == 0))[0]
-    centre = np.mean(mesh, 0)
-    assert np.linalg.norm(centre - scene.gt.joints3d[row, 0] / 1000) < 0.3
-    (_, faces), = rows_of(path, "/world/meshes/gt/0", "Mesh3D:triangle_indices")
-    assert np.max(faces) < len(mesh) < model.num_vertices
+    keep, faces = decimate_mesh(
+        model.v_template.numpy(), model.faces.numpy(), model.weights.numpy(), 0.025
+    )
+    with torch.no_grad():
+        verts = model(
+            torch.as_tensor(scene.gt.smpl_pose[row : row + 1], dtype=torch.float32),
+            torch.as_tensor(scene.gt.smpl_betas[row : row + 1], dtype=torch.float32),
+        ).vertices.numpy()[0]
+    np.testing.assert_allclose(mesh, verts[keep] + scene.gt.transl[row] / 1000, atol=1e-5)
+    assert np.linalg.norm(mesh.mean(0) - scene.gt.joints3d[row, 0] / 1000) < 0.3
+    ((_, logged_faces),) = rows_of(path, "/world/meshes/gt/0", "Mesh3D:triangle_indices")
+    np.testing.assert_array_equal(logged_faces, faces)
+    assert len(mesh) < model.num_vertices / 3
 
 
 def test_rays_end_on_the_triangulated_joints(tiny, exported):
@@ -209,8 +245,8 @@ def test_frame_subset_without_images(tiny, tmp_path):
     assert not any(e.endswith("/image") for e in summary.rows)
     assert not any(e.startswith("/world/meshes") for e in summary.rows)
     cam = scene.rig[0]
-    (_, res), = rows_of(path, f"/world/cameras/{cam.name}", "Pinhole:resolution")
-    assert res == [cam.width, cam.height]
+    res = one(rows_of(path, f"/world/cameras/{cam.name}", "Pinhole:resolution"))
+    np.testing.assert_array_equal(res, [cam.width, cam.height])
 
 
 # --------------------------------------------------------------------------- failures
@@ -218,10 +254,22 @@ def test_frame_subset_without_images(tiny, tmp_path):
 
 def test_unwritable_path_raises_and_writes_nothing(tiny, tmp_path):
     scene, results, model = tiny
-    target = tmp_path / "missing_dir" / "run.rrd"
-    with pytest.raises(FileNotFoundError):
+    (tmp_path / "a_file").write_text("not a directory")
+    target = tmp_path / "a_file" / "run.rrd"
+    with pytest.raises(OSError):
         export_rrd(scene, results, model, target, progress=False)
-    assert not target.parent.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+    # Missing parent directories are created, and the file gets the usual mode.
+    target = tmp_path / "new" / "dir" / "run.rrd"
+    export_rrd(scene, results, model, target, frames=[0], images=False, progress=False)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~_umask()
+    assert [p.name for p in target.parent.iterdir()] == ["run.rrd"]
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def test_failure_midway_leaves_no_partial_file(tiny, tmp_path, monkeypatch):
@@ -251,9 +299,7 @@ def test_failure_midway_leaves_no_partial_file(tiny, tmp_path, monkeypatch):
 
 def test_results_of_another_scene_are_refused(tiny, tmp_path):
     scene, results, model = tiny
-    other = results.__class__(
-        **{**results.__dict__, "num_views": results.num_views + 1}  # a rig with another camera
-    )
+    other = dataclasses.replace(results, num_views=results.num_views + 1)
     with pytest.raises(ValueError, match="do not match"):
         export_rrd(scene, other, model, tmp_path / "x.rrd", progress=False)
     assert list(tmp_path.iterdir()) == []

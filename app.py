@@ -1,0 +1,30 @@
+"""mvviz viewer: an interactive 3D debugger for multi-view, multi-person 3D pose.
+
+Usage:
+    python app.py [SCENE] [--port 8080] [--host 127.0.0.1] [--smpl-model PATH]
+
+Loads SCENE (default sample_data/shelf_synth), runs the pipeline or reuses its cached
+results (SCENE/.mvviz/results.npz), and serves the viewer at http://127.0.0.1:8080.
+Scrub the timeline, toggle layers (cameras with their video, 2D detections on the image
+planes, rays, raw / filtered / ground-truth skeletons, trails, ground-truth meshes),
+click a joint to select it. Same as ``mvviz view SCENE``. Ctrl-C stops the server.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from mvviz.cli_view import add_view_options, run
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    add_view_options(parser, scene_optional=True)
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

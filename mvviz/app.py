@@ -1,0 +1,538 @@
+"""The viewer: one viser server, a :class:`ViewerState`, one ``make_*_panel`` per panel.
+
+The viewer reads a scene and its :class:`~pipeline.results.PipelineResults` and never
+reaches into a stage. A frame change computes :func:`~mvviz.layers.frame_geometry`
+and assigns it to existing scene handles; renders run on one worker thread through a
+"latest wins" slot, so scrubbing draws only the newest requested frame.
+
+Hooks for other panels: :meth:`ViewerApp.jump_to` (frame, track, joint, view) and
+:attr:`ViewerApp.state_changed`, callbacks ``(state, reason)`` run after each render.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import viser
+
+from mvviz.images import FrameStore, blank_frame, draw_overlay
+from mvviz.layers import (
+    LayerToggles,
+    SceneLayers,
+    Selection,
+    ViewerData,
+    frame_geometry,
+    image_overlay,
+    prepare,
+)
+from pipeline.body_model import BodyModel
+from pipeline.results import PipelineResults
+from pipeline.scene import Scene
+
+SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
+FRUSTUM_IMAGE_WIDTH = 256
+PANEL_IMAGE_WIDTH = 640
+
+# --------------------------------------------------------------------------- state
+
+
+@dataclass
+class ViewerState:
+    """What the viewer shows: data, frame, selection, layer toggles, playback."""
+
+    data: ViewerData
+    frame: int = 0
+    selection: Selection = field(default_factory=Selection)
+    layers: LayerToggles = field(default_factory=LayerToggles)
+    camera: int = 0  # view shown in the image panel
+    playing: bool = False
+    speed: float = 1.0
+    loop: bool = True
+
+    @property
+    def scene(self) -> Scene:
+        return self.data.scene
+
+    @property
+    def results(self) -> PipelineResults:
+        return self.data.results
+
+    @classmethod
+    def create(
+        cls, scene: Scene, results: PipelineResults, model: BodyModel | None = None
+    ) -> ViewerState:
+        data = prepare(scene, results, model)
+        names = data.joint_set.names
+        joint = next((names.index(n) for n in ("right_wrist", "left_wrist") if n in names), 0)
+        track = 0 if data.num_tracks else None
+        return cls(data=data, selection=Selection(track=track, joint=joint))
+
+    def snapshot(self) -> ViewerState:
+        """A copy safe to read while GUI callbacks keep mutating this one."""
+        return dataclasses.replace(self, layers=dataclasses.replace(self.layers))
+
+
+def selection_info(state: ViewerState) -> str:
+    """Markdown about the selected track and joint in the current frame."""
+    data, sel, f = state.data, state.selection, state.frame
+    if sel.track is None or not 0 <= sel.track < data.num_tracks:
+        return "_No track selected: click a filtered joint or pick one above._"
+    k, j, res = sel.track, sel.joint, data.results
+    name = data.joint_set.names[j] if 0 <= j < data.joint_set.num_joints else "?"
+    raw, filt = res.track_raw[k, f, j], data.filtered[k, f, j]
+
+    def xyz(p: np.ndarray) -> str:
+        return "—" if not np.isfinite(p).all() else ", ".join(f"{v:.0f}" for v in p)
+
+    lines = [f"**track {k} · {name}** · frame {f}", f"raw (mm): {xyz(raw)}  "]
+    lines.append(f"filtered (mm): {xyz(filt)}  ")
+    if np.isfinite(raw).all() and np.isfinite(filt).all():
+        lines.append(f"|filtered − raw| = {np.linalg.norm(filt - raw):.0f} mm  ")
+    m = res.track_mahalanobis[k, f, j]
+    if np.isfinite(m):
+        lines.append(f"Mahalanobis {m:.2f}  ")
+    q = data.track_person[k, f]
+    if q >= 0:
+        views = []
+        for v, cam in enumerate(data.scene.rig.names):
+            e = res.person_reproj[q, j, v]
+            if not np.isfinite(e):
+                continue
+            mark = "used" if res.person_used[q, j, v] else "**outlier**"
+            views.append(f"{cam}: {e:.1f} px {mark}")
+        lines.append("reprojection: " + ("; ".join(views) if views else "no views"))
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- panels
+
+OnChange = Callable[[str], None]
+
+
+@dataclass
+class TimelinePanel:
+    folder: viser.GuiFolderHandle
+    slider: viser.GuiSliderHandle
+    play: viser.GuiButtonHandle
+    back: viser.GuiButtonHandle
+    forward: viser.GuiButtonHandle
+    speed: viser.GuiDropdownHandle
+    loop: viser.GuiCheckboxHandle
+    label: viser.GuiMarkdownHandle
+    stats: viser.GuiMarkdownHandle
+
+
+def make_timeline_panel(server: viser.ViserServer, state: ViewerState, on_change: OnChange):
+    n = state.data.num_frames
+    with server.gui.add_folder("Timeline") as folder:
+        slider = server.gui.add_slider("Frame", min=0, max=max(n - 1, 0), step=1, initial_value=0)
+        label = server.gui.add_markdown(frame_label(state, 0))
+        play = server.gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY)
+        back = server.gui.add_button("Step back", icon=viser.Icon.PLAYER_SKIP_BACK)
+        forward = server.gui.add_button("Step forward", icon=viser.Icon.PLAYER_SKIP_FORWARD)
+        speed = server.gui.add_dropdown("Speed", SPEEDS, initial_value="1x")
+        loop = server.gui.add_checkbox("Loop", initial_value=state.loop)
+        stats = server.gui.add_markdown("")
+    panel = TimelinePanel(folder, slider, play, back, forward, speed, loop, label, stats)
+
+    @slider.on_update
+    def _(_) -> None:
+        state.frame = int(slider.value)
+        on_change("frame")
+
+    @play.on_click
+    def _(_) -> None:
+        state.playing = not state.playing
+        on_change("playing")
+
+    @back.on_click
+    def _(_) -> None:
+        slider.value = max(0, int(slider.value) - 1)
+
+    @forward.on_click
+    def _(_) -> None:
+        slider.value = min(n - 1, int(slider.value) + 1)
+
+    @speed.on_update
+    def _(_) -> None:
+        state.speed = float(speed.value.rstrip("x"))
+
+    @loop.on_update
+    def _(_) -> None:
+        state.loop = bool(loop.value)
+
+    return panel
+
+
+def frame_label(state: ViewerState, frame: int) -> str:
+    n, fps = state.data.num_frames, state.scene.fps
+    return f"frame **{frame}** / {n - 1} · {frame / fps:.2f} s"
+
+
+@dataclass
+class LayersPanel:
+    folder: viser.GuiFolderHandle
+    toggles: dict[str, viser.GuiCheckboxHandle]
+    trail_window: viser.GuiSliderHandle
+
+
+LAYER_LABELS = {
+    "grid": "Grid",
+    "cameras": "Cameras",
+    "camera_labels": "Camera labels",
+    "frustum_images": "Video on frustums",
+    "detections2d": "2D detections",
+    "rays": "Rays",
+    "rays_selected_only": "Rays: selected track only",
+    "raw": "Raw 3D skeletons",
+    "filtered": "Filtered skeletons",
+    "offset_filtered": "Filtered side by side (+1 m x)",
+    "gt": "Ground-truth skeletons",
+    "trails": "Trails (selected joint)",
+    "meshes": "Ground-truth meshes",
+}
+
+
+def make_layers_panel(server: viser.ViserServer, state: ViewerState, on_change: OnChange):
+    toggles = {}
+    with server.gui.add_folder("Layers") as folder:
+        for name, label in LAYER_LABELS.items():
+            cb = server.gui.add_checkbox(label, initial_value=getattr(state.layers, name))
+            toggles[name] = cb
+
+            def bind(name: str = name, cb: viser.GuiCheckboxHandle = cb) -> None:
+                @cb.on_update
+                def _(_) -> None:
+                    setattr(state.layers, name, bool(cb.value))
+                    on_change("layers")
+
+            bind()
+        window = server.gui.add_slider(
+            "Trail ± frames", min=0, max=100, step=1, initial_value=state.layers.trail_window
+        )
+
+    @window.on_update
+    def _(_) -> None:
+        state.layers.trail_window = int(window.value)
+        on_change("layers")
+
+    if state.data.bodies is None:
+        toggles["meshes"].disabled = True
+    return LayersPanel(folder, toggles, window)
+
+
+@dataclass
+class SelectionPanel:
+    folder: viser.GuiFolderHandle
+    track: viser.GuiDropdownHandle
+    joint: viser.GuiDropdownHandle
+    info: viser.GuiMarkdownHandle
+
+
+NO_TRACK = "none"
+
+
+def make_selection_panel(server: viser.ViserServer, state: ViewerState, on_change: OnChange):
+    data, sel = state.data, state.selection
+    tracks = (NO_TRACK,) + tuple(str(k) for k in range(data.num_tracks))
+    joints = data.joint_set.names or ("-",)
+    with server.gui.add_folder("Selection") as folder:
+        track = server.gui.add_dropdown(
+            "Track", tracks, initial_value=NO_TRACK if sel.track is None else str(sel.track)
+        )
+        joint = server.gui.add_dropdown("Joint", joints, initial_value=joints[sel.joint])
+        info = server.gui.add_markdown(selection_info(state))
+
+    def update(_) -> None:
+        t = None if track.value == NO_TRACK else int(track.value)
+        j = joints.index(joint.value)
+        state.selection = dataclasses.replace(state.selection, track=t, joint=j)
+        on_change("selection")
+
+    track.on_update(update)
+    joint.on_update(update)
+    return SelectionPanel(folder, track, joint, info)
+
+
+@dataclass
+class CameraPanel:
+    panel: viser.PanelHandle
+    camera: viser.GuiDropdownHandle
+    image: viser.GuiImageHandle
+
+
+def make_camera_panel(server: viser.ViserServer, state: ViewerState, on_change: OnChange):
+    names = tuple(state.scene.rig.names)
+    cam = state.scene.rig[state.camera]
+    w = PANEL_IMAGE_WIDTH
+    panel = server.gui.add_panel()
+    with panel.add_tab("Camera", viser.Icon.CAMERA):
+        camera = server.gui.add_dropdown("Camera", names, initial_value=names[state.camera])
+        image = server.gui.add_image(
+            blank_frame(w, round(cam.height * w / cam.width)), format="jpeg", jpeg_quality=80
+        )
+    panel.dock_left()
+    panel.set_width(440)
+
+    @camera.on_update
+    def _(_) -> None:
+        state.camera = names.index(camera.value)
+        state.selection = dataclasses.replace(state.selection, view=state.camera)
+        on_change("camera")
+
+    return CameraPanel(panel, camera, image)
+
+
+# --------------------------------------------------------------------------- rendering
+
+
+class LatestWins:
+    """One worker thread running ``render()`` whenever requested; requests made while it
+    runs collapse into one more run, so only the newest state is ever drawn."""
+
+    def __init__(self, render: Callable[[], None]) -> None:
+        self._render = render
+        self._cv = threading.Condition()
+        self._pending = False
+        self._busy = False
+        self._stopped = False
+        self._thread = threading.Thread(target=self._loop, name="mvviz-render", daemon=True)
+        self._thread.start()
+
+    def request(self) -> None:
+        with self._cv:
+            self._pending = True
+            self._cv.notify_all()
+
+    def wait_idle(self, timeout: float = 10.0) -> bool:
+        """Block until no render is pending or running (for tests and scripts)."""
+        end = time.monotonic() + timeout
+        with self._cv:
+            while self._pending or self._busy:
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cv.wait(left)
+        return True
+
+    def stop(self) -> None:
+        with self._cv:
+            self._stopped = True
+            self._cv.notify_all()
+        self._thread.join(timeout=5)
+
+    def _loop(self) -> None:
+        while True:
+            with self._cv:
+                while not self._pending and not self._stopped:
+                    self._cv.wait()
+                if self._stopped:
+                    return
+                self._pending, self._busy = False, True
+            try:
+                self._render()
+            except Exception as exc:  # keep the viewer alive; the next request retries
+                print(f"mvviz view: render failed: {type(exc).__name__}: {exc}")
+            finally:
+                with self._cv:
+                    self._busy = False
+                    self._cv.notify_all()
+
+
+class ViewerApp:
+    """The running viewer: server, scene layers, panels, render worker, playback."""
+
+    def __init__(
+        self,
+        state: ViewerState,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        frames: FrameStore | None = None,
+        verbose: bool = False,
+    ) -> None:
+        self.state = state
+        self.frames = frames
+        self.state_changed: list[Callable[[ViewerState, str], None]] = []
+        self.frame_times_ms: deque[float] = deque(maxlen=500)
+        self._reasons: set[str] = set()
+        self._reasons_lock = threading.Lock()
+        self._stopped = threading.Event()
+        self._play_wake = threading.Event()
+
+        server = self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
+        server.gui.configure_theme(control_width="medium", show_share_button=False)
+        server.scene.set_up_direction("+z")
+        self._set_initial_camera()
+        self.layers = SceneLayers(server, state.data, on_joint_click=self._on_joint_click)
+        self.timeline = make_timeline_panel(server, state, self._on_change)
+        self.layers_panel = make_layers_panel(server, state, self._on_change)
+        self.selection_panel = make_selection_panel(server, state, self._on_change)
+        self.camera_panel = make_camera_panel(server, state, self._on_change)
+        self._renderer = LatestWins(self._render)
+        self._player = threading.Thread(target=self._play_loop, name="mvviz-play", daemon=True)
+        self._player.start()
+        if frames is not None:
+            frames.on_camera_ready.append(lambda _cam: self._on_change("video"))
+        self._on_change("init")
+
+    # ------------------------------------------------------------------ public hooks
+
+    @property
+    def url(self) -> str:
+        host = self.server.get_host()
+        host = "127.0.0.1" if host in ("0.0.0.0", "") else host
+        return f"http://{host}:{self.server.get_port()}"
+
+    def set_frame(self, frame: int) -> None:
+        """Go to ``frame`` (moves the slider, which redraws)."""
+        n = self.state.data.num_frames
+        self.timeline.slider.value = int(np.clip(frame, 0, n - 1))
+
+    def jump_to(
+        self,
+        frame: int | None = None,
+        track: int | None = None,
+        joint: int | str | None = None,
+        view: int | str | None = None,
+    ) -> None:
+        """Show ``frame``, select ``track``/``joint``, show ``view`` in the image panel.
+
+        The entry point for panels that list problems (failure review, filter tuning).
+        """
+        sel = self.selection_panel
+        if track is not None:
+            sel.track.value = str(int(track)) if track >= 0 else NO_TRACK
+        if joint is not None:
+            names = self.state.data.joint_set.names
+            sel.joint.value = joint if isinstance(joint, str) else names[int(joint)]
+        if view is not None:
+            names = self.state.scene.rig.names
+            self.camera_panel.camera.value = view if isinstance(view, str) else names[int(view)]
+        if frame is not None:
+            self.set_frame(frame)
+
+    def redraw(self) -> None:
+        self._on_change("redraw")
+
+    def wait_idle(self, timeout: float = 10.0) -> bool:
+        return self._renderer.wait_idle(timeout)
+
+    def frame_time_stats(self) -> dict[str, float]:
+        """Server-side render time per frame change, milliseconds."""
+        t = list(self.frame_times_ms)
+        if not t:
+            return {"count": 0, "median_ms": float("nan"), "p95_ms": float("nan")}
+        return {
+            "count": len(t),
+            "median_ms": statistics.median(t),
+            "p95_ms": float(np.percentile(t, 95)),
+        }
+
+    def stop(self) -> None:
+        self._stopped.set()
+        self._play_wake.set()
+        self._renderer.stop()
+        self._player.join(timeout=5)
+        self.server.stop()
+
+    # ------------------------------------------------------------------ internals
+
+    def _set_initial_camera(self) -> None:
+        data = self.state.data
+        c = data.center.copy()
+        c[2] = 0.8
+        r = max(2.5, data.extent) * 1.55
+        self.server.initial_camera.position = tuple(c + np.array([-0.75 * r, -0.85 * r, 0.8 * r]))
+        self.server.initial_camera.look_at = tuple(c)
+        self.server.initial_camera.up = (0.0, 0.0, 1.0)
+        self.server.initial_camera.fov = np.deg2rad(50.0)
+
+    def _on_joint_click(self, track: int, joint: int) -> None:
+        if 0 <= joint < self.state.data.joint_set.num_joints:
+            self.jump_to(track=track, joint=joint)
+
+    def _on_change(self, reason: str) -> None:
+        with self._reasons_lock:
+            self._reasons.add(reason)
+        if reason == "playing":
+            self._play_wake.set()
+            self.timeline.play.label = "Pause" if self.state.playing else "Play"
+            self.timeline.play.icon = (
+                viser.Icon.PLAYER_PAUSE if self.state.playing else viser.Icon.PLAYER_PLAY
+            )
+            return
+        self._renderer.request()
+
+    def _render(self) -> None:
+        t0 = time.perf_counter()
+        with self._reasons_lock:
+            reasons, self._reasons = self._reasons, set()
+        st = self.state.snapshot()
+        f, lay, data = st.frame, st.layers, st.data
+        geom = frame_geometry(st)
+        images: dict[str, tuple[object, np.ndarray | None]] = {}
+        for cam in data.cameras:
+            img = None
+            if lay.frustum_images and lay.cameras and self.frames is not None:
+                img = self.frames.thumbnail(cam.name, f, FRUSTUM_IMAGE_WIDTH)
+            images[cam.name] = ((f, FRUSTUM_IMAGE_WIDTH) if img is not None else None, img)
+        camera = st.scene.rig[st.camera]
+        base = self.frames.frame(camera.name, f) if self.frames is not None else None
+        if base is None:
+            w = PANEL_IMAGE_WIDTH
+            base = blank_frame(w, round(camera.height * w / camera.width))
+        panel_image = draw_overlay(base, image_overlay(data, st.camera, f, lay))
+        with self.server.atomic():
+            self.layers.set_visibility(lay)
+            self.layers.set_frustum_images(images)
+            self.layers.apply(geom, st.selection)
+            self.camera_panel.image.image = panel_image
+            self.timeline.label.content = frame_label(st, f)
+            self.selection_panel.info.content = selection_info(st)
+        self.server.flush()
+        ms = (time.perf_counter() - t0) * 1e3
+        self.frame_times_ms.append(ms)
+        s = self.frame_time_stats()
+        self.timeline.stats.content = (
+            f"<small>server render {ms:.0f} ms (median {s['median_ms']:.0f}, "
+            f"p95 {s['p95_ms']:.0f})</small>"
+        )
+        reason = ",".join(sorted(reasons)) or "redraw"
+        for cb in list(self.state_changed):
+            try:
+                cb(st, reason)
+            except Exception as exc:
+                print(f"mvviz view: state_changed callback failed: {exc}")
+
+    def _play_loop(self) -> None:
+        next_t = time.perf_counter()
+        while not self._stopped.is_set():
+            st = self.state
+            if not st.playing:
+                self._play_wake.wait(0.5)
+                self._play_wake.clear()
+                next_t = time.perf_counter()
+                continue
+            period = 1.0 / (st.scene.fps * max(st.speed, 1e-3))
+            next_t += period
+            delay = next_t - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                next_t = time.perf_counter()  # fell behind: frames get skipped, not queued
+            f = st.frame + 1
+            if f >= st.data.num_frames:
+                if not st.loop:
+                    st.playing = False
+                    self._on_change("playing")
+                    continue
+                f = 0
+            self.set_frame(f)

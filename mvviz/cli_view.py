@@ -1,0 +1,89 @@
+"""``mvviz view``: the interactive 3D debugger in the browser (see mvviz/app.py)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from mvviz.app import ViewerApp, ViewerState
+from mvviz.images import FrameStore
+from pipeline.body_model import load_body_model
+from pipeline.results import run_or_load
+from pipeline.scene import load_scene
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_SCENE = REPO_ROOT / "sample_data" / "shelf_synth"
+
+
+def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False) -> None:
+    if scene_optional:
+        p.add_argument(
+            "scene", type=Path, nargs="?", default=DEFAULT_SCENE,
+            help=f"scene directory (default: {DEFAULT_SCENE.relative_to(REPO_ROOT)})",
+        )  # fmt: skip
+    else:
+        p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
+    p.add_argument("--port", type=int, default=8080, help="HTTP/websocket port (default 8080)")
+    p.add_argument(
+        "--host", default="127.0.0.1", help="address to bind (default 127.0.0.1; 0.0.0.0 = all)"
+    )
+    p.add_argument("--smpl-model", default=None, help="body model file (.npz/.pkl)")
+    p.add_argument("--config", type=Path, default=None, help="pipeline config JSON")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+        help="override a pipeline config value (repeatable)",
+    )  # fmt: skip
+    p.add_argument(
+        "--out", type=Path, default=None, help="results file (default SCENE/.mvviz/results.npz)"
+    )
+    p.add_argument("--force", action="store_true", help="re-run the pipeline, ignore the cache")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "view",
+        help="open the interactive 3D debugger for a scene in the browser",
+        description=(
+            "Loads SCENE, runs the pipeline (or reuses cached results) and serves a viser "
+            "viewer: timeline, cameras with their video, 2D detections, rays, raw / filtered "
+            "/ ground-truth skeletons, trails and ground-truth meshes. Blocks until Ctrl-C."
+        ),
+    )
+    add_view_options(p)
+    p.set_defaults(func=run)
+
+
+def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
+    """Load, run or load results, start the server; returns the running app."""
+    from mvviz.cli_run import resolve_config  # noqa: PLC0415  (shares --config/--set)
+
+    t0 = time.perf_counter()
+    scene = load_scene(args.scene)
+    config = resolve_config(args)
+    model = load_body_model(args.smpl_model)
+    print(f"scene {scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames")
+    results, cached = run_or_load(
+        scene, config, model, out=args.out, progress=progress, force=args.force
+    )
+    print(f"{'cached' if cached else 'computed'} results: {results.num_tracks} tracks")
+    frames = FrameStore(scene, cache_dir=scene.root / ".mvviz" / "frames").start()
+    state = ViewerState.create(scene, results, model)
+    app = ViewerApp(state, host=args.host, port=args.port, frames=frames)
+    app.wait_idle(30)
+    print(f"ready in {time.perf_counter() - t0:.1f} s: {app.url}")
+    if frames.sources and not frames.ready:
+        print("(decoding videos in the background; frames appear as they are ready)")
+    return app
+
+
+def run(args: argparse.Namespace) -> int:
+    app = start(args)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        print("\nstopping")
+    finally:
+        app.stop()
+    return 0
