@@ -37,7 +37,8 @@ from pipeline.results import PipelineResults
 from pipeline.scene import Scene
 
 SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
-FRUSTUM_IMAGE_WIDTH = 256
+STEP_BACK, STEP_FORWARD = "◀ −1", "+1 ▶"
+FRUSTUM_IMAGE_REDUCE = 2  # frustum images at 1/2 of the stored 640 px: 320 px wide
 PANEL_IMAGE_WIDTH = 640
 
 # --------------------------------------------------------------------------- state
@@ -121,8 +122,7 @@ class TimelinePanel:
     folder: viser.GuiFolderHandle
     slider: viser.GuiSliderHandle
     play: viser.GuiButtonHandle
-    back: viser.GuiButtonHandle
-    forward: viser.GuiButtonHandle
+    step: viser.GuiButtonGroupHandle  # STEP_BACK / STEP_FORWARD
     speed: viser.GuiDropdownHandle
     loop: viser.GuiCheckboxHandle
     label: viser.GuiMarkdownHandle
@@ -135,12 +135,11 @@ def make_timeline_panel(server: viser.ViserServer, state: ViewerState, on_change
         slider = server.gui.add_slider("Frame", min=0, max=max(n - 1, 0), step=1, initial_value=0)
         label = server.gui.add_markdown(frame_label(state, 0))
         play = server.gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY)
-        back = server.gui.add_button("Step back", icon=viser.Icon.PLAYER_SKIP_BACK)
-        forward = server.gui.add_button("Step forward", icon=viser.Icon.PLAYER_SKIP_FORWARD)
+        step = server.gui.add_button_group("Step", (STEP_BACK, STEP_FORWARD))
         speed = server.gui.add_dropdown("Speed", SPEEDS, initial_value="1x")
         loop = server.gui.add_checkbox("Loop", initial_value=state.loop)
         stats = server.gui.add_markdown("")
-    panel = TimelinePanel(folder, slider, play, back, forward, speed, loop, label, stats)
+    panel = TimelinePanel(folder, slider, play, step, speed, loop, label, stats)
 
     @slider.on_update
     def _(_) -> None:
@@ -152,13 +151,10 @@ def make_timeline_panel(server: viser.ViserServer, state: ViewerState, on_change
         state.playing = not state.playing
         on_change("playing")
 
-    @back.on_click
-    def _(_) -> None:
-        slider.value = max(0, int(slider.value) - 1)
-
-    @forward.on_click
-    def _(_) -> None:
-        slider.value = min(n - 1, int(slider.value) + 1)
+    @step.on_click
+    def _(event) -> None:
+        delta = -1 if event.target.value == STEP_BACK else 1
+        slider.value = int(np.clip(int(slider.value) + delta, 0, n - 1))
 
     @speed.on_update
     def _(_) -> None:
@@ -366,6 +362,8 @@ class ViewerApp:
         self._reasons_lock = threading.Lock()
         self._stopped = threading.Event()
         self._play_wake = threading.Event()
+        self._applied_layers: LayerToggles | None = None
+        self.last_render_ms: dict[str, float] = {}
 
         server = self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
         server.gui.configure_theme(control_width="medium", show_share_button=False)
@@ -373,8 +371,8 @@ class ViewerApp:
         self._set_initial_camera()
         self.layers = SceneLayers(server, state.data, on_joint_click=self._on_joint_click)
         self.timeline = make_timeline_panel(server, state, self._on_change)
-        self.layers_panel = make_layers_panel(server, state, self._on_change)
         self.selection_panel = make_selection_panel(server, state, self._on_change)
+        self.layers_panel = make_layers_panel(server, state, self._on_change)
         self.camera_panel = make_camera_panel(server, state, self._on_change)
         self._renderer = LatestWins(self._render)
         self._player = threading.Thread(target=self._play_loop, name="mvviz-play", daemon=True)
@@ -446,11 +444,18 @@ class ViewerApp:
     # ------------------------------------------------------------------ internals
 
     def _set_initial_camera(self) -> None:
+        """Look at the action from behind and above the first camera (so its video faces
+        the viewer), turned a little so that frustum does not hide the people."""
         data = self.state.data
         c = data.center.copy()
-        c[2] = 0.8
-        r = max(2.5, data.extent) * 1.55
-        self.server.initial_camera.position = tuple(c + np.array([-0.75 * r, -0.85 * r, 0.8 * r]))
+        c[2] = 0.9
+        d = data.cameras[0].position[:2] - c[:2] if data.cameras else np.array([-1.0, -1.0])
+        d = d / max(np.linalg.norm(d), 1e-6)
+        a = np.deg2rad(30.0)
+        d = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) @ d
+        r = max(2.5, data.extent) * 1.15
+        pos = np.array([c[0] + d[0] * r, c[1] + d[1] * r, c[2] + 0.55 * r])
+        self.server.initial_camera.position = tuple(pos)
         self.server.initial_camera.look_at = tuple(c)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
         self.server.initial_camera.fov = np.deg2rad(50.0)
@@ -478,28 +483,38 @@ class ViewerApp:
         st = self.state.snapshot()
         f, lay, data = st.frame, st.layers, st.data
         geom = frame_geometry(st)
+        t1 = time.perf_counter()
         images: dict[str, tuple[object, np.ndarray | None]] = {}
         for cam in data.cameras:
             img = None
             if lay.frustum_images and lay.cameras and self.frames is not None:
-                img = self.frames.thumbnail(cam.name, f, FRUSTUM_IMAGE_WIDTH)
-            images[cam.name] = ((f, FRUSTUM_IMAGE_WIDTH) if img is not None else None, img)
+                img = self.frames.thumbnail(cam.name, f, FRUSTUM_IMAGE_REDUCE)
+            images[cam.name] = ((f, FRUSTUM_IMAGE_REDUCE) if img is not None else None, img)
         camera = st.scene.rig[st.camera]
         base = self.frames.frame(camera.name, f) if self.frames is not None else None
         if base is None:
             w = PANEL_IMAGE_WIDTH
             base = blank_frame(w, round(camera.height * w / camera.width))
         panel_image = draw_overlay(base, image_overlay(data, st.camera, f, lay))
+        t2 = time.perf_counter()
         with self.server.atomic():
-            self.layers.set_visibility(lay)
+            if lay != self._applied_layers:
+                self.layers.set_visibility(lay)
+                self._applied_layers = lay
             self.layers.set_frustum_images(images)
             self.layers.apply(geom, st.selection)
             self.camera_panel.image.image = panel_image
             self.timeline.label.content = frame_label(st, f)
             self.selection_panel.info.content = selection_info(st)
         self.server.flush()
-        ms = (time.perf_counter() - t0) * 1e3
+        t3 = time.perf_counter()
+        ms = (t3 - t0) * 1e3
         self.frame_times_ms.append(ms)
+        self.last_render_ms = {
+            "geometry": (t1 - t0) * 1e3,
+            "images": (t2 - t1) * 1e3,
+            "send": (t3 - t2) * 1e3,
+        }
         s = self.frame_time_stats()
         self.timeline.stats.content = (
             f"<small>server render {ms:.0f} ms (median {s['median_ms']:.0f}, "

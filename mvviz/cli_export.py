@@ -1,4 +1,4 @@
-"""``mvviz export-rrd``: a scene and its pipeline results as a rerun recording.
+"""mvviz export-rrd: a scene and its pipeline results as a rerun recording.
 
 Examples:
 

@@ -201,18 +201,32 @@ class FrameStore:
                 self._lru.popitem(last=False)
         return img
 
-    def thumbnail(self, cam: str, frame: int, width: int = 256) -> np.ndarray | None:
-        """The frame downscaled to ``width`` pixels (for a frustum's image plane)."""
-        key = (cam, int(frame), width)
+    def thumbnail(self, cam: str, frame: int, reduce: int = 2) -> np.ndarray | None:
+        """The frame at 1/``reduce`` (2, 4 or 8) of the stored width, for a frustum's image
+        plane. Decoded straight from the JPEG at the reduced size (no resize)."""
+        key = (cam, int(frame), reduce)
         with self._lock:
             img = self._lru.get(key)
+            src, jpegs = self.sources.get(cam), self._jpegs.get(cam)
         if img is not None:
             return img
-        full = self.frame(cam, frame)
-        if full is None:
+        if src is None or not 0 <= frame < self.num_frames:
             return None
-        h, w = full.shape[:2]
-        img = cv2.resize(full, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
+        if src.kind == "video":
+            if jpegs is None or frame >= len(jpegs) or jpegs[frame] is None:
+                return None
+            flag = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4}.get(
+                reduce, cv2.IMREAD_REDUCED_COLOR_8
+            )
+            bgr = cv2.imdecode(np.frombuffer(jpegs[frame], np.uint8), flag)
+            img = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        else:
+            full = self.frame(cam, frame)
+            if full is None:
+                return None
+            h, w = full.shape[:2]
+            size = (max(1, w // reduce), max(1, h // reduce))
+            img = cv2.resize(full, size, interpolation=cv2.INTER_AREA)
         with self._lock:
             self._lru[key] = img
             while len(self._lru) > self._cache_size:
@@ -253,51 +267,57 @@ def blank_frame(width: int, height: int) -> np.ndarray:
     return np.full((height, width, 3), 48, np.uint8)
 
 
-def _pt(p: np.ndarray) -> tuple[int, int]:
-    return int(round(float(p[0]))), int(round(float(p[1])))
+def _pixels(p: np.ndarray, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) float pixels -> (n, 2) int pixels and (n,) bool "drawable" (finite, and
+    not absurdly far outside the image, which cv2 would choke on)."""
+    p = np.asarray(p, float).reshape(-1, 2)
+    ok = np.isfinite(p).all(1)
+    ok[ok] &= (np.abs(p[ok, 0] - w / 2) < 2 * w) & (np.abs(p[ok, 1] - h / 2) < 2 * h)
+    return np.where(ok[:, None], np.round(np.nan_to_num(p)), 0).astype(int), ok
 
 
-def _ok(p: np.ndarray, w: int, h: int) -> bool:
-    return bool(np.isfinite(p).all() and -w < p[0] < 2 * w and -h < p[1] < 2 * h)
+def _draw_skeleton(
+    out: np.ndarray, p: np.ndarray, ok: np.ndarray, bones, color, *, thickness: int,
+    joint: str, radius: int,
+) -> None:  # fmt: skip
+    h, w = out.shape[:2]
+    px, drawable = _pixels(p, w, h)
+    ok = ok & drawable
+    aa = cv2.LINE_AA
+    for a, b in bones:
+        if ok[a] and ok[b]:
+            cv2.line(out, tuple(px[a]), tuple(px[b]), color, thickness, aa)
+    for j in np.flatnonzero(ok):
+        q = tuple(px[j])
+        if joint == "cross":
+            cv2.drawMarker(out, q, color, cv2.MARKER_CROSS, 2 * radius, 1, aa)
+        elif joint == "ring":
+            cv2.circle(out, q, radius + 1, color, 1, aa)
+        else:
+            cv2.circle(out, q, radius, color, -1, aa)
 
 
 def draw_overlay(image: np.ndarray, ov: Overlay2D) -> np.ndarray:
     """A copy of ``image`` (any size; overlay pixels are rescaled) with: ground truth
-    (thin grey), reprojected filtered joints (hollow circles, track colour), detections
+    (thin dark crosses), reprojected filtered joints (rings, track colour), detections
     (filled, person colour, unassigned grey) and the camera name."""
     out = np.ascontiguousarray(image.copy())
-    h, w = out.shape[:2]
+    w = out.shape[1]
     s = w / ov.image_size[0]
-    aa = cv2.LINE_AA
-    r = max(2, round(3 * s * 1.6))
-    gt_col = (30, 30, 30)
+    r = max(2, round(4.8 * s))
     for person in ov.gt:
-        p = person * s
-        for a, b in ov.gt_bones:
-            if _ok(p[a], w, h) and _ok(p[b], w, h):
-                cv2.line(out, _pt(p[a]), _pt(p[b]), gt_col, 1, aa)
-        for q in p:
-            if _ok(q, w, h):
-                cv2.drawMarker(out, _pt(q), gt_col, cv2.MARKER_CROSS, 2 * r, 1, aa)
+        ok = np.ones(len(person), bool)
+        _draw_skeleton(out, person * s, ok, ov.gt_bones, (30, 30, 30), thickness=1,
+                       joint="cross", radius=r)  # fmt: skip
     for joints, col in zip(ov.reprojections, ov.reprojection_colors, strict=True):
-        p, c = joints * s, tuple(int(x) for x in col)
-        for a, b in ov.bones:
-            if _ok(p[a], w, h) and _ok(p[b], w, h):
-                cv2.line(out, _pt(p[a]), _pt(p[b]), c, 1, aa)
-        for q in p:
-            if _ok(q, w, h):
-                cv2.circle(out, _pt(q), r + 1, c, 1, aa)
+        ok = np.ones(len(joints), bool)
+        _draw_skeleton(out, joints * s, ok, ov.bones, tuple(int(x) for x in col),
+                       thickness=1, joint="ring", radius=r)  # fmt: skip
     for det, col in zip(ov.detections, ov.detection_colors, strict=True):
-        p, c = det[:, :2] * s, tuple(int(x) for x in col)
-        vis = det[:, 2] > 0
-        for a, b in ov.bones:
-            if vis[a] and vis[b] and _ok(p[a], w, h) and _ok(p[b], w, h):
-                cv2.line(out, _pt(p[a]), _pt(p[b]), c, 2, aa)
-        for j in np.flatnonzero(vis):
-            if _ok(p[j], w, h):
-                cv2.circle(out, _pt(p[j]), r, c, -1, aa)
+        _draw_skeleton(out, det[:, :2] * s, det[:, 2] > 0, ov.bones,
+                       tuple(int(x) for x in col), thickness=2, joint="dot", radius=r)  # fmt: skip
     font, scale = cv2.FONT_HERSHEY_SIMPLEX, max(0.4, 0.55 * w / 640)
     (tw, th), _ = cv2.getTextSize(ov.label, font, scale, 1)
     cv2.rectangle(out, (0, 0), (tw + 10, th + 12), (0, 0, 0), -1)
-    cv2.putText(out, ov.label, (5, th + 5), font, scale, (255, 255, 255), 1, aa)
+    cv2.putText(out, ov.label, (5, th + 5), font, scale, (255, 255, 255), 1, cv2.LINE_AA)
     return out

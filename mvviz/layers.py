@@ -94,7 +94,7 @@ class LayerToggles:
     frustum_images: bool = True
     detections2d: bool = True
     rays: bool = True
-    rays_selected_only: bool = False
+    rays_selected_only: bool = True  # every ray of every person is a thicket
     raw: bool = True
     filtered: bool = True
     offset_filtered: bool = False
@@ -146,7 +146,7 @@ class CameraGeometry:
         return np.concatenate([xy, z], -1)
 
 
-def camera_geometry(camera: Camera, *, plane_depth: float = 0.35) -> CameraGeometry:
+def camera_geometry(camera: Camera, *, plane_depth: float = 0.6) -> CameraGeometry:
     """Frustum parameters so that its image plane lies ``plane_depth`` metres ahead.
 
     Mirrors viser's client: the frustum is normalised to unit volume, so
@@ -667,7 +667,7 @@ class SceneLayers:
             )  # fmt: skip
         group("/world/rays")
         self.nodes["/world/rays/used"] = scene.add_line_segments(
-            "/world/rays/used", _EMPTY_SEG, (0, 0, 0), thickness=1.2, thickness_units="screen",
+            "/world/rays/used", _EMPTY_SEG, (0, 0, 0), thickness=1.6, thickness_units="screen",
             visible=False,
         )  # fmt: skip
         self.nodes["/world/rays/outliers"] = scene.add_line_segments(

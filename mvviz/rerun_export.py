@@ -512,6 +512,10 @@ def export_rrd(
     tmp = Path(tmp_name)
     rec = rr.RecordingStream(APP_ID)
     sources: dict[str, FrameSource] = {}
+    # rerun encodes and writes on its own threads; torch's intra-op threads spinning
+    # beside them made skinning ~10x slower on a 2-core machine. Restored below.
+    torch_threads = torch.get_num_threads()
+    torch.set_num_threads(1)
     try:
         rec.set_log_time_enabled(False)
         rec.save(tmp, default_blueprint=make_blueprint(scene.rig.names))
@@ -528,7 +532,10 @@ def export_rrd(
                         scene.videos.get(cam.name), scene.image_dirs.get(cam.name)
                     )
         faces = keep = None
-        if meshes and body_model is not None and gt is not None and gt.smpl_pose is not None:
+        has_smpl = gt is not None and all(
+            a is not None for a in (gt.smpl_pose, gt.smpl_betas, gt.transl)
+        )
+        if meshes and body_model is not None and has_smpl:
             faces = body_model.faces.cpu().numpy()
             keep = np.arange(body_model.num_vertices)
             if mesh_cell_mm:
@@ -577,7 +584,7 @@ def export_rrd(
                     )
             _log_detections(logger, scene, results, layout, cam_size, rows_by_frame.get(f))
             _log_skeletons(logger, results, layout, filtered, f)
-            _log_rays(logger, scene, results, layout, person_by_frame.get(f))
+            _log_rays(logger, scene, results, person_by_frame.get(f))
             if gt is not None and f in gt_by_frame:
                 _log_gt(logger, gt, layout, gt_by_frame[f], body_model, keep)
             for name, seq in extra.items():
@@ -603,6 +610,7 @@ def export_rrd(
             tmp.unlink(missing_ok=True)
         raise
     finally:
+        torch.set_num_threads(torch_threads)
         for src in sources.values():
             src.close()
     return path
@@ -679,7 +687,7 @@ def _log_skeletons(logger, results, layout, filtered, f: int) -> None:
             logger.log(f"world/skeletons/filtered/{k}", filt)
 
 
-def _log_rays(logger, scene, results, layout, people) -> None:
+def _log_rays(logger, scene, results, people) -> None:
     """For each person of the frame: a segment per (used joint, view)."""
     if people is None:
         return

@@ -285,9 +285,11 @@ def test_failure_midway_leaves_no_partial_file(tiny, tmp_path, monkeypatch):
 
     monkeypatch.setattr(rerun_export, "encode_jpeg", flaky)
     target = tmp_path / "run.rrd"
+    threads = torch.get_num_threads()
     with pytest.raises(RuntimeError, match="disk on fire"):
         export_rrd(scene, results, model, target, progress=False)
     assert list(tmp_path.iterdir()) == []
+    assert torch.get_num_threads() == threads  # the export pins torch to 1 thread meanwhile
     # An existing recording survives a failed re-export untouched.
     target.write_bytes(b"old recording")
     calls["n"] = 0
