@@ -5,8 +5,14 @@ reaches into a stage. A frame change computes :func:`~mvviz.layers.frame_geometr
 and assigns it to existing scene handles; renders run on one worker thread through a
 "latest wins" slot, so scrubbing draws only the newest requested frame.
 
-Hooks for other panels: :meth:`ViewerApp.jump_to` (frame, track, joint, view) and
-:attr:`ViewerApp.state_changed`, callbacks ``(state, reason)`` run after each render.
+Each ``make_*_panel(server, state, on_change)`` builds one panel and returns a dataclass
+of its handles; its callbacks update the state and call ``on_change(reason)``.
+
+Hooks for other panels (filter tuning, failure review, export):
+:meth:`ViewerApp.jump_to` (frame, track, joint, view), :meth:`ViewerApp.focus` (point
+the clients' cameras), :meth:`ViewerApp.set_results` (show re-run results),
+:attr:`ViewerApp.state_changed` (callbacks ``(state, reason)`` after each render), and
+``app.server.gui`` for their own GUI.
 """
 
 from __future__ import annotations
@@ -22,14 +28,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import viser
 
-from mvviz.images import FrameStore, blank_frame, draw_overlay
+from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
 from mvviz.layers import (
     LayerToggles,
     SceneLayers,
     Selection,
     ViewerData,
     frame_geometry,
-    image_overlay,
     prepare,
 )
 from pipeline.body_model import BodyModel
@@ -129,7 +134,9 @@ class TimelinePanel:
     stats: viser.GuiMarkdownHandle
 
 
-def make_timeline_panel(server: viser.ViserServer, state: ViewerState, on_change: OnChange):
+def make_timeline_panel(
+    server: viser.ViserServer, state: ViewerState, on_change: OnChange
+) -> TimelinePanel:
     n = state.data.num_frames
     with server.gui.add_folder("Timeline") as folder:
         slider = server.gui.add_slider("Frame", min=0, max=max(n - 1, 0), step=1, initial_value=0)
@@ -196,7 +203,9 @@ LAYER_LABELS = {
 }
 
 
-def make_layers_panel(server: viser.ViserServer, state: ViewerState, on_change: OnChange):
+def make_layers_panel(
+    server: viser.ViserServer, state: ViewerState, on_change: OnChange
+) -> LayersPanel:
     toggles = {}
     with server.gui.add_folder("Layers") as folder:
         for name, label in LAYER_LABELS.items():
@@ -235,7 +244,9 @@ class SelectionPanel:
 NO_TRACK = "none"
 
 
-def make_selection_panel(server: viser.ViserServer, state: ViewerState, on_change: OnChange):
+def make_selection_panel(
+    server: viser.ViserServer, state: ViewerState, on_change: OnChange
+) -> SelectionPanel:
     data, sel = state.data, state.selection
     tracks = (NO_TRACK,) + tuple(str(k) for k in range(data.num_tracks))
     joints = data.joint_set.names or ("-",)
@@ -248,7 +259,7 @@ def make_selection_panel(server: viser.ViserServer, state: ViewerState, on_chang
 
     def update(_) -> None:
         t = None if track.value == NO_TRACK else int(track.value)
-        j = joints.index(joint.value)
+        j = joint.options.index(joint.value)
         state.selection = dataclasses.replace(state.selection, track=t, joint=j)
         on_change("selection")
 
@@ -264,7 +275,9 @@ class CameraPanel:
     image: viser.GuiImageHandle
 
 
-def make_camera_panel(server: viser.ViserServer, state: ViewerState, on_change: OnChange):
+def make_camera_panel(
+    server: viser.ViserServer, state: ViewerState, on_change: OnChange
+) -> CameraPanel:
     names = tuple(state.scene.rig.names)
     cam = state.scene.rig[state.camera]
     w = PANEL_IMAGE_WIDTH
@@ -275,7 +288,7 @@ def make_camera_panel(server: viser.ViserServer, state: ViewerState, on_change: 
             blank_frame(w, round(cam.height * w / cam.width)), format="jpeg", jpeg_quality=80
         )
     panel.dock_left()
-    panel.set_width(440)
+    panel.set_width(400)
 
     @camera.on_update
     def _(_) -> None:
@@ -364,9 +377,15 @@ class ViewerApp:
         self._play_wake = threading.Event()
         self._applied_layers: LayerToggles | None = None
         self.last_render_ms: dict[str, float] = {}
+        self.render_errors: list[str] = []
+        self._render_lock = threading.Lock()
 
         server = self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
         server.gui.configure_theme(control_width="medium", show_share_button=False)
+        # Dock both panels so the 3D canvas is the free space between them, and the
+        # initial camera's look-at point lands in the middle of what is visible.
+        server.gui.main_panel.dock_right()
+        server.gui.main_panel.set_width(340)
         server.scene.set_up_direction("+z")
         self._set_initial_camera()
         self.layers = SceneLayers(server, state.data, on_joint_click=self._on_joint_click)
@@ -417,8 +436,32 @@ class ViewerApp:
         if frame is not None:
             self.set_frame(frame)
 
+    def focus(self, target: np.ndarray, offset: np.ndarray | None = None) -> None:
+        """Point every connected client's camera at ``target`` (world metres) from
+        ``target + offset`` (default: 2.5 m away, from behind-left and above)."""
+        target = np.asarray(target, float)
+        offset = np.array([-1.4, -1.9, 1.0]) if offset is None else np.asarray(offset, float)
+        for client in self.server.get_clients().values():
+            client.camera.position = target + offset  # moves look_at along with it
+            client.camera.look_at = target
+
     def redraw(self) -> None:
         self._on_change("redraw")
+
+    def set_results(self, results: PipelineResults) -> None:
+        """Show new results of the same scene (e.g. re-run with other parameters): the
+        scene layers are rebuilt for the new tracks, the selection is kept where valid."""
+        old = self.state.data
+        data = prepare(old.scene, results, None, bodies=old.bodies)
+        with self._render_lock, self.server.atomic():
+            self.layers.remove()
+            self.state.data = data
+            self.layers = SceneLayers(self.server, data, on_joint_click=self._on_joint_click)
+            self._applied_layers = None
+        sel = self.selection_panel
+        sel.track.options = (NO_TRACK,) + tuple(str(k) for k in range(data.num_tracks))
+        sel.joint.options = data.joint_set.names
+        self._on_change("results")
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         return self._renderer.wait_idle(timeout)
@@ -453,7 +496,7 @@ class ViewerApp:
         d = d / max(np.linalg.norm(d), 1e-6)
         a = np.deg2rad(30.0)
         d = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) @ d
-        r = max(2.5, data.extent) * 1.15
+        r = max(3.5, 2.0 * data.spread + 1.5)
         pos = np.array([c[0] + d[0] * r, c[1] + d[1] * r, c[2] + 0.55 * r])
         self.server.initial_camera.position = tuple(pos)
         self.server.initial_camera.look_at = tuple(c)
@@ -477,6 +520,14 @@ class ViewerApp:
         self._renderer.request()
 
     def _render(self) -> None:
+        with self._render_lock:
+            try:
+                self._render_locked()
+            except Exception as exc:
+                self.render_errors.append(f"{type(exc).__name__}: {exc}")
+                raise
+
+    def _render_locked(self) -> None:
         t0 = time.perf_counter()
         with self._reasons_lock:
             reasons, self._reasons = self._reasons, set()

@@ -21,10 +21,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mvviz.layers import UNASSIGNED, LayerToggles, ViewerData, track_color
 from pipeline.files import save_npz_atomic
 from pipeline.scene import Scene
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -129,7 +130,7 @@ class FrameStore:
 
     def _resize(self, img: np.ndarray) -> np.ndarray:
         h, w = img.shape[:2]
-        if w == self.width:
+        if w <= self.width:  # never upscale
             return img
         size = (self.width, max(1, round(h * self.width / w)))
         return cv2.resize(img, size, interpolation=cv2.INTER_AREA)
@@ -154,8 +155,7 @@ class FrameStore:
             return None
         blob = data.tobytes()
         return [
-            blob[a:b] if b > a else None
-            for a, b in zip(offsets[:-1], offsets[1:], strict=True)
+            blob[a:b] if b > a else None for a, b in zip(offsets[:-1], offsets[1:], strict=True)
         ]
 
     def _save_cache(self, cam: str, frames: list[bytes | None]) -> None:
@@ -262,6 +262,38 @@ class Overlay2D:
     label: str
 
 
+def image_overlay(data: ViewerData, view: int, frame: int, lay: LayerToggles) -> Overlay2D:
+    """2D overlay of one camera and frame: its detections (if the 2D layer is on), the
+    filtered tracks reprojected (if the filtered layer is on), the ground truth projected
+    (if the GT layer is on). Pixels of the full-resolution image."""
+    cam, res, J = data.scene.rig[view], data.results, data.joint_set.num_joints
+    rows = data.rows_per_frame[frame]
+    r = rows[data.scene.detections.view[rows] == view] if lay.detections2d else rows[:0]
+    det_col = np.where(
+        (res.det_person[r] < 0)[:, None], UNASSIGNED, track_color(data.det_track[r])
+    ).astype(np.uint8)
+    reproj, reproj_col = np.zeros((0, J, 2)), np.zeros((0, 3), np.uint8)
+    if lay.filtered:
+        pts = data.filtered[:, frame]  # (K, J, 3) mm
+        keep = np.flatnonzero(np.isfinite(pts).all(-1).any(-1))
+        reproj, reproj_col = cam.project(pts[keep]), track_color(keep)
+    gt_px = np.zeros((0, data.gt_joint_set.num_joints, 2))
+    if lay.gt and data.gt_points is not None:
+        gt_px = cam.project(data.gt_points[data.gt_rows_per_frame[frame]])
+    return Overlay2D(
+        camera=cam.name,
+        image_size=(cam.width, cam.height),
+        detections=res.det_joints2d[r],
+        detection_colors=det_col,
+        reprojections=reproj,
+        reprojection_colors=reproj_col,
+        gt=gt_px,
+        bones=data.joint_set.bones,
+        gt_bones=data.gt_joint_set.bones,
+        label=f"{cam.name}  frame {frame}",
+    )
+
+
 def blank_frame(width: int, height: int) -> np.ndarray:
     """A dark-grey frame for a camera without video."""
     return np.full((height, width, 3), 48, np.uint8)
@@ -304,7 +336,7 @@ def draw_overlay(image: np.ndarray, ov: Overlay2D) -> np.ndarray:
     out = np.ascontiguousarray(image.copy())
     w = out.shape[1]
     s = w / ov.image_size[0]
-    r = max(2, round(4.8 * s))
+    r = max(2, round(3 * w / 640))
     for person in ov.gt:
         ok = np.ones(len(person), bool)
         _draw_skeleton(out, person * s, ok, ov.gt_bones, (30, 30, 30), thickness=1,

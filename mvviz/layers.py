@@ -34,7 +34,6 @@ import trimesh
 import viser
 import viser.transforms as vtf
 
-from mvviz.images import Overlay2D
 from pipeline.body_model import BodyModel, axis_angle_to_matrix, rigid_chain
 from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
@@ -101,7 +100,7 @@ class LayerToggles:
     gt: bool = True
     trails: bool = True
     trail_window: int = 25
-    meshes: bool = True
+    meshes: bool = False  # opaque bodies hide the skeletons inside them
 
 
 @dataclass(frozen=True)
@@ -262,6 +261,7 @@ class ViewerData:
     bodies: GtBodies | None
     min_confidence: float
     center: np.ndarray  # (3,) m, middle of the action
+    spread: float  # m, horizontal half-size of the action
     extent: float  # m, radius of the rig
 
     @property
@@ -273,11 +273,21 @@ class ViewerData:
         return self.results.num_tracks
 
 
-def prepare(scene: Scene, results: PipelineResults, model: BodyModel | None) -> ViewerData:
-    """Precompute per-frame indices, colours, camera geometry and GT bone poses."""
+def prepare(
+    scene: Scene,
+    results: PipelineResults,
+    model: BodyModel | None,
+    *,
+    bodies: GtBodies | None = None,
+) -> ViewerData:
+    """Precompute per-frame indices, colours, camera geometry and GT bone poses
+    (``bodies`` reuses already computed ones, e.g. when only the results changed)."""
     F = scene.num_frames
-    if results.num_frames != F:
-        raise ValueError(f"results have {results.num_frames} frames, the scene {F}")
+    if results.num_frames != F or len(results.det_person) != len(scene.detections):
+        raise ValueError(
+            f"results ({results.num_frames} frames, {len(results.det_person)} detections) "
+            f"are not of this scene ({F} frames, {len(scene.detections)} detections)"
+        )
     joint_set = get_joint_set(results.joint_set)
     det_person = results.det_person
     det_track = np.full(len(det_person), -1)
@@ -305,7 +315,12 @@ def prepare(scene: Scene, results: PipelineResults, model: BodyModel | None) -> 
     pts = pts[np.isfinite(pts).all(1)]
     if len(pts) == 0 and gt_points is not None:
         pts = gt_points.reshape(-1, 3)
-    center = np.median(pts, 0) * MM if len(pts) else np.array([0.0, 0.0, 1.0])
+    if len(pts):  # the middle of where people go, and how far they spread
+        lo, hi = np.percentile(pts * MM, 5, axis=0), np.percentile(pts * MM, 95, axis=0)
+        center = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, np.median(pts[:, 2]) * MM])
+        spread = float(np.linalg.norm(hi[:2] - lo[:2]) / 2)
+    else:
+        center, spread = np.array([0.0, 0.0, 1.0]), 2.0
     extent = float(np.max(np.linalg.norm((centers - center)[:, :2], axis=1), initial=3.0))
     return ViewerData(
         scene=scene,
@@ -320,9 +335,10 @@ def prepare(scene: Scene, results: PipelineResults, model: BodyModel | None) -> 
         filtered=results.track_filtered,
         gt_points=gt_points,
         cameras=[camera_geometry(c) for c in scene.rig],
-        bodies=gt_bodies(scene, model) if model is not None else None,
+        bodies=bodies if bodies is not None else gt_bodies(scene, model) if model else None,
         min_confidence=results.config.triangulation.min_confidence,
         center=center,
+        spread=spread,
         extent=extent,
     )
 
@@ -488,13 +504,15 @@ def rays(data: ViewerData, frame: int, *, track: int | None = None) -> Rays:
     )
 
 
-def trails(data: ViewerData, frame: int, joint: int, window: int) -> dict[int, Trail]:
-    """The selected joint of each track over ``[frame - window, frame + window]``."""
+def trails(
+    data: ViewerData, frame: int, joint: int, window: int, *, track: int | None = None
+) -> dict[int, Trail]:
+    """``joint`` of each track (or of ``track`` only) over ``[frame - window, frame + window]``."""
     lo, hi = max(0, frame - window), min(data.num_frames, frame + window + 1)
     raw = data.results.track_raw[:, lo:hi, joint] * MM  # (K, w, 3)
     filt = data.filtered[:, lo:hi, joint] * MM
     out = {}
-    for k in range(data.num_tracks):
+    for k in range(data.num_tracks) if track is None else [track]:
         a, b = polyline_segments(raw[k]), polyline_segments(filt[k])
         if len(a) or len(b):
             out[k] = Trail(a, b, track_color(k))
@@ -508,11 +526,12 @@ def frame_geometry(state: ViewerState, frame: int | None = None) -> FrameGeometr
     if not 0 <= f < data.num_frames:
         raise ValueError(f"frame {f} outside [0, {data.num_frames})")
     K = data.num_tracks
+    track = sel.track if sel.track is not None and 0 <= sel.track < K else None
     geom: dict = {"frame": f}
     if lay.detections2d:
         geom["detections2d"] = detections_2d(data, f)
     if lay.rays:
-        geom["rays"] = rays(data, f, track=sel.track if lay.rays_selected_only else None)
+        geom["rays"] = rays(data, f, track=track if lay.rays_selected_only else None)
     colors = track_color(np.arange(K))
     if lay.raw:
         geom["raw"] = _skeletons(data.results.track_raw[:, f], range(K), data.joint_set, colors)
@@ -521,11 +540,10 @@ def frame_geometry(state: ViewerState, frame: int | None = None) -> FrameGeometr
     if lay.gt and data.gt_points is not None:
         r = data.gt_rows_per_frame[f]
         pid = data.scene.gt.person_id[r]
-        geom["gt"] = _skeletons(
-            data.gt_points[r], pid, data.gt_joint_set, [GT_SKELETON] * len(r)
-        )
-    if lay.trails and lay.trail_window > 0 and data.joint_set.num_joints:
-        geom["trails"] = trails(data, f, sel.joint, lay.trail_window)
+        geom["gt"] = _skeletons(data.gt_points[r], pid, data.gt_joint_set, [GT_SKELETON] * len(r))
+    if lay.trails and lay.trail_window > 0 and 0 <= sel.joint < data.joint_set.num_joints:
+        # the selected track's trail; every track's while none is selected
+        geom["trails"] = trails(data, f, sel.joint, lay.trail_window, track=track)
     if lay.meshes and data.bodies is not None:
         b = data.bodies
         geom["meshes"] = {
@@ -534,38 +552,6 @@ def frame_geometry(state: ViewerState, frame: int | None = None) -> FrameGeometr
             if b.present[i, f]
         }
     return FrameGeometry(**geom)
-
-
-def image_overlay(data: ViewerData, view: int, frame: int, lay: LayerToggles) -> Overlay2D:
-    """2D overlay of one camera and frame: its detections (if the 2D layer is on), the
-    filtered tracks reprojected (if the filtered layer is on), the ground truth projected
-    (if the GT layer is on). Pixels of the full-resolution image."""
-    cam, res, J = data.scene.rig[view], data.results, data.joint_set.num_joints
-    rows = data.rows_per_frame[frame]
-    r = rows[data.scene.detections.view[rows] == view] if lay.detections2d else rows[:0]
-    det_col = np.where(
-        (res.det_person[r] < 0)[:, None], UNASSIGNED, track_color(data.det_track[r])
-    ).astype(np.uint8)
-    reproj, reproj_col = np.zeros((0, J, 2)), np.zeros((0, 3), np.uint8)
-    if lay.filtered:
-        pts = data.filtered[:, frame]  # (K, J, 3) mm
-        keep = np.flatnonzero(np.isfinite(pts).all(-1).any(-1))
-        reproj, reproj_col = cam.project(pts[keep]), track_color(keep)
-    gt_px = np.zeros((0, data.gt_joint_set.num_joints, 2))
-    if lay.gt and data.gt_points is not None:
-        gt_px = cam.project(data.gt_points[data.gt_rows_per_frame[frame]])
-    return Overlay2D(
-        camera=cam.name,
-        image_size=(cam.width, cam.height),
-        detections=res.det_joints2d[r],
-        detection_colors=det_col,
-        reprojections=reproj,
-        reprojection_colors=reproj_col,
-        gt=gt_px,
-        bones=data.joint_set.bones,
-        gt_bones=data.gt_joint_set.bones,
-        label=f"{cam.name}  frame {frame}",
-    )
 
 
 # --------------------------------------------------------------------------- viser nodes
@@ -577,11 +563,10 @@ def _icosphere(radius: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _set_segments(
-    handle: viser.LineSegmentsHandle, segments: np.ndarray, colors: np.ndarray | None = None
+    handle: viser.LineSegmentsHandle, segments: np.ndarray, colors: np.ndarray | None
 ) -> None:
-    """Show ``segments`` (S, 2, 3); hide the node when there are none.
-
-    ``colors``: None keeps the node's single colour; (S, 3) or (S, 2, 3) per segment.
+    """Show ``segments`` (S, 2, 3) coloured by ``colors`` ((3,), (S, 3) or (S, 2, 3), sent
+    per vertex; None keeps the node's uniform colour); hide the node when there are none.
     """
     if len(segments) == 0:
         handle.visible = False
@@ -590,12 +575,13 @@ def _set_segments(
     if colors is not None:
         c = np.asarray(colors, np.uint8)
         if c.shape == (len(segments), 3):
-            c = np.broadcast_to(c[:, None], segments.shape)
-        handle.colors = np.ascontiguousarray(c)
+            c = c[:, None]
+        handle.colors = np.ascontiguousarray(np.broadcast_to(c, segments.shape))
     handle.visible = True
 
 
 _EMPTY_SEG = np.zeros((1, 2, 3), np.float32)  # placeholder until the first frame
+_EMPTY_COLORS = np.zeros((1, 2, 3), np.uint8)
 _NO_SEG = np.zeros((0, 2, 3))
 
 
@@ -609,9 +595,26 @@ class SceneLayers:
     on_joint_click: Callable[[int, int], None] | None = None
     groups: dict[str, viser.SceneNodeHandle] = field(default_factory=dict)
     nodes: dict[str, viser.SceneNodeHandle] = field(default_factory=dict)
+    colors: dict[str, np.ndarray | None] = field(default_factory=dict)  # single-colour lines
+    gt_ids: list[int] = field(default_factory=list)
     meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
     _frustum_key: dict[str, object] = field(default_factory=dict)
     _selected: tuple[int | None, int] = (None, -1)
+
+    def _lines(self, path: str, color, thickness: float, units: str = "screen") -> None:
+        """A hidden line-segments node at ``path``.
+
+        viser 1.1's client shares line shaders between lines that differ only in having
+        per-vertex colours, so one kind per thickness unit: screen-space lines are always
+        coloured per vertex, world-unit lines (with their antialiasing fringe pass)
+        always uniformly; otherwise some lines come out white or washed out.
+        """
+        world = units == "world"
+        self.nodes[path] = self.server.scene.add_line_segments(
+            path, _EMPTY_SEG, color if world else _EMPTY_COLORS, thickness=thickness,
+            thickness_units=units, visible=False,
+        )  # fmt: skip
+        self.colors[path] = None if world else np.asarray(color, np.uint8)
 
     def __post_init__(self) -> None:
         scene, data = self.server.scene, self.data
@@ -637,7 +640,9 @@ class SceneLayers:
             group(path)
         for cam in data.cameras:
             base = f"/world/cameras/{cam.name}"
-            scene.add_frame(base, show_axes=False, wxyz=cam.wxyz, position=cam.position)
+            self.groups[base] = scene.add_frame(
+                base, show_axes=False, wxyz=cam.wxyz, position=cam.position
+            )
             self.nodes[f"{base}/frustum"] = scene.add_camera_frustum(
                 f"{base}/frustum",
                 fov=cam.fov,
@@ -646,12 +651,16 @@ class SceneLayers:
                 thickness=1.5,
                 thickness_units="screen",
                 color=(60, 60, 60),
+                cast_shadow=False,
+                receive_shadow=False,
             )
             self.nodes[f"{base}/label"] = scene.add_label(
                 f"{base}/label", cam.name, anchor="bottom-center"
             )
             d2 = f"/world/detections2d/{cam.name}"
-            scene.add_frame(d2, show_axes=False, wxyz=cam.wxyz, position=cam.position)
+            self.groups[d2] = scene.add_frame(
+                d2, show_axes=False, wxyz=cam.wxyz, position=cam.position
+            )
             self.nodes[f"{d2}/joints"] = scene.add_point_cloud(
                 f"{d2}/joints",
                 np.zeros((1, 3), np.float32),
@@ -661,36 +670,22 @@ class SceneLayers:
                 precision="float32",
                 visible=False,
             )
-            self.nodes[f"{d2}/bones"] = scene.add_line_segments(
-                f"{d2}/bones", _EMPTY_SEG, (0, 0, 0), thickness=1.5,
-                thickness_units="screen", visible=False,
-            )  # fmt: skip
+            self._lines(f"{d2}/bones", UNASSIGNED, 1.5)
         group("/world/rays")
-        self.nodes["/world/rays/used"] = scene.add_line_segments(
-            "/world/rays/used", _EMPTY_SEG, (0, 0, 0), thickness=1.6, thickness_units="screen",
-            visible=False,
-        )  # fmt: skip
-        self.nodes["/world/rays/outliers"] = scene.add_line_segments(
-            "/world/rays/outliers", _EMPTY_SEG, OUTLIER, thickness=2.5,
-            thickness_units="screen", visible=False,
-        )  # fmt: skip
+        self._lines("/world/rays/used", UNTRACKED, 1.6)
+        self._lines("/world/rays/outliers", OUTLIER, 2.5)
         J = data.joint_set.num_joints
         sv, sf = _icosphere(0.025)
         for k in range(data.num_tracks):
             col = track_color(k)
             raw = f"/world/skeletons/raw/{k}"
-            self.nodes[f"{raw}/bones"] = scene.add_line_segments(
-                f"{raw}/bones", _EMPTY_SEG, pale(col, 0.45), thickness=2.0,
-                thickness_units="screen", visible=False,
-            )  # fmt: skip
+            self._lines(f"{raw}/bones", pale(col, 0.45), 2.0)
             self.nodes[f"{raw}/joints"] = scene.add_point_cloud(
                 f"{raw}/joints", np.zeros((1, 3), np.float32), pale(col, 0.45),
                 point_size=0.03, point_shape="circle", precision="float32", visible=False,
             )  # fmt: skip
             filt = f"/world/skeletons/filtered/{k}"
-            self.nodes[f"{filt}/bones"] = scene.add_line_segments(
-                f"{filt}/bones", _EMPTY_SEG, col, thickness=0.022, visible=False
-            )
+            self._lines(f"{filt}/bones", col, 0.022, "world")
             joints = scene.add_batched_meshes_simple(
                 f"{filt}/joints",
                 sv,
@@ -704,17 +699,12 @@ class SceneLayers:
             )
             self.nodes[f"{filt}/joints"] = joints
             joints.on_click(self._click_handler(k))
-            for kind, thick in (("raw", 2.0), ("filtered", 3.5)):
-                path = f"/world/trails/{k}/{kind}"
-                c = pale(col, 0.45) if kind == "raw" else col
-                self.nodes[path] = scene.add_line_segments(
-                    path, _EMPTY_SEG, c, thickness=thick, thickness_units="screen", visible=False
-                )
-        for pid in np.unique(data.scene.gt.person_id) if data.gt_points is not None else []:
-            path = f"/world/skeletons/gt/{pid}"
-            self.nodes[path] = scene.add_line_segments(
-                path, _EMPTY_SEG, GT_SKELETON, thickness=0.012, visible=False
-            )
+            self._lines(f"/world/trails/{k}/raw", pale(col, 0.45), 2.0)
+            self._lines(f"/world/trails/{k}/filtered", col, 3.5)
+        if data.gt_points is not None:
+            self.gt_ids = [int(p) for p in np.unique(data.scene.gt.person_id)]
+        for pid in self.gt_ids:
+            self._lines(f"/world/skeletons/gt/{pid}", GT_SKELETON, 0.012, "world")
         b = data.bodies
         if b is not None:
             ident = np.tile([1.0, 0, 0, 0], (24, 1))
@@ -727,11 +717,20 @@ class SceneLayers:
                     bone_positions=b.rest_joints[i],
                     skin_weights=b.weights,
                     color=GT_MESH,
-                    opacity=0.45,
+                    # Opaque: a translucent skinned mesh washes out every line in
+                    # viser 1.1's renderer (the lines' blended fringe pass).
+                    opacity=None,
                     cast_shadow=False,
                     receive_shadow=False,
                     visible=False,
                 )
+
+    def remove(self) -> None:
+        """Remove every node this object created (children before parents)."""
+        handles = list(self.meshes.values()) + list(self.nodes.values())
+        handles += sorted(self.groups.values(), key=lambda h: -h.name.count("/"))
+        for h in handles:
+            h.remove()
 
     def _click_handler(self, track: int):
         def handler(event: viser.SceneNodePointerEvent) -> None:
@@ -741,6 +740,9 @@ class SceneLayers:
         return handler
 
     # ------------------------------------------------------------------ updates
+
+    def _update(self, path: str, segments: np.ndarray) -> None:
+        _set_segments(self.nodes[path], segments, self.colors[path])
 
     def set_visibility(self, lay: LayerToggles) -> None:
         g = self.groups
@@ -782,25 +784,25 @@ class SceneLayers:
                 pc.colors = d.colors
                 pc.visible = True
             seg = d.segments if d is not None else _NO_SEG
-            cols = d.segment_colors if d is not None else None
+            cols = d.segment_colors if d is not None else UNASSIGNED
             _set_segments(nodes[f"/world/detections2d/{cam.name}/bones"], seg, cols)
         if geom.rays is not None:
             r = geom.rays
             used = ~r.outlier
             _set_segments(nodes["/world/rays/used"], r.segments[used], r.colors[used])
-            _set_segments(nodes["/world/rays/outliers"], r.segments[r.outlier])
+            _set_segments(nodes["/world/rays/outliers"], r.segments[r.outlier], OUTLIER)
         J = data.joint_set.num_joints
         for k in range(data.num_tracks):
             raw, filt = f"/world/skeletons/raw/{k}", f"/world/skeletons/filtered/{k}"
             s = geom.raw.get(k)
-            _set_segments(nodes[f"{raw}/bones"], s.segments if s else _NO_SEG)
+            self._update(f"{raw}/bones", s.segments if s else _NO_SEG)
             pc = nodes[f"{raw}/joints"]
             pts = s.joints[np.isfinite(s.joints).all(1)] if s else np.zeros((0, 3))
             if len(pts):
                 pc.points = pts.astype(np.float32)
             pc.visible = len(pts) > 0
             s = geom.filtered.get(k)
-            _set_segments(nodes[f"{filt}/bones"], s.segments if s else _NO_SEG)
+            self._update(f"{filt}/bones", s.segments if s else _NO_SEG)
             jm = nodes[f"{filt}/joints"]
             if s is None or J == 0:
                 jm.visible = False
@@ -815,11 +817,10 @@ class SceneLayers:
             t = geom.trails.get(k)
             for kind in ("raw", "filtered"):
                 seg = getattr(t, kind) if t is not None else _NO_SEG
-                _set_segments(nodes[f"/world/trails/{k}/{kind}"], seg)
-        for path, h in nodes.items():
-            if path.startswith("/world/skeletons/gt/"):
-                s = geom.gt.get(int(path.rsplit("/", 1)[1]))
-                _set_segments(h, s.segments if s else _NO_SEG)
+                self._update(f"/world/trails/{k}/{kind}", seg)
+        for pid in self.gt_ids:
+            s = geom.gt.get(pid)
+            self._update(f"/world/skeletons/gt/{pid}", s.segments if s else _NO_SEG)
         for pid, mesh in self.meshes.items():
             bp = geom.meshes.get(pid)
             if bp is None:
@@ -829,4 +830,3 @@ class SceneLayers:
                 bone.wxyz = bp.wxyz[i]
                 bone.position = bp.position[i]
             mesh.visible = True
-

@@ -163,6 +163,31 @@ def swing_twist(pose_rotvecs: np.ndarray) -> np.ndarray:
     return np.where(LIMITED[:, None], out, r)
 
 
+def from_swing_twist(angles: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`swing_twist`: (..., 24, 3) (swing_a, swing_b, twist) radians ->
+    (..., 24, 3) local axis-angle (the root row is taken as its rotation vector)."""
+    ang = np.asarray(angles, float)
+    if ang.shape[-2:] != (NUM_JOINTS, 3):
+        raise ValueError(f"expected angles (..., 24, 3), got {ang.shape}")
+    sa, sb, tw = np.moveaxis(ang, -1, 0)
+    s_angle = np.hypot(sa, sb)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.where(s_angle > 1e-9, np.sin(0.5 * s_angle) / s_angle, 0.5)
+    sw, sx, sy = np.cos(0.5 * s_angle), k * sa, k * sb
+    ct, st = np.cos(0.5 * tw), np.sin(0.5 * tw)
+    # q = swing * twist with twist = (ct, 0, 0, st)
+    q = np.stack([sw * ct, sx * ct + sy * st, sy * ct - sx * st, sw * st], -1)
+    w = np.clip(q[..., 0], -1.0, 1.0)
+    v = q[..., 1:]
+    vnorm = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(vnorm, w[..., None])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        local = np.where(vnorm > 1e-12, v * angle / vnorm, 2.0 * v)
+    r = np.einsum("jba,...jb->...ja", AXES, local)  # back to the canonical frame
+    r = np.where(MIRROR[:, None], r * np.array([1.0, -1.0, -1.0]), r)
+    return np.where(LIMITED[:, None], r, ang)
+
+
 def limit_excess(pose_rotvecs: np.ndarray) -> np.ndarray:
     """How far each joint is outside its limits.
 
@@ -221,7 +246,9 @@ ELBOW_FLEXION_MAX_DEG = 150.0
 def _check_tracks(joints: np.ndarray) -> np.ndarray:
     joints = np.asarray(joints, float)
     if joints.ndim != 4 or joints.shape[-2:] != (NUM_JOINTS, 3):
-        raise ValueError(f"expected (num_tracks, num_frames, 24, 3) SMPL-24 slots, got {joints.shape}")
+        raise ValueError(
+            f"expected (num_tracks, num_frames, 24, 3) SMPL-24 slots, got {joints.shape}"
+        )
     return joints
 
 
@@ -241,9 +268,7 @@ def bone_length_std(
     length = np.linalg.norm(joints[:, :, b[:, 0]] - joints[:, :, b[:, 1]], axis=-1)  # (K, F, B)
     out = np.full(joints.shape[0], np.nan)
     for k in range(joints.shape[0]):
-        stds = [
-            np.std(col[np.isfinite(col)]) for col in length[k].T if np.isfinite(col).sum() >= 2
-        ]
+        stds = [np.std(col[np.isfinite(col)]) for col in length[k].T if np.isfinite(col).sum() >= 2]
         if stds:
             out[k] = float(np.mean(stds))
     return out
@@ -278,9 +303,7 @@ def hinge_flexion(joints: np.ndarray) -> np.ndarray:
     return np.stack(out, -1)
 
 
-def hinge_violations_per_1000(
-    joints: np.ndarray, *, tol_deg: float = DEFAULT_TOL_DEG
-) -> float:
+def hinge_violations_per_1000(joints: np.ndarray, *, tol_deg: float = DEFAULT_TOL_DEG) -> float:
     """Knee/elbow flexion outside 0..150 deg (knees) / above 150 deg (elbows), per 1000
     bodies (NaN-aware: a hinge with a missing joint is not scored; the denominator is the
     number of bodies with at least one scored hinge)."""

@@ -1,0 +1,970 @@
+"""SMPL fit to tracked 3D joints by gradient descent, and its correction by a pose prior.
+
+Input: tracks of 3D joints ``(num_tracks, num_frames, num_joints, 3)`` in world
+millimetres (z up), NaN where a joint or a whole person-frame is missing, in the
+COCO-17 (keypoint triangulation) or SMPL-24 joint set. Output: per track a body shape,
+and per frame a pose and a translation (:class:`SmplFit`). Internally everything is in
+metres, the body model's unit, so that the switch of the Smooth L1 loss at
+``|x| = beta`` means something: ``beta = 0.05 m`` by default (residuals below 5 cm are
+penalised quadratically, larger ones, e.g. a mis-triangulated joint, linearly).
+
+The model ``body = 1000 * model(pose, betas) + transl`` (the convention of
+:class:`pipeline.scene.GroundTruth`) has SMPL's canonical frame (y up); the root
+rotation carries it into the z-up world.
+
+What the model predicts for each target set:
+
+* SMPL-24 targets: the posed joints (forward kinematics of the shaped rest joints).
+* COCO-17 targets: ``coco_regressor @ vertices``. The regressor reads 4,465 of the open
+  model's 13,348 vertices; rather than skinning those, the fit uses that the regressor
+  and linear blend skinning are both linear, so for keypoint ``k``::
+
+      kp_k = sum_j G_j (D0_kj + Dbeta_kj @ betas [+ E_kj @ posefeat]) + sum_j A_kj p_j + s_k t
+
+  with ``G_j, p_j`` the global rotation and position of joint ``j``, ``A = R W`` the
+  regressor-blended skinning weights (17, 24), ``D = R W (v_shaped) - A * rest_joints``
+  precomputed once per model (:class:`KeypointBuffers`). That is exactly the regressor
+  applied to the full LBS mesh (a test checks it to 1e-6 m) at the cost of 17 x 24
+  "virtual vertices".
+
+Optimisation (all person-frames of all tracks in one batch, Adam):
+
+* Phase 0, closed form, per frame (no gradient; the global initialisation every frame
+  starts from, so no frame waits for its predecessor): betas per track from the median
+  bone lengths of its targets (rest joints are linear in betas: a few Gauss-Newton
+  steps of ridge least squares, :func:`initial_betas`); root rotation by weighted
+  Kabsch of the rest body's torso points (shoulders and hips, plus pelvis, spine3 and
+  neck for SMPL-24 targets) onto the targets, translation following from it
+  (:func:`initial_alignment`; a frame without three torso points copies the nearest
+  frame of its track); limbs by analytic hinge IK (:func:`analytic_pose`: the upper joint
+  points the bone and the knee/elbow axis at the limb plane, the hinge bends about its
+  flexion axis; SMPL-24 targets also swing spine, neck, collars, ankles and wrists).
+* Phase 1, step I (``iters``): optimised: all 24 joint rotations per frame in the 6D
+  representation of Zhou et al. 2019 (root included), translation per frame, betas
+  per track (shared by all its frames). Loss = weighted Smooth L1 data term (NaN target
+  = weight 0) + ``w_smooth`` * squared second differences of the 24 model joints over
+  consecutive frames of a track + ``w_betas`` * |betas|^2 + ``w_pose`` * |R - I|^2 over
+  all non-root joints + ``w_free`` * |R - I|^2 over the joints the target set does not
+  constrain (COCO-17: spine, neck, head, collars, wrists, hands, ankles, feet; SMPL-24:
+  head, hands, feet, whose rotations move no joint). Learning rates decay by a cosine
+  schedule to 5% (:class:`FitParams`).
+* Joint correction with the VAE prior (Eq. 11; only with ``prior``), starting from step I:
+
+  - Phase 2a, encode: ``z = mean of q(z | body pose of step I)`` per frame.
+  - Phase 2b, latent fit (``iters_latent``): optimised: ``z`` per frame, root 6D and
+    translation per frame; the body pose is the decoder's output; betas fixed (step I).
+    Loss = data + ``w_latent`` * |z|^2 (the N(0, I) prior) + ``w_smooth`` term.
+  - Phase 2c, refine (``iters_refine``): optimised: all 24 rotations (6D, from the
+    decoded pose) and translation per frame; betas fixed. Loss = data + ``w_anchor`` *
+    |R_body - R_decoded|^2 (decoded pose of 2b, fixed) + ``w_smooth`` + ``w_pose`` terms.
+    Its joints and mesh are X'_end.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
+
+from pipeline import pose_limits
+from pipeline.body_model import BodyModel
+from pipeline.joint_sets import COCO17, SMPL24, get_joint_set, mapping_indices
+
+if TYPE_CHECKING:
+    from pipeline.pose_prior import PosePrior
+
+MM_PER_M = 1000.0
+NUM_JOINTS = SMPL24.num_joints
+SUPPORTED_JOINT_SETS = (COCO17.name, SMPL24.name)
+_J = SMPL24.index
+
+# Joints whose rotation the targets leave (nearly) free: pulled towards rest by w_free.
+FREE_JOINTS: dict[str, tuple[str, ...]] = {
+    COCO17.name: (
+        "spine1", "spine2", "spine3", "neck", "head", "left_collar", "right_collar",
+        "left_wrist", "right_wrist", "left_hand", "right_hand", "left_ankle", "right_ankle",
+        "left_foot", "right_foot",
+    ),
+    SMPL24.name: ("head", "left_hand", "right_hand", "left_foot", "right_foot"),
+}  # fmt: skip
+# Torso points for the closed-form root alignment (phase 0).
+TORSO_JOINTS: dict[str, tuple[str, ...]] = {
+    COCO17.name: ("left_shoulder", "right_shoulder", "left_hip", "right_hip"),
+    SMPL24.name: (
+        "pelvis", "left_hip", "right_hip", "spine3", "neck", "left_shoulder", "right_shoulder",
+    ),
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class FitParams:
+    """Weights, iterations and learning rates of the fit; losses are means, metres."""
+
+    smooth_l1_beta_m: float = 0.05
+    """Smooth L1 switch point, metres: quadratic below, linear above."""
+    iters: int = 120
+    """Adam iterations of step I."""
+    lr_rot: float = 0.04
+    """Learning rate of the 6D rotations (unit-scale vectors)."""
+    lr_transl_m: float = 0.01
+    lr_betas: float = 0.05
+    lr_latent: float = 0.05
+    w_smooth: float = 2.0
+    """Squared joint acceleration (m/frame^2)^2 over consecutive frames of a track."""
+    w_betas: float = 1e-5
+    w_pose: float = 2e-5
+    """|R - I|_F^2 of every non-root joint."""
+    w_free: float = 2e-4
+    """|R - I|_F^2 of the joints the target set leaves free (:data:`FREE_JOINTS`)."""
+    iters_latent: int = 60
+    iters_refine: int = 60
+    w_latent: float = 1e-4
+    """|z|^2 of the latent code (the VAE's N(0, I) prior) in phase 2b."""
+    w_anchor: float = 2e-2
+    """|R_body - R_decoded|_F^2 in the refinement, phase 2c."""
+    min_torso_points: int = 3
+    num_threads: int = 1
+    """torch intra-op threads during the fit (restored after). The work per op is small
+    (about 1000 x 24 3x3 matrices), so on a busy 2-core machine one thread is both
+    faster and steadier than two; 0 leaves torch's setting alone."""
+
+
+# --------------------------------------------------------------------------- rotations
+
+
+def rot6d_to_matrix(rot6d: torch.Tensor) -> torch.Tensor:
+    """Zhou et al.'s 6D representation -> rotation matrices by Gram-Schmidt.
+
+    Args:
+        rot6d: (..., 6), the first two columns ``(a1, a2)`` of a matrix, concatenated.
+    Returns:
+        (..., 3, 3) with columns ``b1 = a1/|a1|``, ``b2`` = unit part of ``a2`` orthogonal
+        to ``b1``, ``b3 = b1 x b2``.
+    """
+    a1, a2 = rot6d[..., :3], rot6d[..., 3:]
+    b1 = a1 * torch.rsqrt((a1 * a1).sum(-1, keepdim=True).clamp_min(1e-12))
+    u2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
+    b2 = u2 * torch.rsqrt((u2 * u2).sum(-1, keepdim=True).clamp_min(1e-12))
+    x1, y1, z1 = b1.unbind(-1)
+    x2, y2, z2 = b2.unbind(-1)
+    b3 = torch.stack([y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2], -1)
+    return torch.stack([b1, b2, b3], -1)
+
+
+def matrix_to_rot6d(rotmats: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) -> (..., 6): the first two columns, concatenated."""
+    return torch.cat([rotmats[..., :, 0], rotmats[..., :, 1]], -1)
+
+
+def matrix_to_rotvec(rotmats: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) -> (..., 3) axis-angle (angle in [0, pi])."""
+    R = np.asarray(rotmats, float)
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
+def rotvec_to_matrix(rotvecs: np.ndarray) -> np.ndarray:
+    """(..., 3) axis-angle -> (..., 3, 3)."""
+    r = np.asarray(rotvecs, float)
+    return Rotation.from_rotvec(r.reshape(-1, 3)).as_matrix().reshape(r.shape[:-1] + (3, 3))
+
+
+# --------------------------------------------------------------------------- kinematics
+
+
+@dataclass(frozen=True, eq=False)
+class KeypointBuffers:
+    """What the fit needs of a body model for one target joint set, precomputed once.
+
+    Shapes: J = 24 joints, T target joints, B betas. Metres.
+    """
+
+    joint_set: str
+    parents: np.ndarray  # (J,) kinematic parent, -1 for the root
+    level_joints: tuple[torch.Tensor, ...]  # per tree level: joint indices
+    level_parents: tuple[torch.Tensor, ...]  # per level: parent's position in the level above
+    level_order: torch.Tensor  # (J,) position of each joint in the level-concatenated order
+    J_template: torch.Tensor  # (J, 3)
+    J_shapedirs: torch.Tensor  # (J, 3, B)
+    A: torch.Tensor | None  # (T, J) regressor-blended skinning weights (COCO targets)
+    D0: torch.Tensor | None  # (T, J, 3)
+    Dbeta: torch.Tensor | None  # (T, J, 3, B)
+    E: torch.Tensor | None  # (T, J, 3, 207) pose blend shapes, licensed SMPL only
+    rowsum: torch.Tensor | None  # (T,) regressor row sums (1 for a proper regressor)
+    free_weight: torch.Tensor  # (J,) 1 for joints of FREE_JOINTS
+    torso: np.ndarray  # indices into the target set
+
+    @property
+    def num_targets(self) -> int:
+        return get_joint_set(self.joint_set).num_joints
+
+
+_BUFFER_CACHE: dict[tuple[int, str], KeypointBuffers] = {}
+
+
+def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
+    """Precompute (once per model and joint set) the kinematic tree and target regressor."""
+    js = get_joint_set(joint_set)
+    if js.name not in SUPPORTED_JOINT_SETS:
+        raise ValueError(f"SMPL fit targets must be one of {SUPPORTED_JOINT_SETS}, got {js.name!r}")
+    key = (id(model), js.name)
+    if key in _BUFFER_CACHE:
+        return _BUFFER_CACHE[key]
+    parents = model.parents
+    levels = model.levels
+    level_joints, level_parents = [], []
+    for d, lv in enumerate(levels):
+        level_joints.append(torch.as_tensor(lv, dtype=torch.long))
+        if d > 0:
+            prev = list(levels[d - 1])
+            level_parents.append(torch.as_tensor([prev.index(parents[j]) for j in lv]))
+        else:
+            level_parents.append(torch.zeros(0, dtype=torch.long))
+    order = np.concatenate(levels)
+    level_order = torch.as_tensor(np.argsort(order), dtype=torch.long)
+    with torch.no_grad():
+        A = D0 = Dbeta = E = rowsum = None
+        if js.name == COCO17.name:
+            if model.coco_regressor is None:
+                raise ValueError(f"body model {model.source} has no coco_regressor")
+            # Only the vertices the regressor reads matter (4,465 of the open model's).
+            used = torch.nonzero(model.coco_regressor.abs().sum(0) > 0)[:, 0]
+            Rk = model.coco_regressor[:, used].double()  # (T, V')
+            W = model.weights[used].double()  # (V', J)
+            RW = Rk[:, :, None] * W[None]  # (T, V', J): each keypoint's skinning blend
+            A = RW.sum(1)
+            B0 = torch.einsum("tvj,vc->tjc", RW, model.v_template[used].double())
+            Bb = torch.einsum("tvj,vcb->tjcb", RW, model.shapedirs[used].double())
+            D0 = B0 - A[..., None] * model.J_template.double()[None]
+            Dbeta = Bb - A[..., None, None] * model.J_shapedirs.double()[None]
+            if model.has_posedirs:
+                pd = model.posedirs.double().T.reshape(model.num_vertices, 3, -1)[used]
+                E = torch.einsum("tvj,vcp->tjcp", RW, pd).float()
+            rowsum = Rk.sum(1).float()
+            A, D0, Dbeta = A.float(), D0.float(), Dbeta.float()
+    free = torch.zeros(NUM_JOINTS)
+    free[[_J[n] for n in FREE_JOINTS[js.name]]] = 1.0
+    buf = KeypointBuffers(
+        joint_set=js.name,
+        parents=np.asarray(parents),
+        level_joints=tuple(level_joints),
+        level_parents=tuple(level_parents),
+        level_order=level_order,
+        J_template=model.J_template.detach().clone(),
+        J_shapedirs=model.J_shapedirs.detach().clone(),
+        A=A,
+        D0=D0,
+        Dbeta=Dbeta,
+        E=E,
+        rowsum=rowsum,
+        free_weight=free,
+        torso=np.array([js.index[n] for n in TORSO_JOINTS[js.name]]),
+    )
+    _BUFFER_CACHE[key] = buf
+    return buf
+
+
+def rest_joints(betas: torch.Tensor, buf: KeypointBuffers) -> torch.Tensor:
+    """(N, B) betas -> (N, 24, 3) rest joints, metres."""
+    return buf.J_template + torch.einsum("jcb,nb->njc", buf.J_shapedirs, betas)
+
+
+def forward_kinematics(
+    rotmats: torch.Tensor, rest: torch.Tensor, buf: KeypointBuffers
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Forward kinematics composed one tree level at a time (9 levels for SMPL).
+
+    Args:
+        rotmats: (N, 24, 3, 3) local rotations; rest: (N, 24, 3) rest joints.
+    Returns:
+        glob_rot (N, 24, 3, 3) and posed joints (N, 24, 3), metres, no translation.
+    """
+    rots, poss = [], []
+    for d, (lv, par) in enumerate(zip(buf.level_joints, buf.level_parents, strict=True)):
+        R = rotmats[:, lv]
+        if d == 0:
+            rots.append(R)
+            poss.append(rest[:, lv])
+            continue
+        Rp = rots[-1][:, par]
+        offset = rest[:, lv] - rest[:, buf.level_joints[d - 1][par]]
+        rots.append(Rp @ R)
+        poss.append(poss[-1][:, par] + (Rp @ offset[..., None])[..., 0])
+    glob = torch.cat(rots, 1)[:, buf.level_order]
+    posed = torch.cat(poss, 1)[:, buf.level_order]
+    return glob, posed
+
+
+def predict_targets(
+    rotmats: torch.Tensor,
+    betas: torch.Tensor,
+    transl: torch.Tensor,
+    buf: KeypointBuffers,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The model's target joints and its SMPL-24 joints.
+
+    Args:
+        rotmats: (N, 24, 3, 3) local rotations; betas: (N, B); transl: (N, 3) metres.
+    Returns:
+        targets (N, T, 3) in ``buf.joint_set`` and joints (N, 24, 3), metres, world.
+    """
+    rest = rest_joints(betas, buf)
+    glob, posed = forward_kinematics(rotmats, rest, buf)
+    joints = posed + transl[:, None]
+    if buf.A is None:
+        return joints, joints
+    N = rotmats.shape[0]
+    # sum_j G_j D_tj as matrix products over the flattened (joint, column) index:
+    # (N, 3, J*3) @ (J*3, T [* B]) then the betas contraction.
+    G = glob.permute(0, 2, 1, 3).reshape(N, 3, -1)  # (N, a, j*b)
+    kp = G @ buf.D0.permute(1, 2, 0).reshape(-1, buf.D0.shape[0])  # (N, 3, T)
+    GDb = (G @ buf.Dbeta.permute(1, 2, 0, 3).reshape(G.shape[-1], -1)).reshape(
+        N, 3, -1, betas.shape[1]
+    )
+    kp = kp + (GDb * betas[:, None, None]).sum(-1)
+    if buf.E is not None:
+        eye = torch.eye(3, dtype=rotmats.dtype)
+        feat = (rotmats[:, 1:] - eye).reshape(N, -1)  # (N, 207)
+        Ef = torch.einsum("tjcp,np->ntjc", buf.E, feat)  # pose blend shapes (licensed SMPL)
+        kp = kp + torch.einsum("njab,ntjb->nat", glob, Ef)
+    kp = kp.transpose(1, 2) + torch.einsum("tj,nja->nta", buf.A, posed)
+    return kp + buf.rowsum[:, None] * transl[:, None], joints
+
+
+# --------------------------------------------------------------------------- results
+
+
+@dataclass(frozen=True, eq=False)
+class SmplFit:
+    """SMPL bodies fitted to tracks. K tracks, F frames, T target joints; NaN where a
+    track is absent. Millimetres, world (z up).
+
+    Attributes:
+        joint_set: the target joint set (``coco17`` or ``smpl24``).
+        pose_rotvecs: (K, F, 24, 3) local axis-angle, root in the world frame.
+        betas: (K, 10) shape, shared over a track's frames.
+        transl: (K, F, 3) mm; the body is ``1000 * model(pose, betas) + transl``.
+        joints: (K, F, 24, 3) SMPL-24 joints, mm.
+        keypoints: (K, F, T, 3) the model's prediction of the targets, mm.
+        residual: (K, F, T) |keypoints - target| mm, NaN where the target is.
+        seconds: wall time of the fit (the phases that produced it).
+        stage: ``"smpl"`` (step I) or ``"smpl_vae"`` (corrected with the prior).
+    """
+
+    joint_set: str
+    pose_rotvecs: np.ndarray
+    betas: np.ndarray
+    transl: np.ndarray
+    joints: np.ndarray
+    keypoints: np.ndarray
+    residual: np.ndarray
+    seconds: float
+    stage: str
+    model: BodyModel = field(repr=False)
+
+    @property
+    def present(self) -> np.ndarray:
+        """(K, F) bool: person-frames with a fitted body."""
+        return np.isfinite(self.transl).all(-1)
+
+    def vertices(self, k: int, f: int) -> np.ndarray:
+        """(V, 3) mesh vertices of track ``k`` at frame ``f``, world mm (NaN if absent)."""
+        if not self.present[k, f]:
+            return np.full((self.model.num_vertices, 3), np.nan)
+        with torch.no_grad():
+            out = self.model(
+                torch.as_tensor(self.pose_rotvecs[k, f][None], dtype=torch.float32),
+                torch.as_tensor(self.betas[k][None], dtype=torch.float32),
+            )
+        return MM_PER_M * out.vertices[0].double().numpy() + self.transl[k, f]
+
+    def arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
+        """The arrays to store (e.g. in results.npz), keys prefixed."""
+        keys = ("pose_rotvecs", "betas", "transl", "joints", "keypoints", "residual")
+        return {prefix + k: getattr(self, k) for k in keys}
+
+    @classmethod
+    def from_arrays(
+        cls, arrays: dict, prefix: str, *, joint_set: str, model: BodyModel, stage: str = "smpl"
+    ) -> SmplFit:
+        """Inverse of :meth:`arrays` (``seconds`` is not stored: NaN)."""
+        keys = ("pose_rotvecs", "betas", "transl", "joints", "keypoints", "residual")
+        return cls(
+            joint_set=joint_set,
+            model=model,
+            stage=stage,
+            seconds=float("nan"),
+            **{k: np.asarray(arrays[prefix + k]) for k in keys},
+        )
+
+
+# --------------------------------------------------------------------------- problem
+
+
+@dataclass(frozen=True, eq=False)
+class _Problem:
+    """The person-frames to fit, packed into rows. N rows, T target joints, metres."""
+
+    K: int
+    F: int
+    track: np.ndarray  # (N,)
+    frame: np.ndarray  # (N,)
+    target: torch.Tensor  # (N, T, 3), zeros where missing
+    weight: torch.Tensor  # (N, T)
+    triples: torch.Tensor  # (M, 3) rows (t-1, t, t+1) of the same track
+    track_rows: torch.Tensor  # (N,) = track, as a tensor for gathering betas
+
+
+def _pack(tracks_mm: np.ndarray, weights: np.ndarray | None) -> _Problem:
+    K, F, T, _ = tracks_mm.shape
+    finite = np.isfinite(tracks_mm).all(-1)  # (K, F, T)
+    w = finite.astype(float) if weights is None else np.where(finite, weights, 0.0)
+    present = (w > 0).any(-1)
+    track, frame = np.nonzero(present)
+    row = np.full((K, F), -1)
+    row[track, frame] = np.arange(len(track))
+    prev = np.where(frame > 0, row[track, np.maximum(frame - 1, 0)], -1)
+    nxt = np.where(frame < F - 1, row[track, np.minimum(frame + 1, F - 1)], -1)
+    ok = (prev >= 0) & (nxt >= 0)
+    triples = np.stack([prev[ok], np.flatnonzero(ok), nxt[ok]], 1)
+    target = np.where(finite[track, frame][..., None], tracks_mm[track, frame], 0.0) / MM_PER_M
+    return _Problem(
+        K=K,
+        F=F,
+        track=track,
+        frame=frame,
+        target=torch.as_tensor(target, dtype=torch.float32),
+        weight=torch.as_tensor(w[track, frame], dtype=torch.float32),
+        triples=torch.as_tensor(triples, dtype=torch.long).reshape(-1, 3),
+        track_rows=torch.as_tensor(track, dtype=torch.long),
+    )
+
+
+def _kabsch(src: np.ndarray, dst: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted rigid alignment: R (N, 3, 3), t (N, 3) minimising sum w |R src + t - dst|^2.
+
+    Args:
+        src: (P, 3) model points; dst: (N, P, 3); w: (N, P) weights (> 0 somewhere).
+    """
+    wn = w / w.sum(1, keepdims=True)
+    cs = np.einsum("np,pc->nc", wn, src)
+    cd = np.einsum("np,npc->nc", wn, dst)
+    H = np.einsum("np,npa,npb->nab", wn, src[None] - cs[:, None], dst - cd[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)))
+    S = np.tile(np.eye(3), (len(H), 1, 1))
+    S[:, 2, 2] = d
+    R = np.swapaxes(Vt, 1, 2) @ S @ np.swapaxes(U, 1, 2)
+    t = cd - np.einsum("nab,nb->na", R, cs)
+    return R, t
+
+
+# canonical (y up) -> world (z up) with the person facing world -y: used without torso.
+_UPRIGHT = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def initial_alignment(
+    prob: _Problem, buf: KeypointBuffers, *, min_points: int = 3
+) -> tuple[np.ndarray, np.ndarray]:
+    """Phase 0: root rotation (N, 3, 3) and translation (N, 3) m for the rest body.
+
+    Weighted Kabsch of the rest body's torso points onto the targets'; rows without
+    ``min_points`` torso targets copy the nearest aligned row of their track (or stand
+    upright at the targets' centroid when the track has none).
+    """
+    N = len(prob.track)
+    with torch.no_grad():
+        zero = torch.zeros(1, NUM_JOINTS, 3, 3) + torch.eye(3)
+        rest_kp, _ = predict_targets(
+            zero, torch.zeros(1, buf.J_shapedirs.shape[-1]), torch.zeros(1, 3), buf
+        )
+    src = rest_kp[0, buf.torso].double().numpy()
+    dst = prob.target[:, buf.torso].double().numpy()
+    w = prob.weight[:, buf.torso].double().numpy()
+    ok = (w > 0).sum(1) >= min_points
+    R = np.tile(_UPRIGHT, (N, 1, 1))
+    t = np.zeros((N, 3))
+    if ok.any():
+        R[ok], t[ok] = _kabsch(src, dst[ok], w[ok])
+    for k in np.unique(prob.track):
+        rows = np.flatnonzero(prob.track == k)
+        good = rows[ok[rows]]
+        bad = rows[~ok[rows]]
+        if len(bad) == 0:
+            continue
+        if len(good):
+            pos = np.searchsorted(prob.frame[good], prob.frame[bad]).clip(0, len(good) - 1)
+            alt = (pos - 1).clip(0)
+            d1 = np.abs(prob.frame[good][pos] - prob.frame[bad])
+            d0 = np.abs(prob.frame[good][alt] - prob.frame[bad])
+            near = good[np.where(d0 <= d1, alt, pos)]
+            R[bad], t[bad] = R[near], t[near]
+        else:
+            wb = prob.weight[bad].double().numpy()
+            tb = prob.target[bad].double().numpy()
+            centroid = (wb[..., None] * tb).sum(1) / wb.sum(1, keepdims=True).clip(1e-9)
+            R[bad] = _UPRIGHT
+            t[bad] = centroid - src.mean(0) @ _UPRIGHT.T
+    # The root rotates about the rest pelvis: kp = R (x - p0) + p0 + transl = R x + t.
+    p0 = buf.J_template[0].double().numpy()
+    transl = t - p0 + np.einsum("nab,b->na", R, p0)
+    return R, transl
+
+
+def initial_betas(prob: _Problem, buf: KeypointBuffers, *, ridge: float = 1e-3) -> np.ndarray:
+    """Phase 0: betas (K, B) whose rest bone lengths match each track's median bone lengths.
+
+    The rest target joints are linear in betas, ``x(b) = x0 + X b``, so a bone's length
+    is linearised about the current estimate, ``|v(b)| ~ n . v(b)``, ``n = v/|v|``, and
+    the ridge-regularised least squares (``ridge`` m^2 per unit beta^2) is solved three
+    times (Gauss-Newton). Bones: the target joint set's drawing bones.
+    """
+    nb = buf.J_shapedirs.shape[-1]
+    js = get_joint_set(buf.joint_set)
+    with torch.no_grad():
+        eye = torch.eye(3).repeat(nb + 1, NUM_JOINTS, 1, 1)
+        basis = torch.cat([torch.zeros(1, nb), torch.eye(nb)])
+        rest, _ = predict_targets(eye, basis, torch.zeros(nb + 1, 3), buf)
+    rest = rest.double().numpy()
+    x0, X = rest[0], np.moveaxis(rest[1:] - rest[0], 0, -1)  # (T, 3), (T, 3, B)
+    bones = np.asarray(js.bones)
+    a, b = bones[:, 0], bones[:, 1]
+    d0, dX = x0[a] - x0[b], X[a] - X[b]  # (nbones, 3), (nbones, 3, B)
+    tgt = prob.target.double().numpy()
+    ok = (prob.weight.numpy() > 0)[:, a] & (prob.weight.numpy() > 0)[:, b]
+    length = np.where(ok, np.linalg.norm(tgt[:, a] - tgt[:, b], axis=-1), np.nan)
+    out = np.zeros((prob.K, nb))
+    for k in np.unique(prob.track):
+        rows = prob.track == k
+        col = length[rows]
+        has = np.isfinite(col).sum(0) > 0
+        if not has.any():
+            continue
+        L = np.nanmedian(col[:, has], axis=0)
+        beta = np.zeros(nb)
+        for _ in range(3):
+            v = d0[has] + dX[has] @ beta
+            n = v / np.linalg.norm(v, axis=-1, keepdims=True)
+            Jm = np.einsum("bc,bck->bk", n, dX[has])  # (nbones, B)
+            r = L - np.einsum("bc,bc->b", n, d0[has])
+            beta = np.linalg.solve(Jm.T @ Jm + ridge * np.eye(nb), Jm.T @ r)
+        out[k] = beta
+    return out
+
+
+# Limbs for the analytic initialisation: (upper joint, hinge joint, end joint) by SMPL
+# name (target joints of the same name) and the hinge's flexion axis in the rest frame.
+LIMBS: tuple[tuple[str, str, str, tuple[float, float, float]], ...] = (
+    ("left_hip", "left_knee", "left_ankle", (1.0, 0.0, 0.0)),
+    ("right_hip", "right_knee", "right_ankle", (1.0, 0.0, 0.0)),
+    ("left_shoulder", "left_elbow", "left_wrist", (0.0, -1.0, 0.0)),
+    ("right_shoulder", "right_elbow", "right_wrist", (0.0, 1.0, 0.0)),
+)
+# SMPL-24 targets only: joints turned (swing only) to point at one child.
+SWING_CHILD: tuple[tuple[str, str], ...] = (
+    ("spine1", "spine2"), ("spine2", "spine3"), ("spine3", "neck"), ("neck", "head"),
+    ("left_collar", "left_shoulder"), ("right_collar", "right_shoulder"),
+    ("left_ankle", "left_foot"), ("right_ankle", "right_foot"),
+    ("left_wrist", "left_hand"), ("right_wrist", "right_hand"),
+)  # fmt: skip
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True).clip(1e-12)
+
+
+def _frame(u: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """(..., 3) direction u and a second direction h -> (..., 3, 3) orthonormal columns
+    (u, h orthogonalised, u x h)."""
+    u = _unit(u)
+    h = _unit(h - (h * u).sum(-1, keepdims=True) * u)
+    return np.stack([u, h, np.cross(u, h)], -1)
+
+
+def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) smallest rotations taking unit a to unit b (antiparallel: about any
+    perpendicular axis)."""
+    a, b = np.broadcast_arrays(_unit(a), _unit(b))
+    axis = np.cross(a, b)
+    s = np.linalg.norm(axis, axis=-1)
+    c = (a * b).sum(-1)
+    perp = np.cross(a, np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0]))
+    axis = np.where((s > 1e-9)[..., None], axis, perp)
+    return rotvec_to_matrix(_unit(axis) * np.arctan2(s, c)[..., None])
+
+
+def analytic_pose(
+    prob: _Problem, buf: KeypointBuffers, root: np.ndarray, *, bend_blend: float = 0.25
+) -> np.ndarray:
+    """Closed-form local rotations (N, 24, 3, 3) of the rest body towards the targets.
+
+    Each limb (hip-knee-ankle, shoulder-elbow-wrist) is solved as a hinge: the upper
+    joint turns the rest bone onto the target bone and the hinge axis onto the normal of
+    the limb's plane, the hinge then bends about its flexion axis (so knees and elbows
+    start bent the anatomical way). The plane's normal (length = sine of the bend) is
+    blended with the parent's axis (weight ``bend_blend``): a nearly straight limb, whose
+    plane is noise, keeps the parent's twist. SMPL-24 targets also swing spine, neck,
+    collars, ankles and wrists towards their child. Missing targets leave a joint at rest.
+    """
+    N = len(prob.track)
+    js = get_joint_set(buf.joint_set)
+    with torch.no_grad():
+        eye = torch.eye(3).repeat(1, NUM_JOINTS, 1, 1)
+        rest_t, _ = predict_targets(eye, torch.zeros(1, buf.J_shapedirs.shape[-1]),
+                                    torch.zeros(1, 3), buf)  # fmt: skip
+    rest_t = rest_t[0].double().numpy()  # (T, 3)
+    tgt = prob.target.double().numpy()
+    ok = prob.weight.numpy() > 0
+    local = np.tile(np.eye(3), (N, NUM_JOINTS, 1, 1))
+    glob = np.tile(np.eye(3), (N, NUM_JOINTS, 1, 1))
+    glob[:, 0] = local[:, 0] = root
+    parents = buf.parents
+    limbs = {_J[p]: (p, h, e, np.asarray(a)) for p, h, e, a in LIMBS}
+    swings = dict(SWING_CHILD) if js.name == SMPL24.name else {}
+    for j in range(1, NUM_JOINTS):
+        G_par = glob[:, parents[j]]
+        name = SMPL24.names[j]
+        if j in limbs:
+            p, h, e, axis = limbs[j]
+            ip, ih, ie = js.index[p], js.index[h], js.index[e]
+            u_r, f_r = rest_t[ih] - rest_t[ip], rest_t[ie] - rest_t[ih]
+            u_w, f_w = tgt[:, ih] - tgt[:, ip], tgt[:, ie] - tgt[:, ih]
+            has_u = ok[:, ip] & ok[:, ih]
+            has_f = has_u & ok[:, ie]
+            # Hinge direction: the limb plane's normal (length sin(bend)) blended with the
+            # parent's axis carried by the minimal swing (weight bend_blend), so a nearly
+            # straight limb, whose plane is noise, keeps its parent's twist.
+            cross = np.cross(_unit(u_w), _unit(f_w))
+            swing = _min_rotation(np.einsum("nab,b->na", G_par, u_r), u_w)
+            h_fb = np.einsum("nab,nbc,c->na", swing, G_par, axis)
+            h_w = np.where(has_f[:, None], cross, 0.0) + bend_blend * h_fb
+            G = _frame(u_w, h_w) @ _frame(u_r, axis).T  # rest (bone, axis) -> target
+            local[has_u, j] = (np.swapaxes(G_par, 1, 2) @ G)[has_u]
+            # the hinge: angle from the rest lower bone to the target's, about the axis
+            f_loc = np.einsum("nba,nb->na", G, f_w)  # target lower bone in G's frame
+            f_r0 = f_r - (f_r @ axis) * axis
+            phi = np.arctan2(np.cross(f_r0, f_loc) @ axis, f_loc @ f_r0)
+            hinge = rotvec_to_matrix(axis[None] * phi[:, None])
+            local[has_f, _J[h]] = hinge[has_f]
+        elif name in swings and js.index.get(swings[name]) is not None:
+            i0, i1 = js.index[name], js.index[swings[name]]
+            has = ok[:, i0] & ok[:, i1]
+            d_r = np.einsum("nab,b->na", G_par, rest_t[i1] - rest_t[i0])
+            sw = _min_rotation(d_r, tgt[:, i1] - tgt[:, i0])  # world swing
+            loc = np.swapaxes(G_par, 1, 2) @ sw @ G_par
+            local[has, j] = loc[has]
+        glob[:, j] = G_par @ local[:, j]
+    return local
+
+
+# --------------------------------------------------------------------------- losses
+
+
+def _data_loss(pred: torch.Tensor, prob: _Problem, beta: float) -> torch.Tensor:
+    """Weighted Smooth L1 (per coordinate, metres), mean over weighted coordinates."""
+    r = torch.nn.functional.smooth_l1_loss(pred, prob.target, reduction="none", beta=beta)
+    return (r.sum(-1) * prob.weight).sum() / (3.0 * prob.weight.sum()).clamp_min(1e-9)
+
+
+def _smooth_loss(joints: torch.Tensor, prob: _Problem) -> torch.Tensor:
+    """Mean squared second difference of the model joints over consecutive frames."""
+    if len(prob.triples) == 0:
+        return joints.new_zeros(())
+    a, b, c = prob.triples.unbind(1)
+    acc = joints[a] - 2.0 * joints[b] + joints[c]
+    return (acc * acc).sum(-1).mean()
+
+
+def _objective(R, betas_rows, transl, prob, buf, params) -> torch.Tensor:
+    """Data term + temporal smoothness for local rotations R (N, 24, 3, 3)."""
+    kp, joints = predict_targets(R, betas_rows, transl, buf)
+    loss = _data_loss(kp, prob, params.smooth_l1_beta_m)
+    return loss + params.w_smooth * _smooth_loss(joints, prob)
+
+
+def _rest_distance(rotmats: torch.Tensor) -> torch.Tensor:
+    """(N, J, 3, 3) -> (N, J) |R - I|_F^2."""
+    return ((rotmats - torch.eye(3, dtype=rotmats.dtype)) ** 2).sum((-1, -2))
+
+
+def _cosine(it: int, total: int, floor: float = 0.05) -> float:
+    return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * it / max(total, 1)))
+
+
+def _adam(
+    groups: list[tuple[list[torch.Tensor], float]],
+    loss_fn,
+    iterations: int,
+    *,
+    progress: bool,
+    desc: str,
+) -> float:
+    """Run Adam with a cosine learning-rate decay; returns the last loss."""
+    opt = torch.optim.Adam([{"params": p, "lr": lr} for p, lr in groups])
+    base = [lr for _, lr in groups]
+    bar = None
+    if progress:
+        bar = tqdm(total=iterations, desc=desc, leave=False)
+    loss = torch.zeros(())
+    for it in range(iterations):
+        scale = _cosine(it, iterations)
+        for g, lr in zip(opt.param_groups, base, strict=True):
+            g["lr"] = lr * scale
+        opt.zero_grad(set_to_none=True)
+        loss = loss_fn()
+        loss.backward()
+        opt.step()
+        if bar is not None:
+            bar.update()
+            if it % 20 == 0:
+                bar.set_postfix(loss=f"{loss.item():.3g}")
+    if bar is not None:
+        bar.close()
+    return float(loss.detach())
+
+
+# --------------------------------------------------------------------------- the fit
+
+
+def _make_fit(prob, buf, model, rotmats, betas, transl, *, seconds, stage) -> SmplFit:
+    """Scatter the fitted rows (metres) back into (K, F, ...) arrays in mm, NaN elsewhere."""
+    with torch.no_grad():
+        kp, joints = predict_targets(rotmats, betas[prob.track_rows], transl, buf)
+    err = (kp - prob.target).norm(dim=-1).double().numpy()
+    rows = {
+        "pose_rotvecs": matrix_to_rotvec(rotmats.double().numpy()),
+        "transl": MM_PER_M * transl.double().numpy(),
+        "joints": MM_PER_M * joints.double().numpy(),
+        "keypoints": MM_PER_M * kp.double().numpy(),
+        "residual": np.where(prob.weight.numpy() > 0, MM_PER_M * err, np.nan),
+    }
+    out = {}
+    for name, x in rows.items():
+        out[name] = np.full((prob.K, prob.F) + x.shape[1:], np.nan)
+        out[name][prob.track, prob.frame] = x
+    out_b = np.full((prob.K, betas.shape[1]), np.nan)
+    seen = np.unique(prob.track)
+    out_b[seen] = betas.detach().double().numpy()[seen]
+    return SmplFit(
+        joint_set=buf.joint_set, betas=out_b, seconds=seconds, stage=stage, model=model, **out
+    )
+
+
+def _check_tracks(tracks_mm: np.ndarray, joint_set: str) -> np.ndarray:
+    x = np.asarray(tracks_mm, dtype=float)
+    js = get_joint_set(joint_set)
+    if x.ndim != 4 or x.shape[-1] != 3 or x.shape[2] != js.num_joints:
+        raise ValueError(
+            f"expected tracks (num_tracks, num_frames, {js.num_joints}, 3) in {js.name}, "
+            f"got {x.shape}"
+        )
+    return x
+
+
+@contextmanager
+def _torch_threads(n: int):
+    old = torch.get_num_threads()
+    if n > 0:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def fit_sequence(
+    tracks_mm: np.ndarray,
+    joint_set: str,
+    model: BodyModel,
+    *,
+    prior: PosePrior | None = None,
+    params: FitParams = FitParams(),  # noqa: B008  (frozen dataclass)
+    weights: np.ndarray | None = None,
+    progress: bool = True,
+) -> tuple[SmplFit, SmplFit | None]:
+    """Fit SMPL bodies to 3D joint tracks; see the module docstring for the phases.
+
+    Args:
+        tracks_mm: (num_tracks, num_frames, num_joints, 3) world mm, NaN = missing.
+        joint_set: ``"coco17"`` or ``"smpl24"``, the set of ``tracks_mm``.
+        model: the body model.
+        prior: a trained :class:`~pipeline.pose_prior.PosePrior`; with it the
+            corrected fit (phases 2a-2c) is returned too.
+        weights: optional (num_tracks, num_frames, num_joints) confidences in [0, 1].
+    Returns:
+        ``(step I fit, step I + VAE fit or None)``.
+    """
+    x = _check_tracks(tracks_mm, joint_set)
+    if weights is not None and np.shape(weights) != x.shape[:3]:
+        raise ValueError(f"weights must have shape {x.shape[:3]}, got {np.shape(weights)}")
+    with _torch_threads(params.num_threads):
+        return _fit(x, keypoint_buffers(model, joint_set), model, prior, params, weights, progress)
+
+
+def _fit(
+    x: np.ndarray,
+    buf: KeypointBuffers,
+    model: BodyModel,
+    prior: PosePrior | None,
+    params: FitParams,
+    weights: np.ndarray | None,
+    progress: bool,
+) -> tuple[SmplFit, SmplFit | None]:
+    prob = _pack(x, None if weights is None else np.asarray(weights, float))
+    N = len(prob.track)
+    nb = buf.J_shapedirs.shape[-1]
+    t0 = time.perf_counter()
+    if N == 0:
+        empty = _make_fit(
+            prob, buf, model, torch.zeros(0, NUM_JOINTS, 3, 3), torch.zeros(prob.K, nb),
+            torch.zeros(0, 3), seconds=0.0, stage="smpl",
+        )  # fmt: skip
+        return empty, (None if prior is None else dataclasses.replace(empty, stage="smpl_vae"))
+    # Phase 0: closed-form root, translation, limbs and betas.
+    R0, t_init = initial_alignment(prob, buf, min_points=params.min_torso_points)
+    rotmats0 = torch.as_tensor(analytic_pose(prob, buf, R0), dtype=torch.float32)
+    rot6d = matrix_to_rot6d(rotmats0).requires_grad_(True)
+    transl = torch.as_tensor(t_init, dtype=torch.float32).requires_grad_(True)
+    betas = torch.as_tensor(initial_betas(prob, buf), dtype=torch.float32).requires_grad_(True)
+    w_joint = params.w_pose + params.w_free * buf.free_weight  # (24,)
+    w_joint[0] = 0.0
+
+    # Phase 1: step I.
+    def loss_step1() -> torch.Tensor:
+        R = rot6d_to_matrix(rot6d)
+        loss = _objective(R, betas[prob.track_rows], transl, prob, buf, params)
+        loss = loss + params.w_betas * (betas * betas).mean()
+        return loss + (_rest_distance(R) * w_joint).sum(1).mean()
+
+    _adam(
+        [([rot6d], params.lr_rot), ([transl], params.lr_transl_m), ([betas], params.lr_betas)],
+        loss_step1,
+        params.iters,
+        progress=progress,
+        desc="SMPL fit (step I)",
+    )
+    with torch.no_grad():
+        R1 = rot6d_to_matrix(rot6d)
+    t1 = time.perf_counter()
+    fit1 = _make_fit(
+        prob, buf, model, R1, betas.detach(), transl.detach(), seconds=t1 - t0, stage="smpl"
+    )
+    if prior is None:
+        return fit1, None
+    fit2 = _correct_with_prior(
+        prob, buf, model, prior, params, R1, betas.detach(), transl.detach(), progress=progress
+    )
+    return fit1, fit2
+
+
+def _correct_with_prior(
+    prob: _Problem,
+    buf: KeypointBuffers,
+    model: BodyModel,
+    prior: PosePrior,
+    params: FitParams,
+    R1: torch.Tensor,
+    betas: torch.Tensor,
+    transl1: torch.Tensor,
+    *,
+    progress: bool,
+) -> SmplFit:
+    """Phases 2a-2c (Eq. 11): encode, fit in the latent space, refine."""
+    t0 = time.perf_counter()
+    betas_rows = betas[prob.track_rows]
+    decoder_state = [p.requires_grad for p in prior.net.parameters()]
+    for p in prior.net.parameters():
+        p.requires_grad_(False)
+    try:
+        # Phase 2a: encode the step-I body pose.
+        with torch.no_grad():
+            z0 = prior.encode_rotmats(R1[:, 1:])
+        z = z0.clone().requires_grad_(True)
+        root6d = matrix_to_rot6d(R1[:, 0]).clone().requires_grad_(True)
+        transl = transl1.clone().requires_grad_(True)
+
+        def assemble(body: torch.Tensor) -> torch.Tensor:
+            return torch.cat([rot6d_to_matrix(root6d)[:, None], body], 1)
+
+        # Phase 2b: latent fit.
+        def loss_latent() -> torch.Tensor:
+            R = assemble(prior.decode_rotmats(z))
+            loss = _objective(R, betas_rows, transl, prob, buf, params)
+            return loss + params.w_latent * (z * z).sum(-1).mean()
+
+        _adam(
+            [([z], params.lr_latent), ([root6d], params.lr_rot), ([transl], params.lr_transl_m)],
+            loss_latent,
+            params.iters_latent,
+            progress=progress,
+            desc="SMPL fit (VAE latent)",
+        )
+        with torch.no_grad():
+            R_dec = assemble(prior.decode_rotmats(z))
+    finally:
+        for p, s in zip(prior.net.parameters(), decoder_state, strict=True):
+            p.requires_grad_(s)
+    # Phase 2c: refine all rotations near the decoded pose.
+    rot6d = matrix_to_rot6d(R_dec).clone().requires_grad_(True)
+    transl = transl.detach().clone().requires_grad_(True)
+    w_joint = torch.full((NUM_JOINTS,), params.w_pose)
+    w_joint[0] = 0.0
+    anchor = R_dec[:, 1:]
+
+    def loss_refine() -> torch.Tensor:
+        R = rot6d_to_matrix(rot6d)
+        loss = _objective(R, betas_rows, transl, prob, buf, params)
+        loss = loss + params.w_anchor * ((R[:, 1:] - anchor) ** 2).sum((-1, -2)).sum(1).mean()
+        return loss + (_rest_distance(R) * w_joint).sum(1).mean()
+
+    _adam(
+        [([rot6d], params.lr_rot), ([transl], params.lr_transl_m)],
+        loss_refine,
+        params.iters_refine,
+        progress=progress,
+        desc="SMPL fit (VAE refine)",
+    )
+    with torch.no_grad():
+        R2 = rot6d_to_matrix(rot6d)
+    seconds = time.perf_counter() - t0
+    return _make_fit(
+        prob, buf, model, R2, betas, transl.detach(), seconds=seconds, stage="smpl_vae"
+    )
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def target_slots(fit: SmplFit) -> np.ndarray:
+    """(K, F, 24, 3) the fit's keypoints laid out in SMPL-24 slots (NaN where the target
+    set has no counterpart), the layout :func:`pipeline.evaluate.stage_metrics` scores."""
+    js = get_joint_set(fit.joint_set)
+    if js.name == SMPL24.name:
+        return fit.keypoints
+    src, dst = mapping_indices(js, SMPL24)
+    out = np.full(fit.keypoints.shape[:2] + (NUM_JOINTS, 3), np.nan)
+    out[:, :, dst] = fit.keypoints[:, :, src]
+    return out
+
+
+def plausibility(fit: SmplFit, *, tol_deg: float = pose_limits.DEFAULT_TOL_DEG) -> dict:
+    """Local plausibility of a fit.
+
+    Returns:
+        ``limit_violations_per_1000`` (joint rotations outside
+        :data:`pipeline.pose_limits.LIMITS` by more than ``tol_deg``, per 1000 bodies),
+        and, on the fit's keypoints in SMPL-24 slots (comparable with a triangulation's
+        rows): ``bone_length_std_mm``, ``hinge_violations_per_1000``, ``foot_jitter``,
+        ``wrist_jitter`` (mm/frame^2); see :func:`pipeline.pose_limits.skeleton_plausibility`.
+    """
+    limits = pose_limits.violations_per_1000(fit.pose_rotvecs, tol_deg=tol_deg)
+    out = {"limit_violations_per_1000": limits}
+    out.update(pose_limits.skeleton_plausibility(target_slots(fit), tol_deg=tol_deg))
+    return out

@@ -1,0 +1,157 @@
+"""Viewer fixtures: a tiny synthesized scene with its results, a running viewer on a free
+port, and a headless chromium page on it (skipped when /usr/bin/chromium is absent)."""
+
+from __future__ import annotations
+
+import dataclasses
+import socket
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mvviz.app import ViewerApp, ViewerState
+from mvviz.images import FrameStore
+from pipeline.body_model import load_body_model
+from pipeline.config import PipelineConfig
+from pipeline.importers.calibration import read_voxelpose_calibration
+from pipeline.results import run_or_load, run_pipeline
+from pipeline.scene import load_scene
+from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
+
+REPO = Path(__file__).resolve().parents[2]
+CAMPUS = REPO / "sample_data" / "rigs" / "campus_voxelpose.json"
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--enable-unsafe-swiftshader",
+    "--use-angle=swiftshader",
+    "--no-sandbox",
+    "--disable-gpu-sandbox",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+VIEWPORT = {"width": 1400, "height": 860}
+NUM_FRAMES = 20
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="session")
+def viewer_scene(tmp_path_factory):
+    """(scene, results, model): 2 people, 20 frames on the 3-camera campus rig, videos."""
+    model = load_body_model()
+    root = tmp_path_factory.mktemp("viewer") / "scene"
+    write_synth_scene(
+        root,
+        read_voxelpose_calibration(CAMPUS),
+        model,
+        SynthConfig(num_people=2, num_frames=NUM_FRAMES, seed=3),
+        progress=False,
+    )
+    scene = load_scene(root)
+    results, _ = run_or_load(scene, PipelineConfig(), model, progress=False)
+    return scene, results, model
+
+
+@pytest.fixture
+def viewer_state(viewer_scene) -> ViewerState:
+    scene, results, model = viewer_scene
+    return ViewerState.create(scene, results, model)
+
+
+@pytest.fixture(scope="session")
+def blind_camera_scene(viewer_scene):
+    """The tiny scene with every detection of camera 0 removed, and its fresh results."""
+    scene, _, model = viewer_scene
+    keep = scene.detections.view != 0
+    blind = dataclasses.replace(scene, detections=scene.detections.take(keep))
+    return blind, run_pipeline(blind, PipelineConfig(), model, progress=False), model
+
+
+@pytest.fixture(scope="session")
+def frame_store(viewer_scene) -> FrameStore:
+    scene, _, _ = viewer_scene
+    store = FrameStore(scene, cache_dir=scene.root / ".mvviz" / "frames").start()
+    assert store.wait(120), "decoding the tiny scene's videos took too long"
+    return store
+
+
+@pytest.fixture(scope="session")
+def running_app(viewer_scene, frame_store):
+    """A viewer serving the tiny scene on a free port (default layers)."""
+    scene, results, model = viewer_scene
+    state = ViewerState.create(scene, results, model)
+    app = ViewerApp(state, host="127.0.0.1", port=free_port(), frames=frame_store)
+    assert app.wait_idle(30)
+    yield app
+    app.stop()
+
+
+def launch_chromium(playwright):
+    return playwright.chromium.launch(
+        executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_ARGS
+    )
+
+
+@pytest.fixture(scope="session")
+def browser():
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is absent (apt-get install chromium) - browser tests skipped")
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as pw:
+        b = launch_chromium(pw)
+        yield b
+        b.close()
+
+
+def open_viewer(browser, url: str):
+    """A page showing the viewer, its canvas up and the software-WebGL notice closed."""
+    page = browser.new_page(viewport=VIEWPORT)
+    page.goto(url)
+    page.wait_for_selector("canvas", timeout=60_000)
+    close = page.locator("button.mantine-Notification-closeButton")
+    try:
+        close.first.wait_for(timeout=5_000)
+        close.first.click()
+    except Exception:
+        pass  # no notice (hardware WebGL) or it already went
+    settle(page)
+    return page
+
+
+@pytest.fixture(scope="session")
+def page(browser, running_app):
+    p = open_viewer(browser, running_app.url)
+    yield p
+    p.close()
+
+
+def settle(page, seconds: float = 2.0) -> None:
+    """Give the client time to apply messages and software-render a few frames."""
+    page.wait_for_timeout(int(seconds * 1000))
+
+
+def canvas_image(page) -> np.ndarray:
+    """(h, w, 3) RGB screenshot of the 3D canvas."""
+    png = page.locator("canvas").first.screenshot()
+    bgr = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def wait_rendered(app: ViewerApp, page, seconds: float = 1.5) -> None:
+    """Wait for the server to draw the current state and the page to show it: the frame
+    label arrives in the same atomic message batch as the scene updates."""
+    assert app.wait_idle(30)
+    n = app.state.data.num_frames
+    text = f"frame {app.state.frame} / {n - 1} "
+    page.wait_for_function("t => document.body.innerText.includes(t)", arg=text, timeout=30_000)
+    time.sleep(0.1)
+    settle(page, seconds)

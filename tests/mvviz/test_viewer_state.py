@@ -1,0 +1,347 @@
+"""The viewer's pure side: frame_geometry and overlays for a tiny synthesized scene, frame
+decoding, the "latest wins" render slot, and a server run without a browser."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from mvviz.app import LatestWins, ViewerApp, ViewerState
+from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
+from mvviz.layers import (
+    MM,
+    OUTLIER,
+    UNASSIGNED,
+    LayerToggles,
+    camera_geometry,
+    frame_geometry,
+    track_color,
+)
+from pipeline.config import PipelineConfig
+from pipeline.results import run_pipeline
+from pipeline.scene import Detections
+from tests.mvviz.conftest import NUM_FRAMES, free_port
+
+
+def all_on(state: ViewerState) -> ViewerState:
+    state.layers = dataclasses.replace(
+        state.layers, meshes=True, rays_selected_only=False, trail_window=5
+    )
+    return state
+
+
+# --------------------------------------------------------------------------- counts
+
+
+def test_detection_points_match_the_results(viewer_state):
+    st, res = all_on(viewer_state), viewer_state.results
+    det = st.scene.detections
+    for f in range(NUM_FRAMES):
+        g = frame_geometry(st, f)
+        for v, cam in enumerate(st.scene.rig):
+            rows = np.flatnonzero((det.frame == f) & (det.view == v))
+            kp = res.det_joints2d[rows]
+            d = g.detections2d[cam.name]
+            assert len(d.points) == int((kp[..., 2] > 0).sum())
+            assert d.points.shape == d.colors.shape
+            assert d.segments.shape[1:] == (2, 3)
+
+
+def test_rays_match_used_views(viewer_state):
+    st, res = all_on(viewer_state), viewer_state.results
+    total = 0
+    for f in range(NUM_FRAMES):
+        r = frame_geometry(st, f).rays
+        qs = np.flatnonzero(res.person_frame == f)
+        # every view that a triangulated joint used is one non-outlier ray
+        assert int((~r.outlier).sum()) == int(res.person_used[qs].sum())
+        assert set(np.unique(r.person)) <= set(qs.tolist())
+        assert r.segments.shape == (len(r.outlier), 2, 3)
+        # a ray starts at its camera's centre (metres)
+        centers = st.scene.rig.centers * MM
+        np.testing.assert_allclose(r.segments[:, 0], centers[r.view], atol=1e-9)
+        # ... and misses its triangulated joint by about its reprojection error
+        X = res.person_joints[r.person, r.joint] * MM
+        a, b = r.segments[:, 0], r.segments[:, 1]
+        d = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
+        miss = np.linalg.norm(np.cross(X - a, d), axis=1)
+        fx = np.array([c.K[0, 0] for c in st.scene.rig])[r.view]
+        px = res.person_reproj[r.person, r.joint, r.view]
+        bound = 1.5 * px * np.linalg.norm(X - a, axis=1) / fx + 0.005
+        assert (miss[~r.outlier] < bound[~r.outlier]).all()
+        total += len(r.outlier)
+    assert total > 0
+
+
+def test_skeleton_counts(viewer_state):
+    st, res = all_on(viewer_state), viewer_state.results
+    gt = st.scene.gt
+    for f in range(NUM_FRAMES):
+        g = frame_geometry(st, f)
+        present = np.isfinite(res.track_raw[:, f]).any((1, 2))
+        assert sorted(g.raw) == np.flatnonzero(present).tolist()
+        assert (
+            sorted(g.filtered)
+            == np.flatnonzero(np.isfinite(res.track_filtered[:, f]).any((1, 2))).tolist()
+        )
+        assert sorted(g.gt) == sorted(gt.person_id[gt.frame == f].tolist())
+        assert sorted(g.meshes) == sorted(gt.person_id[gt.frame == f].tolist())
+        bones = np.asarray(st.data.joint_set.bones)
+        for k, s in g.filtered.items():
+            ok = np.isfinite(res.track_filtered[k, f]).all(-1)
+            assert len(s.segments) == int((ok[bones[:, 0]] & ok[bones[:, 1]]).sum())
+            np.testing.assert_allclose(s.joints, res.track_filtered[k, f] * MM)
+            assert (s.color == track_color(k)).all()
+        for t in g.trails.values():
+            assert len(t.raw) <= 2 * st.layers.trail_window
+
+
+def test_outlier_views_are_flagged(viewer_scene):
+    """Push one view's wrist 80 px off: triangulation rejects that view, and its ray is
+    drawn as an outlier, in the warning colour."""
+    scene, _, model = viewer_scene
+    det = scene.detections
+    j = scene.joint_set.index["left_wrist"]
+    rows = np.flatnonzero((det.frame == 5) & (det.view == 1) & (det.keypoints[:, j, 2] > 0.5))
+    assert len(rows)
+    kp = det.keypoints.copy()
+    kp[rows[0], j, 0] += 80.0
+    bad = dataclasses.replace(scene, detections=dataclasses.replace(det, keypoints=kp))
+    res = run_pipeline(bad, PipelineConfig(), model, progress=False)
+    state = all_on(ViewerState.create(bad, res, model))
+    r = frame_geometry(state, 5).rays
+    q = res.det_person[rows[0]]
+    assert q >= 0 and not res.person_used[q, j, 1]
+    hit = (r.person == q) & (r.joint == j) & (r.view == 1)
+    assert hit.sum() == 1 and r.outlier[hit].all()
+    assert (r.colors[hit] == OUTLIER).all()
+    assert (r.colors[~r.outlier] != OUTLIER).any(axis=1).all()
+
+
+def test_camera_without_detections(blind_camera_scene):
+    scene, res, model = blind_camera_scene
+    state = all_on(ViewerState.create(scene, res, model))
+    name = scene.rig[0].name
+    for f in range(NUM_FRAMES):
+        g = frame_geometry(state, f)
+        assert len(g.detections2d[name].points) == 0
+        assert (g.rays.view != 0).all()
+        ov = image_overlay(state.data, 0, f, state.layers)
+        assert len(ov.detections) == 0
+        img = draw_overlay(blank_frame(320, 256), ov)
+        assert img.shape == (256, 320, 3)
+
+
+def test_toggles_remove_geometry(viewer_state):
+    st = all_on(viewer_state)
+    full = frame_geometry(st, 10)
+    assert full.detections2d and full.raw and full.filtered and full.gt and full.meshes
+    assert len(full.rays.segments) and full.trails
+    st.layers = LayerToggles(
+        **{
+            f.name: (False if isinstance(getattr(st.layers, f.name), bool) else 0)
+            for f in dataclasses.fields(LayerToggles)
+        }
+    )
+    g = frame_geometry(st, 10)
+    assert not (g.detections2d or g.raw or g.filtered or g.gt or g.trails or g.meshes)
+    assert g.rays is None
+
+
+def test_rays_of_the_selected_track_only(viewer_state):
+    st = all_on(viewer_state)
+    st.layers.rays_selected_only = True
+    st.selection = dataclasses.replace(st.selection, track=1)
+    r = frame_geometry(st, 10).rays
+    assert len(r.track) and (r.track == 1).all()
+
+
+def test_mesh_bones_reproduce_the_body_model(viewer_scene, viewer_state):
+    """Skinning the bind-pose vertices with the per-frame bone transforms, as the browser
+    does, gives the body model's vertices; bone positions are the GT joints."""
+    scene, _, model = viewer_scene
+    b = viewer_state.data.bodies
+    gt = scene.gt
+    m = np.flatnonzero(gt.frame == 7)[0]
+    i = int(np.searchsorted(b.person_ids, gt.person_id[m]))
+    np.testing.assert_allclose(b.bone_position[i, 7] / MM, gt.joints3d[m], atol=0.05)
+    import viser.transforms as vtf
+
+    R = vtf.SO3(b.bone_wxyz[i, 7]).as_matrix()  # (24, 3, 3)
+    rel = np.einsum("jab,vjb->vja", R, b.vertices[i][:, None] - b.rest_joints[i][None])
+    skinned = np.einsum("vj,vja->va", b.weights, rel + b.bone_position[i, 7][None])
+    with torch.no_grad():
+        out = model(gt.smpl_pose[m : m + 1], gt.smpl_betas[m : m + 1], gt.transl[m : m + 1] * MM)
+    np.testing.assert_allclose(skinned, out.vertices[0].numpy(), atol=2e-4)
+
+
+def test_pixels_land_on_the_frustum_image_plane(viewer_scene):
+    cam = viewer_scene[0].rig[0]
+    g = camera_geometry(cam, plane_depth=0.5)
+    W, H = cam.width, cam.height
+    c = g.pixels_to_plane(np.array([(W - 1) / 2, (H - 1) / 2]), lift=1.0)
+    np.testing.assert_allclose(c, [0, 0, 0.5], atol=1e-12)
+    corner = g.pixels_to_plane(np.array([-0.5, -0.5]), lift=1.0)
+    np.testing.assert_allclose(corner[:2], -g.half_size)
+    # viser's client puts the image plane at scale / cbrt(tan(fov/2)^2 * aspect / 3)
+    t = np.tan(g.fov / 2)
+    assert g.frustum_scale / np.cbrt(t * t * g.aspect / 3) == pytest.approx(0.5)
+
+
+# --------------------------------------------------------------------------- 2D
+
+
+def test_overlay_draws_detections_in_their_colours(viewer_state, frame_store):
+    st = viewer_state
+    f, v = 4, 1
+    ov = image_overlay(st.data, v, f, st.layers)
+    assert len(ov.detections) > 0 and ov.label.startswith(st.scene.rig[v].name)
+    base = frame_store.frame(st.scene.rig[v].name, f)
+    assert base is not None
+    img = draw_overlay(base, ov)
+    scale = base.shape[1] / ov.image_size[0]
+    n_checked = 0
+    for det, col in zip(ov.detections, ov.detection_colors, strict=True):
+        for x, y, c in det:
+            if c > 0 and 5 < x * scale < base.shape[1] - 5 and 5 < y * scale < base.shape[0] - 5:
+                px = img[int(round(y * scale)), int(round(x * scale))].astype(int)
+                assert np.abs(px - col.astype(int)).max() < 60
+                n_checked += 1
+    assert n_checked > 5
+    rows = st.data.rows_per_frame[f]
+    rows = rows[st.scene.detections.view[rows] == v]
+    person = st.results.det_person[rows]
+    want = np.where((person < 0)[:, None], UNASSIGNED, track_color(st.data.det_track[rows]))
+    np.testing.assert_array_equal(ov.detection_colors, want)
+
+
+def test_frame_store_decodes_and_caches(viewer_scene, frame_store):
+    scene = viewer_scene[0]
+    name = scene.rig.names[0]
+    img = frame_store.frame(name, 3)
+    cam = scene.rig[0]
+    w = min(640, cam.width)  # downscaled to 640 px, never upscaled
+    assert img.shape == (round(cam.height * w / cam.width), w, 3) and img.dtype == np.uint8
+    thumb = frame_store.thumbnail(name, 3, 2)
+    assert abs(thumb.shape[1] - w / 2) <= 1
+    assert frame_store.frame(name, NUM_FRAMES) is None
+    assert (scene.root / ".mvviz" / "frames" / f"{name}_w640.npz").is_file()
+    again = FrameStore(scene, cache_dir=scene.root / ".mvviz" / "frames").start()
+    assert again.wait(10)
+    np.testing.assert_array_equal(again.frame(name, 3), img)
+
+
+# --------------------------------------------------------------------------- threads / server
+
+
+def test_latest_wins_collapses_requests():
+    seen, value = [], {"v": 0}
+
+    def render():
+        time.sleep(0.02)
+        seen.append(value["v"])
+
+    worker = LatestWins(render)
+    for i in range(1, 101):
+        value["v"] = i
+        worker.request()
+        time.sleep(0.001)
+    assert worker.wait_idle(5)
+    worker.stop()
+    assert seen[-1] == 100
+    assert len(seen) < 40  # not one render per request
+
+
+def test_server_without_browser(viewer_scene, frame_store):
+    scene, results, model = viewer_scene
+    state = ViewerState.create(scene, results, model)
+    app = ViewerApp(state, port=free_port(), frames=frame_store)
+    try:
+        seen = []
+        app.state_changed.append(lambda st, why: seen.append((st.frame, why)))
+        for f in range(NUM_FRAMES):
+            app.set_frame(f)
+            assert app.wait_idle(10)
+        assert seen[-1][0] == NUM_FRAMES - 1
+        stats = app.frame_time_stats()
+        assert stats["count"] >= NUM_FRAMES and stats["median_ms"] < 200
+        app.jump_to(frame=3, track=1, joint="left_wrist", view=2)
+        assert app.wait_idle(10)
+        assert state.frame == 3 and state.camera == 2
+        assert state.selection.track == 1
+        assert state.data.joint_set.names[state.selection.joint] == "left_wrist"
+        app.layers_panel.toggles["rays"].value = False
+        assert app.wait_idle(10) and not state.layers.rays
+        # playback advances frames on its own, and pausing stops it
+        app.timeline.play.value = True  # a click
+        assert state.playing
+        time.sleep(0.5)
+        app.timeline.play.value = True
+        assert not state.playing and state.frame != 3
+        assert app.wait_idle(10) and not app.render_errors
+    finally:
+        app.stop()
+
+
+def test_server_survives_odd_scenes(viewer_scene, blind_camera_scene):
+    """A camera without detections, no ground truth, no videos; then new results."""
+    blind, res, model = blind_camera_scene
+    no_gt = dataclasses.replace(blind, gt=None, videos={})
+    state = all_on(ViewerState.create(no_gt, res, model))
+    assert state.data.bodies is None and state.data.gt_points is None
+    app = ViewerApp(state, port=free_port(), frames=FrameStore(no_gt).start())
+    try:
+        assert app.layers_panel.toggles["meshes"].disabled
+        for f in range(0, NUM_FRAMES, 3):
+            app.set_frame(f)
+            assert app.wait_idle(10)
+        app.jump_to(view=0, track=0)
+        assert app.wait_idle(10)
+        # results of another configuration replace the layers
+        config = PipelineConfig().with_overrides(["triangulation.outlier_threshold_px=8"])
+        other = run_pipeline(blind, config, model, progress=False)
+        app.set_results(other)
+        app.set_frame(7)
+        assert app.wait_idle(10)
+        assert state.data.results is other
+        assert app.selection_panel.track.options[1:] == tuple(
+            str(k) for k in range(other.num_tracks)
+        )
+        assert not app.render_errors
+        with pytest.raises(ValueError, match="not of this scene"):
+            app.set_results(viewer_scene[1])
+    finally:
+        app.stop()
+
+
+def test_cli_view_starts_and_stops(viewer_scene):
+    from mvviz.cli import build_parser
+    from mvviz.cli_view import start
+
+    scene = viewer_scene[0]
+    args = build_parser().parse_args(["view", str(scene.root), "--port", str(free_port())])
+    app = start(args, progress=False)
+    try:
+        assert app.url.startswith("http://127.0.0.1:")
+        done = threading.Event()
+        app.state_changed.append(lambda *_: done.set())
+        app.set_frame(5)
+        assert done.wait(10)
+    finally:
+        app.stop()
+
+
+def test_detections_dataclass_roundtrip_unchanged(viewer_scene):
+    """The viewer never mutates the scene it reads."""
+    scene = viewer_scene[0]
+    before = scene.detections.keypoints.copy()
+    st = all_on(ViewerState.create(scene, viewer_scene[1], viewer_scene[2]))
+    for f in range(NUM_FRAMES):
+        frame_geometry(st, f)
+    assert isinstance(scene.detections, Detections)
+    np.testing.assert_array_equal(scene.detections.keypoints, before)
