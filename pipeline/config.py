@@ -14,6 +14,7 @@ from typing import Any
 from pipeline.associate import AssociationParams
 from pipeline.files import SceneFormatError, atomic_write
 from pipeline.kalman import KalmanParams
+from pipeline.smpl_fit import FitParams
 from pipeline.track import TrackingParams
 
 SOURCES = ("keypoints", "smpl")
@@ -42,6 +43,13 @@ class PipelineConfig:
     kalman: KalmanParams = field(default_factory=lambda: KalmanParams(q=100.0))
     """q = 100 (mm/frame^2)^2: on the sample scene the forward filter then cuts the
     acceleration error by ~48% while lowering MPJPE (q = 200: 42%; q = 50: 53%, more lag)."""
+    fit_smpl: bool = True
+    """Fit SMPL bodies to the filtered tracks (step I), and correct them with the pose prior."""
+    use_pose_prior: bool = True
+    """Run the VAE correction (needs a prior checkpoint)."""
+    pose_prior: str = ""
+    """Prior checkpoint; empty = the shipped sample_data/priors/pose_vae.pt."""
+    smpl_fit: FitParams = field(default_factory=FitParams)
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:

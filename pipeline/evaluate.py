@@ -2,9 +2,12 @@
 researcher needs to trust it.
 
 Rows (stages): ``raw`` triangulation, ``kalman`` (forward filter), ``rts``
-(smoothed). Each row: MPJPE (mm) and PCK@160 mm over the evaluated joints, the same
-over the COCO-mappable subset, PCP (Shelf/Campus convention, limbs of SMPL-24), the
-acceleration error and jitter (mm/frame^2). Plus association precision/recall,
+(smoothed), ``smpl`` (SMPL fit to the filtered tracks, step I) and ``smpl_vae`` (that
+fit corrected by the VAE pose prior), when the results carry fits. Each row: MPJPE
+(mm) and PCK@160 mm over the evaluated joints, the same over the COCO-mappable
+subset, PCP (Shelf/Campus convention, limbs of SMPL-24), the acceleration error and
+jitter (mm/frame^2); and local plausibility per stage (joint-limit violations, bone
+length spread, foot and wrist jitter). Plus association precision/recall,
 ID switches and per-view, per-joint reprojection errors.
 
 Which ground truth: SMPL-24 sources are scored against ``gt.joints3d``; a COCO-17
@@ -21,12 +24,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline import metrics
+from pipeline import metrics, pose_limits
 from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
 from pipeline.results import PipelineResults
 from pipeline.scene import GroundTruth, Scene
+from pipeline.smpl_fit import plausibility
 
-STAGES = ("raw", "kalman", "rts")
+STAGES = ("raw", "kalman", "rts", "smpl", "smpl_vae")
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,6 +43,8 @@ class Evaluation:
     reprojection_view_mean: np.ndarray  # (V,) px
     reprojection_view_joint_mean: np.ndarray  # (V, J) px
     gt_source: str
+    plausibility: dict[str, dict[str, float]]  # per stage: limit violations, bone std, jitter
+    smpl24: dict[str, dict[str, float]]  # SMPL fits scored on all 24 SMPL joints vs joints3d
 
     def to_json(self) -> dict:
         return {
@@ -62,6 +68,11 @@ class Evaluation:
                 "per_view_joint_mean": self.reprojection_view_joint_mean.tolist(),
             },
             "gt_source": self.gt_source,
+            "plausibility": self.plausibility,
+            "smpl24_joints": {
+                k: {"mpjpe_mm": v["mpjpe"], "pck160": v["pck"], "pcp": v["pcp"]}
+                for k, v in self.smpl24.items()
+            },
         }
 
 
@@ -153,6 +164,7 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
         ).reshape(reproj.shape[2], reproj.shape[1])
         vm = np.array([_nanmean(reproj[:, :, v]) for v in range(reproj.shape[2])])
     stages: dict[str, dict[str, float]] = {}
+    smpl24: dict[str, dict[str, float]] = {}
     events: list = []
     gt_source = "none"
     if scene.gt is not None:
@@ -161,11 +173,8 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
         # Filters are scored where the raw triangulation has the joint, so every row is
         # measured on the same samples (coasting through gaps is not scored here).
         measured = np.isfinite(results.track_raw).all(-1, keepdims=True)
-        for name, arr in (
-            ("raw", results.track_raw),
-            ("kalman", np.where(measured, results.track_forward, np.nan)),
-            ("rts", np.where(measured, results.track_smoothed, np.nan)),
-        ):
+        for name, arr in stage_tracks(results).items():
+            arr = np.where(measured, arr, np.nan) if name != "raw" else arr
             stages[name], match = stage_metrics(to_smpl_slots(arr, results.joint_set), gt_dense)
             if name == "raw":
                 m = match.matched
@@ -173,6 +182,21 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
                     match.frame[m], gt_ids[match.gt_index[m]], match.pred_index[m]
                 )
         association = dict(association, id_switches=len(events))
+        if scene.gt.joints3d is not None:
+            dense24, _ = _frames_of_gt(scene.gt, scene.gt.joints3d, results.num_frames)
+            for name in ("smpl", "smpl_vae"):
+                fit = getattr(results, name)
+                if fit is not None:
+                    smpl24[name], _ = stage_metrics(fit.joints, dense24)
+    plaus = {}
+    for name, arr in stage_tracks(results).items():
+        if name in ("smpl", "smpl_vae"):
+            plaus[name] = plausibility(getattr(results, name))
+        else:
+            plaus[name] = dict(
+                limit_violations_per_1000=float("nan"),
+                **pose_limits.skeleton_plausibility(to_smpl_slots(arr, results.joint_set)),
+            )
     return Evaluation(
         stages=stages,
         association=association,
@@ -180,7 +204,19 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
         reprojection_view_mean=vm,
         reprojection_view_joint_mean=vj,
         gt_source=gt_source,
+        plausibility=plaus,
+        smpl24=smpl24,
     )
+
+
+def stage_tracks(results: PipelineResults) -> dict[str, np.ndarray]:
+    """(K, F, J, 3) trajectories of every stage the results carry, in the source joint set."""
+    out = {"raw": results.track_raw, "kalman": results.track_forward, "rts": results.track_smoothed}
+    for name in ("smpl", "smpl_vae"):
+        fit = getattr(results, name)
+        if fit is not None:
+            out[name] = fit.keypoints
+    return out
 
 
 def _nanmean(x: np.ndarray) -> float:
@@ -205,7 +241,29 @@ def format_table(ev: Evaluation, *, view_names: list[str] | None = None) -> str:
                 f"{v['jitter']:7.2f} {v['mpjpe_coco']:8.1f} {v['recall']:7.3f}"
             )
         lines.append("(accel = acceleration error, jitter = mean |acceleration|, mm/frame^2;")
-        lines.append(" MPJPE12 = over the 12 COCO-mappable joints; recall = GT people matched)")
+        lines.append(" MPJPE12 = over the 12 COCO-mappable joints; recall = GT people matched;")
+        lines.append(" filters and fits scored where the raw triangulation has the joint)")
+        for name, v in ev.smpl24.items():
+            lines.append(
+                f"{name} on all 24 SMPL joints (vs joints3d): MPJPE {v['mpjpe']:.1f} mm, "
+                f"PCK@160 {v['pck']:.3f}, PCP {v['pcp']:.3f}"
+            )
+    if ev.plausibility:
+        lines.append("")
+        lines.append("local plausibility")
+        head = (
+            f"{'stage':<8} {'limit viol/1000':>15} {'hinge viol/1000':>15} "
+            f"{'bone std mm':>11} {'foot jit':>8} {'wrist jit':>9}"
+        )
+        lines.append(head)
+        lines.append("-" * len(head))
+        for name, v in ev.plausibility.items():
+            lines.append(
+                f"{name:<8} {v['limit_violations_per_1000']:15.1f} "
+                f"{v['hinge_violations_per_1000']:15.1f} {v['bone_length_std_mm']:11.1f} "
+                f"{v['foot_jitter']:8.1f} {v['wrist_jitter']:9.1f}"
+            )
+        lines.append("(limit violations need joint rotations: SMPL rows only; jitter mm/frame^2)")
     if ev.association:
         a = ev.association
         lines.append("")

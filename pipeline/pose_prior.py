@@ -359,9 +359,14 @@ def save_prior(prior: PosePrior, path: str | os.PathLike) -> None:
     os.replace(tmp, path)
 
 
+def resolve_prior_path(path: str | os.PathLike | None = None) -> Path:
+    """An explicit checkpoint path, else the shipped one."""
+    return Path(path) if path else DEFAULT_PRIOR_PATH
+
+
 def load_prior(path: str | os.PathLike | None = None) -> PosePrior:
     """Read a checkpoint written by :func:`save_prior` (default: the shipped one)."""
-    path = Path(path) if path else DEFAULT_PRIOR_PATH
+    path = resolve_prior_path(path)
     if not path.is_file():
         raise FileNotFoundError(f"pose prior checkpoint not found: {path}")
     ckpt = torch.load(path, map_location="cpu", weights_only=True)

@@ -17,9 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.body_model import BodyModel
+from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.files import SceneFormatError, load_npz, save_npz_atomic
+from pipeline.pose_prior import load_prior, resolve_prior_path
 from pipeline.run import (
     FrameResult,
     SequenceResult,
@@ -30,8 +31,10 @@ from pipeline.run import (
     source_joint_set,
 )
 from pipeline.scene import Scene
+from pipeline.smpl_fit import SmplFit, fit_sequence
 
-RESULTS_VERSION = 1
+RESULTS_VERSION = 2
+FIT_JOINT_SETS = ("coco17", "smpl24")
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +66,8 @@ class PipelineResults:
     track_prior: np.ndarray  # (K, F, J, 3) predicted mean before each update
     track_innovation: np.ndarray  # (K, F, J, 3)
     track_mahalanobis: np.ndarray  # (K, F, J)
+    smpl: SmplFit | None = None  # step I fit to track_filtered
+    smpl_vae: SmplFit | None = None  # step I corrected by the VAE pose prior
     cache_key: str = ""
 
     @property
@@ -169,8 +174,30 @@ def cache_key(scene: Scene, config: PipelineConfig, model: BodyModel) -> str:
     h.update(scene_fingerprint(scene).encode())
     h.update(config.to_json().encode())
     h.update(str(model.source).encode())
+    if config.fit_smpl and config.use_pose_prior:
+        prior = resolve_prior_path(config.pose_prior or None)
+        if prior.is_file():
+            h.update(hashlib.sha256(prior.read_bytes()).digest())
     h.update(str(RESULTS_VERSION).encode())
     return h.hexdigest()[:16]
+
+
+def fit_bodies(
+    results: PipelineResults, config: PipelineConfig, model: BodyModel, *, progress: bool = True
+) -> PipelineResults:
+    """Step I SMPL fit to the filtered tracks, and its VAE-corrected version."""
+    if not config.fit_smpl or results.joint_set not in FIT_JOINT_SETS or results.num_tracks == 0:
+        return results
+    prior = load_prior(config.pose_prior or None) if config.use_pose_prior else None
+    fit_i, fit_vae = fit_sequence(
+        results.track_filtered,
+        results.joint_set,
+        model,
+        prior=prior,
+        params=config.smpl_fit,
+        progress=progress,
+    )
+    return dataclasses.replace(results, smpl=fit_i, smpl_vae=fit_vae)
 
 
 def run_pipeline(
@@ -181,7 +208,7 @@ def run_pipeline(
     joints2d = select_2d(scene, config, restored)
     frames = run_frames(scene, config, joints2d, progress=progress)
     seq = run_sequence(frames, scene.num_frames, config, source_joint_set(scene, config))
-    return pack(
+    packed = pack(
         frames,
         seq,
         config=config,
@@ -193,6 +220,7 @@ def run_pipeline(
         joints2d_all=joints2d,
         cache_key=cache_key(scene, config, model),
     )
+    return fit_bodies(packed, config, model, progress=progress)
 
 
 # --------------------------------------------------------------------------- file io
@@ -200,8 +228,19 @@ def run_pipeline(
 _ARRAY_FIELDS = [
     f.name
     for f in dataclasses.fields(PipelineResults)
-    if f.name not in ("config", "joint_set", "num_frames", "num_views", "cache_key", "det_restored")
+    if f.name
+    not in (
+        "config",
+        "joint_set",
+        "num_frames",
+        "num_views",
+        "cache_key",
+        "det_restored",
+        "smpl",
+        "smpl_vae",
+    )
 ]
+_FIT_PREFIXES = {"smpl": "smpl_", "smpl_vae": "smplvae_"}
 
 
 def save_results(results: PipelineResults, path: str | os.PathLike) -> None:
@@ -212,14 +251,20 @@ def save_results(results: PipelineResults, path: str | os.PathLike) -> None:
         "num_frames": results.num_frames,
         "num_views": results.num_views,
         "cache_key": results.cache_key,
+        "body_model": str(results.smpl.model.source) if results.smpl is not None else None,
     }
     arrays = {k: getattr(results, k) for k in _ARRAY_FIELDS}
     if results.det_restored is not None:
         arrays["det_restored"] = results.det_restored
+    for name, prefix in _FIT_PREFIXES.items():
+        fit = getattr(results, name)
+        if fit is not None:
+            arrays.update(fit.arrays(prefix))
     save_npz_atomic(path, meta=np.array(json.dumps(meta)), **arrays)
 
 
-def load_results(path: str | os.PathLike) -> PipelineResults:
+def load_results(path: str | os.PathLike, *, model: BodyModel | None = None) -> PipelineResults:
+    """Read a results file; SMPL fits are bound to ``model`` (default: the one they used)."""
     path = Path(path)
     a = load_npz(path)
     try:
@@ -231,7 +276,16 @@ def load_results(path: str | os.PathLike) -> PipelineResults:
     missing = [k for k in _ARRAY_FIELDS if k not in a]
     if missing:
         raise SceneFormatError(path, missing[0], "missing array")
+    fits: dict[str, SmplFit | None] = dict.fromkeys(_FIT_PREFIXES)
+    for name, prefix in _FIT_PREFIXES.items():
+        if prefix + "transl" in a:
+            if model is None:
+                model = load_body_model(meta.get("body_model"))
+            fits[name] = SmplFit.from_arrays(
+                a, prefix, joint_set=meta["joint_set"], model=model, stage=name
+            )
     return PipelineResults(
+        **fits,
         config=PipelineConfig.from_dict(meta["config"], source=str(path)),
         joint_set=meta["joint_set"],
         num_frames=int(meta["num_frames"]),
@@ -260,7 +314,7 @@ def run_or_load(
     key = cache_key(scene, config, model)
     if path.is_file() and not force:
         try:
-            res = load_results(path)
+            res = load_results(path, model=model)
             if res.cache_key == key:
                 return res, True
         except SceneFormatError:

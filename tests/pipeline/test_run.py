@@ -124,6 +124,9 @@ def test_results_round_trip_and_cache(tmp_path, model, campus):
     np.testing.assert_array_equal(back.person_joints, results.person_joints)
     np.testing.assert_array_equal(back.track_smoothed, results.track_smoothed)
     assert back.config == results.config
+    assert back.smpl is not None and back.smpl_vae is not None
+    np.testing.assert_array_equal(back.smpl_vae.pose_rotvecs, results.smpl_vae.pose_rotvecs)
+    np.testing.assert_array_equal(back.smpl.betas, results.smpl.betas)
     r1, cached1 = run_or_load(scene, results.config, model, out=tmp_path / "c.npz", progress=False)
     r2, cached2 = run_or_load(scene, results.config, model, out=tmp_path / "c.npz", progress=False)
     assert not cached1 and cached2
@@ -171,3 +174,18 @@ def test_degenerate_frames_give_empty_results(model, campus):
     )
     res = run_pipeline(empty, cfg, model, progress=False)
     assert res.num_tracks == 0 and len(res.person_frame) == 0
+
+
+@pytest.mark.parametrize("which", ["sample", "campus"])
+def test_smpl_rows_keep_proportions_and_plausible_joints(which, request):
+    _, results, ev = request.getfixturevalue(which)
+    assert results.smpl is not None and results.smpl_vae is not None
+    p = ev.plausibility
+    # One shape per person: bone lengths barely move, unlike triangulated skeletons.
+    assert p["smpl"]["bone_length_std_mm"] < 0.5 * p["raw"]["bone_length_std_mm"]
+    # The prior removes joint-limit violations of the plain fit (never adds any).
+    assert p["smpl_vae"]["limit_violations_per_1000"] <= p["smpl"]["limit_violations_per_1000"]
+    assert p["smpl_vae"]["limit_violations_per_1000"] < 5
+    # The fits follow the joints: within a few mm of the filtered input's accuracy.
+    assert ev.stages["smpl"]["mpjpe"] < ev.stages["kalman"]["mpjpe"] + 3
+    assert ev.stages["smpl_vae"]["mpjpe"] < ev.stages["kalman"]["mpjpe"] + 3
