@@ -1,0 +1,804 @@
+"""Filter tuning, side by side: the run's Kalman filter (A) against an editable copy (B).
+
+The GUI folder "Filter A/B" shows filter A (``results.config.kalman``) read-only and
+filter B as controls. Any change to B re-filters the whole sequence with the vectorised
+:func:`~pipeline.kalman.kalman_filter` (tens of milliseconds) on a worker thread with a
+"latest wins" slot, so typing never queues work. Then:
+
+- B's skeletons are drawn beside A's under ``/world/skeletons/filter_b/<track>`` (darker
+  track colour, a "B" label; "Show B", x offset);
+- a plot of the selected track and joint over time: x, y, z (raw dots, A and B lines,
+  gate rejections as crosses) and both filters' Mahalanobis distances with their gates;
+  the current frame is a vertical line painted onto a cached render, so a frame change
+  costs an image copy (at most :data:`PLOT_INTERVAL_S` apart) and no matplotlib call;
+- MPJPE, PCK@160, acceleration error and jitter of raw, A and B against the ground
+  truth, scored exactly as :func:`pipeline.evaluate.evaluate` scores its rows.
+
+"Apply B" swaps B's arrays into the results (:meth:`ViewerApp.set_results`) and saves B
+into ``SCENE/mvviz_config.json`` (atomically), which ``mvviz run`` / ``mvviz view`` /
+``python app.py`` read next time.
+
+Units: arrays are millimetres and frames, as in the results; the scene is in metres.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import viser
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from mvviz.layers import MM, OFFSET_FILTERED_M, ViewerData, bone_segments, track_color
+from pipeline import metrics
+from pipeline.config import PipelineConfig, load_config, save_config
+from pipeline.evaluate import _frames_of_gt, ground_truth_slots, stage_metrics, to_smpl_slots
+from pipeline.files import SceneFormatError
+from pipeline.kalman import MODELS, KalmanParams, kalman_filter
+from pipeline.results import PipelineResults
+
+if TYPE_CHECKING:
+    from mvviz.app import ViewerApp
+
+CONFIG_NAME = "mvviz_config.json"  # the scene's run config (mvviz/cli_run.py resolve_config)
+B_ROOT = "/world/skeletons/filter_b"
+B_BONE_WIDTH_M = 0.016  # A's filtered bones are 0.022 m
+B_LABEL_LIFT_M = 0.2
+PLOT_WIDTH, PLOT_HEIGHT, PLOT_DPI = 680, 860, 200  # shown at half size in the 340 px panel
+PLOT_INTERVAL_S = 0.1  # at most ~10 plot images per second while scrubbing or playing
+WINDOWS = {"all": None, "±25": 25, "±50": 50, "±100": 100}  # plotted frames around the frame
+Q_SCALES = ("÷4", "÷2", "×2", "×4")
+A_COLOR, B_COLOR, RAW_COLOR, REJECT_COLOR = "#1f77b4", "#e6550d", "#6b6b6b", "#d62728"
+MARKER_RGB = (25, 25, 25)
+
+
+# --------------------------------------------------------------------------- filter runs
+
+
+@dataclass(frozen=True, eq=False)
+class FilterRun:
+    """One filter over the whole sequence, tracks first. K tracks, F frames, J joints; mm."""
+
+    params: KalmanParams
+    forward: np.ndarray  # (K, F, J, 3) forward posterior mean
+    smoothed: np.ndarray  # (K, F, J, 3) RTS
+    prior: np.ndarray  # (K, F, J, 3) predicted mean before each update
+    innovation: np.ndarray  # (K, F, J, 3)
+    mahalanobis: np.ndarray  # (K, F, J)
+    rejected: np.ndarray  # (K, F, J) bool, measurement rejected by the gate
+
+    @property
+    def shown(self) -> np.ndarray:
+        """(K, F, J, 3) the configured output: smoothed if ``params.smoother``."""
+        return self.smoothed if self.params.smoother else self.forward
+
+
+def run_filter(track_raw: np.ndarray, params: KalmanParams) -> FilterRun:
+    """Filter ``track_raw`` (K, F, J, 3) mm as the pipeline does (forward and RTS at once)."""
+    raw = np.asarray(track_raw, float)
+    if raw.ndim != 4 or raw.shape[-1] != 3:
+        raise ValueError(f"track_raw must be (num_tracks, num_frames, J, 3), got {raw.shape}")
+    fr = kalman_filter(np.moveaxis(raw, 1, 0), dataclasses.replace(params, smoother=True))
+    tracks = lambda a: np.moveaxis(a, 0, 1)  # noqa: E731  (F, K, ...) -> (K, F, ...)
+    return FilterRun(
+        params=params,
+        forward=tracks(fr.forward),
+        smoothed=tracks(fr.filtered),
+        prior=tracks(fr.prior_mean),
+        innovation=tracks(fr.innovation),
+        mahalanobis=tracks(fr.mahalanobis),
+        rejected=tracks(fr.rejected),
+    )
+
+
+def results_run(results: PipelineResults) -> FilterRun:
+    """Filter A: the results' own arrays (gate rejections recomputed when it gates)."""
+    params = results.config.kalman
+    if params.gate is not None and results.num_tracks:
+        rejected = run_filter(results.track_raw, params).rejected
+    else:
+        rejected = np.zeros(results.track_mahalanobis.shape, bool)
+    return FilterRun(
+        params=params,
+        forward=results.track_forward,
+        smoothed=results.track_smoothed,
+        prior=results.track_prior,
+        innovation=results.track_innovation,
+        mahalanobis=results.track_mahalanobis,
+        rejected=rejected,
+    )
+
+
+def with_filter(results: PipelineResults, run: FilterRun) -> PipelineResults:
+    """``results`` with ``run``'s arrays and parameters as its Kalman stage."""
+    return dataclasses.replace(
+        results,
+        track_forward=run.forward,
+        track_smoothed=run.smoothed,
+        track_prior=run.prior,
+        track_innovation=run.innovation,
+        track_mahalanobis=run.mahalanobis,
+        config=dataclasses.replace(results.config, kalman=run.params),
+        cache_key="",  # no longer what a pipeline run with the old key produced
+    )
+
+
+def save_filter_config(scene_root: Path, params: KalmanParams, run_config: PipelineConfig) -> Path:
+    """Write ``params`` as the kalman section of ``SCENE/mvviz_config.json`` (atomically).
+
+    An existing file keeps its other sections; without one the run's config is written.
+    """
+    path = Path(scene_root) / CONFIG_NAME
+    base = run_config
+    if path.is_file():
+        try:
+            base = load_config(path)
+        except SceneFormatError:
+            pass  # unreadable: replace it with the run's config
+    save_config(dataclasses.replace(base, kalman=params), path)
+    return path
+
+
+def describe(params: KalmanParams) -> str:
+    """One line about a filter: model and its numbers."""
+    model = params.model.replace("_", " ")
+    parts = [f"{model}", f"q {params.q:g}", f"r {params.r:g}", f"p0 {params.p0:g}"]
+    if params.model == "random_walk":
+        parts.append(f"gain {params.control_gain:g}")
+    parts.append("gate off" if params.gate is None else f"gate {params.gate:g}")
+    parts.append("RTS" if params.smoother else "forward")
+    return " · ".join(parts)
+
+
+# --------------------------------------------------------------------------- metrics
+
+
+def gt_dense(data: ViewerData) -> np.ndarray | None:
+    """(F, G, 24, 3) ground truth per frame in SMPL-24 slots, mm; None without GT."""
+    gt, res = data.scene.gt, data.results
+    if gt is None:
+        return None
+    slots, _ = ground_truth_slots(gt, res.joint_set)
+    return _frames_of_gt(gt, slots, res.num_frames)[0]
+
+
+def score(
+    track: np.ndarray, track_raw: np.ndarray, joint_set: str, gt: np.ndarray | None
+) -> dict[str, float]:
+    """MPJPE, PCK@160, acceleration error, jitter of ``track`` (K, F, J, 3) mm, scored
+    where ``track_raw`` has the joint, as :func:`pipeline.evaluate.evaluate` does.
+    Without ground truth (``gt`` None) only the jitter (mean |acceleration|)."""
+    measured = np.isfinite(track_raw).all(-1, keepdims=True)
+    masked = np.where(measured, track, np.nan)
+    if gt is None:
+        acc = np.linalg.norm(metrics.acceleration(np.moveaxis(masked, 1, 0)), axis=-1)
+        jit = float(np.nanmean(acc)) if np.isfinite(acc).any() else float("nan")
+        return {"jitter": jit}
+    out, _ = stage_metrics(to_smpl_slots(masked, joint_set), gt)
+    return out
+
+
+METRIC_COLUMNS = (
+    ("mpjpe", "MPJPE", "{:.1f}"),
+    ("pck", "PCK@160", "{:.3f}"),
+    ("accel", "accel", "{:.2f}"),
+    ("jitter", "jitter", "{:.2f}"),
+)
+
+
+def metrics_table(rows: dict[str, dict[str, float]]) -> str:
+    """Markdown table of :func:`score` figures, one row per name."""
+    cols = [c for c in METRIC_COLUMNS if any(c[0] in v for v in rows.values())]
+    head = "| | " + " | ".join(c[1] for c in cols) + " |"
+    lines = [head, "|:--|" + "--:|" * len(cols)]
+    for name, v in rows.items():
+        cells = [fmt.format(v[k]) if np.isfinite(v.get(k, np.nan)) else "—" for k, _, fmt in cols]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    has_gt = any("mpjpe" in v for v in rows.values())
+    note = "vs ground truth; mm, accel error and jitter mm/frame²" if has_gt else "no ground truth"
+    lines.append(f"\n<small>{note}; scored where raw is measured</small>")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- plots
+
+
+@dataclass(frozen=True, eq=False)
+class JointTrace:
+    """One joint of one track over the sequence (F frames), mm."""
+
+    title: str
+    raw: np.ndarray  # (F, 3)
+    a: np.ndarray  # (F, 3) filter A's output
+    b: np.ndarray  # (F, 3)
+    maha_a: np.ndarray  # (F,)
+    maha_b: np.ndarray  # (F,)
+    rejected_a: np.ndarray  # (F,) bool
+    rejected_b: np.ndarray  # (F,) bool
+    gate_a: float | None
+    gate_b: float | None
+
+
+def joint_trace(
+    data: ViewerData, run_a: FilterRun, run_b: FilterRun, track: int | None, joint: int
+) -> JointTrace | None:
+    """The trace of (``track``, ``joint``); None when the selection is not valid."""
+    if track is None or not 0 <= track < data.num_tracks:
+        return None
+    if not 0 <= joint < data.joint_set.num_joints:
+        return None
+    k, j = track, joint
+    return JointTrace(
+        title=f"track {k} · {data.joint_set.names[j]}",
+        raw=data.results.track_raw[k, :, j],
+        a=run_a.shown[k, :, j],
+        b=run_b.shown[k, :, j],
+        maha_a=run_a.mahalanobis[k, :, j],
+        maha_b=run_b.mahalanobis[k, :, j],
+        rejected_a=run_a.rejected[k, :, j],
+        rejected_b=run_b.rejected[k, :, j],
+        gate_a=run_a.params.gate,
+        gate_b=run_b.params.gate,
+    )
+
+
+def plot_range(num_frames: int, frame: int, window: int | None) -> tuple[int, int]:
+    """Frames ``[lo, hi)`` to plot: all, or ``frame +- window`` kept inside the sequence."""
+    if window is None or 2 * window + 1 >= num_frames:
+        return 0, num_frames
+    lo = int(np.clip(frame - window, 0, num_frames - 2 * window - 1))
+    return lo, lo + 2 * window + 1
+
+
+def _limits(values: list[np.ndarray], *, floor: float | None = None) -> tuple[float, float]:
+    v = np.concatenate([np.ravel(x) for x in values])
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return (0.0, 1.0) if floor is not None else (-1.0, 1.0)
+    lo, hi = float(v.min()), float(v.max())
+    if floor is not None:
+        lo = floor
+    pad = max(0.06 * (hi - lo), 2.0 if floor is None else 0.1)
+    return (lo if floor is not None else lo - pad), hi + pad
+
+
+class TracePlot:
+    """Matplotlib (Agg, no pyplot) figure of a :class:`JointTrace`: x, y, z over time and
+    the Mahalanobis distances. :meth:`render` draws and caches the pixels; :meth:`image`
+    paints the current-frame line on a copy of them. Use from one thread."""
+
+    def __init__(
+        self, *, width: int = PLOT_WIDTH, height: int = PLOT_HEIGHT, dpi: int = PLOT_DPI
+    ) -> None:
+        self.fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="white")
+        self.canvas = FigureCanvasAgg(self.fig)
+        self.axes = self.fig.subplots(4, 1, sharex=True, gridspec_kw={"height_ratios": [1, 1, 1, 1.15]})
+        self.fig.subplots_adjust(left=0.16, right=0.97, top=0.935, bottom=0.075, hspace=0.14)
+        self._pixels = np.zeros((height, width, 3), np.uint8)
+        self.render(None, 0, 1)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of the images, pixels."""
+        return self._pixels.shape[1], self._pixels.shape[0]
+
+    def render(self, trace: JointTrace | None, lo: int, hi: int) -> None:
+        """Draw frames ``[lo, hi)`` of ``trace`` (None: a hint to select a joint)."""
+        t = np.arange(lo, hi)
+        axes = self.axes
+        for ax in axes:
+            ax.cla()
+            ax.tick_params(labelsize=6, length=2, pad=1.5)
+            ax.grid(True, lw=0.3, color="#dddddd")
+        if trace is None:
+            axes[0].set_title("select a track and joint", fontsize=7)
+        else:
+            s = slice(lo, hi)
+            for i, ax in enumerate(axes[:3]):
+                raw, a, b = trace.raw[s, i], trace.a[s, i], trace.b[s, i]
+                ax.plot(t, raw, ".", ms=2.2, color=RAW_COLOR, label="raw", zorder=1)
+                ax.plot(t, a, "-", lw=0.9, color=A_COLOR, label="A", zorder=2)
+                ax.plot(t, b, "-", lw=0.9, color=B_COLOR, label="B", zorder=3)
+                for rej, col in ((trace.rejected_a[s], A_COLOR), (trace.rejected_b[s], B_COLOR)):
+                    if rej.any():
+                        ax.plot(t[rej], raw[rej], "x", ms=3, mew=0.8, color=col, zorder=4)
+                ax.set_ylim(*_limits([raw, a, b]))
+                ax.set_ylabel(f"{'xyz'[i]} (mm)", fontsize=6.5, labelpad=1)
+            m = axes[3]
+            ma, mb = trace.maha_a[s], trace.maha_b[s]
+            m.plot(t, ma, "-", lw=0.8, color=A_COLOR, label="A")
+            m.plot(t, mb, "-", lw=0.8, color=B_COLOR, label="B")
+            gates = [g for g in (trace.gate_a, trace.gate_b) if g is not None]
+            for g, col in ((trace.gate_a, A_COLOR), (trace.gate_b, B_COLOR)):
+                if g is not None:
+                    m.axhline(g, color=col, lw=0.8, ls="--")
+            finite = np.concatenate([ma[np.isfinite(ma)], mb[np.isfinite(mb)]])
+            top = float(np.percentile(finite, 99)) * 1.15 if finite.size else 1.0
+            m.set_ylim(0.0, max([top, 1.0] + [1.15 * g for g in gates]))
+            axes[0].legend(
+                loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize=6, frameon=False,
+                borderaxespad=0.1, handlelength=1.5, markerscale=2,
+            )  # fmt: skip
+            axes[0].set_title(trace.title, fontsize=7, loc="right", pad=2)
+        axes[3].set_ylabel("Mahalanobis", fontsize=6.5, labelpad=1)
+        axes[3].set_xlabel("frame", fontsize=6.5, labelpad=1)
+        axes[3].set_xlim(lo - 0.5, max(hi - 1, lo + 1) + 0.5)
+        self.canvas.draw()
+        self._pixels = np.asarray(self.canvas.buffer_rgba())[..., :3].copy()
+
+    def image(self, frame: int | None = None) -> np.ndarray:
+        """(height, width, 3) uint8: the last render with ``frame`` marked."""
+        img = self._pixels.copy()
+        if frame is None:
+            return img
+        H, W = img.shape[:2]
+        x = float(self.axes[0].transData.transform((frame, 0.0))[0])
+        for ax in self.axes:
+            x0, y0, x1, y1 = ax.bbox.extents  # display pixels, origin bottom left
+            if not x0 - 1 <= x <= x1 + 1:
+                continue
+            c0, c1 = max(int(round(x)) - 1, 0), min(int(round(x)) + 1, W)
+            r0, r1 = max(int(H - y1), 0), min(int(np.ceil(H - y0)), H)
+            img[r0:r1, c0:c1] = MARKER_RGB
+        return img
+
+
+# --------------------------------------------------------------------------- gui
+
+
+@dataclass
+class FilterPanel:
+    """Handles of the "Filter A/B" folder."""
+
+    folder: viser.GuiFolderHandle
+    a_info: viser.GuiMarkdownHandle
+    model: viser.GuiDropdownHandle
+    q: viser.GuiNumberHandle
+    q_scale: viser.GuiButtonGroupHandle
+    r: viser.GuiNumberHandle
+    p0: viser.GuiNumberHandle
+    control_gain: viser.GuiNumberHandle
+    smoother: viser.GuiCheckboxHandle
+    gate_on: viser.GuiCheckboxHandle
+    gate: viser.GuiNumberHandle
+    reset: viser.GuiButtonHandle
+    apply: viser.GuiButtonHandle
+    show_b: viser.GuiCheckboxHandle
+    offset: viser.GuiSliderHandle
+    window: viser.GuiDropdownHandle
+    plot: viser.GuiImageHandle
+    metrics: viser.GuiMarkdownHandle
+    status: viser.GuiMarkdownHandle
+
+    @property
+    def b_controls(self) -> tuple[viser.GuiInputHandle, ...]:
+        return (self.model, self.q, self.r, self.p0, self.control_gain, self.smoother)
+
+    def set_params(self, params: KalmanParams) -> None:
+        """Show ``params`` in B's controls (each assignment fires its callback)."""
+        self.model.value = params.model
+        self.q.value = float(params.q)
+        self.r.value = float(params.r)
+        self.p0.value = float(params.p0)
+        self.control_gain.value = float(params.control_gain)
+        self.smoother.value = bool(params.smoother)
+        self.gate_on.value = params.gate is not None
+        if params.gate is not None:
+            self.gate.value = float(params.gate)
+        self.sync_enabled()
+
+    def read_params(self, base: KalmanParams) -> KalmanParams:
+        """B's parameters (``base`` gives the fields without a control); raises ValueError."""
+        return dataclasses.replace(
+            base,
+            model=str(self.model.value),
+            q=float(self.q.value),
+            r=float(self.r.value),
+            p0=float(self.p0.value),
+            control_gain=float(self.control_gain.value),
+            smoother=bool(self.smoother.value),
+            gate=float(self.gate.value) if self.gate_on.value else None,
+        )
+
+    def sync_enabled(self) -> None:
+        self.control_gain.disabled = self.model.value != "random_walk"
+        self.gate.disabled = not self.gate_on.value
+
+
+def make_filter_gui(server: viser.ViserServer, a: KalmanParams) -> FilterPanel:
+    """The "Filter A/B" folder, B's controls showing ``a``."""
+    gui = server.gui
+    blank = np.full((PLOT_HEIGHT, PLOT_WIDTH, 3), 255, np.uint8)
+    with gui.add_folder("Filter A/B") as folder:
+        a_info = gui.add_markdown(f"**A** (run): {describe(a)}")
+        model = gui.add_dropdown("B model", MODELS, initial_value=a.model)
+        q = gui.add_number("B q", float(a.q), min=0.0, step=0.1)
+        q_scale = gui.add_button_group("B q scale", Q_SCALES)
+        r = gui.add_number("B r (mm²)", float(a.r), min=1e-3, step=0.1)
+        p0 = gui.add_number("B p0 (mm²)", float(a.p0), min=1e-3, step=1.0)
+        gain = gui.add_number("B control gain", float(a.control_gain), step=0.05)
+        smoother = gui.add_checkbox("B RTS smoother", bool(a.smoother))
+        gate_on = gui.add_checkbox("B gate", a.gate is not None)
+        gate = gui.add_number("B gate (Mahal.)", float(a.gate or 6.0), min=0.1, step=0.1)
+        reset = gui.add_button("Reset B to A", icon=viser.Icon.ARROW_BACK_UP)
+        apply = gui.add_button("Apply B", icon=viser.Icon.CHECK, color="green")
+        show_b = gui.add_checkbox("Show B skeletons", False)
+        offset = gui.add_slider("B x offset (m)", min=-3.0, max=3.0, step=0.1, initial_value=1.0)
+        window = gui.add_dropdown("Plot frames", tuple(WINDOWS), initial_value="all")
+        plot = gui.add_image(blank, format="png")
+        metrics_md = gui.add_markdown("")
+        status = gui.add_markdown("")
+    panel = FilterPanel(
+        folder, a_info, model, q, q_scale, r, p0, gain, smoother, gate_on, gate, reset, apply,
+        show_b, offset, window, plot, metrics_md, status,
+    )  # fmt: skip
+    panel.sync_enabled()
+    return panel
+
+
+# --------------------------------------------------------------------------- worker
+
+
+class _Worker:
+    """One daemon thread running ``work()`` when requested; requests made while it runs
+    collapse into one more run (latest wins). ``request(delay)`` asks for a later run."""
+
+    def __init__(self, work: Callable[[], None], name: str) -> None:
+        self._work = work
+        self._cv = threading.Condition()
+        self._pending = self._busy = self._stopped = False
+        self._due: float | None = None
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
+
+    def request(self, delay: float = 0.0) -> None:
+        with self._cv:
+            if delay <= 0:
+                self._pending = True
+            else:
+                due = time.monotonic() + delay
+                self._due = due if self._due is None else min(self._due, due)
+            self._cv.notify_all()
+
+    def wait_idle(self, timeout: float = 10.0) -> bool:
+        end = time.monotonic() + timeout
+        with self._cv:
+            while self._pending or self._busy or self._due is not None:
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cv.wait(min(left, 0.05))
+        return True
+
+    def stop(self) -> None:
+        with self._cv:
+            self._stopped = True
+            self._cv.notify_all()
+        self._thread.join(timeout=5)
+
+    def _loop(self) -> None:
+        while True:
+            with self._cv:
+                while not self._stopped and not self._pending:
+                    if self._due is not None and time.monotonic() >= self._due:
+                        break
+                    wait = None if self._due is None else max(self._due - time.monotonic(), 0)
+                    self._cv.wait(wait)
+                if self._stopped:
+                    return
+                self._pending, self._due, self._busy = False, None, True
+            try:
+                self._work()
+            except Exception as exc:  # keep the panel alive; the next request retries
+                print(f"mvviz view: filter panel failed: {type(exc).__name__}: {exc}")
+            finally:
+                with self._cv:
+                    self._busy = False
+                    self._cv.notify_all()
+
+
+# --------------------------------------------------------------------------- the panel
+
+
+def _b_color(track: int) -> np.ndarray:
+    """B's skeleton colour: the track colour, darkened."""
+    return (track_color(track).astype(float) * 0.55).astype(np.uint8)
+
+
+class FilterTuning:
+    """The "Filter A/B" panel at work: B's run, its skeletons, plots and metrics.
+
+    ``run_a``/``run_b`` are the two filters' :class:`FilterRun`; ``metrics`` the last
+    :func:`score` rows (raw, A, B); ``plot_image`` the last plot sent; ``timings`` the
+    last re-filter / skeleton / plot / metrics times in ms. Everything drawn follows
+    the app: :attr:`ViewerApp.state_changed` brings frame, selection and new results.
+    """
+
+    def __init__(self, app: ViewerApp) -> None:
+        self.app = app
+        self._lock = threading.RLock()  # the scene nodes and the runs below
+        data = app.state.data
+        self._data = data
+        self.run_a = results_run(data.results)
+        self.run_b = self.run_a
+        self.gui = make_filter_gui(app.server, self.run_a.params)
+        self.metrics: dict[str, dict[str, float]] = {}
+        self.plot_image: np.ndarray | None = None
+        self.timings: dict[str, float] = {}
+        self.message = ""
+        self._gt = gt_dense(data)
+        self._score_cache: dict[tuple, dict[str, float]] = {}
+        self._plot = TracePlot()
+        self._plot_key: tuple | None = None
+        self._marker_frame: int | None = None
+        self._last_plot_t = 0.0
+        self._drawn_key: tuple | None = None
+        self._auto_show = True  # "Show B" turns on at B's first edit, unless touched
+        self._nodes: dict[str, viser.SceneNodeHandle] = {}
+        self._build_nodes()
+        self._bind()
+        self._worker = _Worker(self._work, "mvviz-filter-ab")
+        app.state_changed.append(self._on_state_changed)
+        self._worker.request()
+
+    # ------------------------------------------------------------------ public
+
+    @property
+    def params_b(self) -> KalmanParams:
+        """B's parameters as its controls show them (raises ValueError if invalid)."""
+        return self.gui.read_params(self.run_a.params)
+
+    def reset_b(self) -> None:
+        """Set B's controls to filter A."""
+        self.gui.set_params(self.run_a.params)
+        self._worker.request()
+
+    def apply_b(self) -> Path:
+        """Make B the current filter: swap its arrays into the app's results and save its
+        parameters to ``SCENE/mvviz_config.json``. Returns the config path."""
+        params = self.params_b
+        with self._lock:
+            data, run = self._data, self.run_b
+        if run.params != params or run.forward.shape != data.results.track_forward.shape:
+            run = run_filter(data.results.track_raw, params)
+        path = save_filter_config(data.scene.root, params, data.results.config)
+        self.app.set_results(with_filter(data.results, run))
+        self.message = (
+            f"✓ {time.strftime('%H:%M:%S')}: B applied and saved to `{path}` "
+            f"(`mvviz run` / `python app.py` use it next time)"
+        )
+        self._worker.request()
+        return path
+
+    def wait_idle(self, timeout: float = 10.0) -> bool:
+        """Block until B's re-filter, skeletons, plot and metrics are up to date."""
+        return self._worker.wait_idle(timeout)
+
+    def stop(self) -> None:
+        self._worker.stop()
+
+    # ------------------------------------------------------------------ gui callbacks
+
+    def _bind(self) -> None:
+        g = self.gui
+
+        def edited(_) -> None:
+            g.sync_enabled()
+            self._worker.request()
+
+        for h in (*g.b_controls, g.gate_on, g.gate, g.offset, g.window):
+            h.on_update(edited)
+
+        @g.show_b.on_update
+        def _(_) -> None:
+            self._auto_show = False
+            self._worker.request()
+
+        @g.q_scale.on_click
+        def _(event) -> None:
+            s = event.target.value
+            factor = {"÷4": 0.25, "÷2": 0.5, "×2": 2.0, "×4": 4.0}[s]
+            g.q.value = float(f"{float(g.q.value) * factor:.4g}")
+
+        @g.reset.on_click
+        def _(_) -> None:
+            self.reset_b()
+
+        @g.apply.on_click
+        def _(_) -> None:
+            try:
+                self.apply_b()
+            except (ValueError, OSError) as exc:
+                self.message = f"Apply B failed: {exc}"
+                self._worker.request()
+
+    def _on_state_changed(self, st, reason: str) -> None:
+        """After each app render: follow new results, draw B at the new frame."""
+        with self._lock:
+            if st.data is not self._data and st.data is self.app.state.data:
+                self._rebuild(st.data)
+            self._draw_b(st.frame, st.layers.offset_filtered)
+        self._worker.request()
+
+    # ------------------------------------------------------------------ scene nodes
+
+    def _build_nodes(self) -> None:
+        scene, K = self.app.server.scene, self._data.num_tracks
+        empty = np.zeros((1, 2, 3), np.float32)
+        self._nodes = {B_ROOT: scene.add_frame(B_ROOT, show_axes=False, visible=False)}
+        for k in range(K):
+            col, base = _b_color(k), f"{B_ROOT}/{k}"
+            self._nodes[f"{base}/bones"] = scene.add_line_segments(
+                f"{base}/bones", empty, col, thickness=B_BONE_WIDTH_M,
+                thickness_units="world", visible=False,
+            )  # fmt: skip  (world-width lines: one uniform colour, see SceneLayers._lines)
+            self._nodes[f"{base}/joints"] = scene.add_point_cloud(
+                f"{base}/joints", np.zeros((1, 3), np.float32), col, point_size=0.025,
+                point_shape="circle", precision="float32", visible=False,
+            )  # fmt: skip
+            self._nodes[f"{base}/label"] = scene.add_label(
+                f"{base}/label", f"B {k}", anchor="bottom-center", visible=False
+            )
+        self._drawn_key = None
+
+    def _remove_nodes(self) -> None:
+        with warnings.catch_warnings():  # already gone with /world/skeletons: fine
+            warnings.simplefilter("ignore")
+            for h in reversed(list(self._nodes.values())):
+                h.remove()
+        self._nodes = {}
+
+    def _rebuild(self, data: ViewerData) -> None:
+        """New results (applied B, a re-run): A is theirs, B re-filters their raw tracks."""
+        self._remove_nodes()
+        self._data = data
+        self.run_a = results_run(data.results)
+        self.gui.a_info.content = f"**A** (run): {describe(self.run_a.params)}"
+        try:
+            params = self.params_b
+        except ValueError:
+            params = self.run_a.params
+        self.run_b = self.run_a if params == self.run_a.params else run_filter(
+            data.results.track_raw, params
+        )
+        self._gt = gt_dense(data)
+        self._score_cache.clear()
+        self._build_nodes()
+
+    def _draw_b(self, frame: int, offset_filtered: bool) -> None:
+        """B's skeletons at ``frame`` (call with the lock held)."""
+        show, dx = bool(self.gui.show_b.value), float(self.gui.offset.value)
+        key = (id(self._data), id(self.run_b), frame, show, dx, offset_filtered)
+        if key == self._drawn_key:
+            return
+        t0 = time.perf_counter()
+        group = self._nodes[B_ROOT]
+        try:
+            base = OFFSET_FILTERED_M if offset_filtered else np.zeros(3)
+            group.position = base + np.array([dx, 0.0, 0.0])
+            group.visible = show
+            if show:
+                self._draw_b_skeletons(frame)
+        except RuntimeError:  # nodes removed with a results change: the rebuild redraws
+            return
+        self._drawn_key = key
+        self.timings["skeletons_ms"] = (time.perf_counter() - t0) * 1e3
+
+    def _draw_b_skeletons(self, frame: int) -> None:
+        bones = self._data.joint_set.bones
+        points = self.run_b.shown[:, frame] * MM  # (K, J, 3) m
+        for k in range(self._data.num_tracks):
+            base, pts = f"{B_ROOT}/{k}", points[k]
+            ok = np.isfinite(pts).all(1)
+            seg = bone_segments(pts, bones)
+            line, pc, label = (self._nodes[f"{base}/{n}"] for n in ("bones", "joints", "label"))
+            if len(seg):
+                line.points = seg.astype(np.float32)
+            line.visible = len(seg) > 0
+            if ok.any():
+                pc.points = pts[ok].astype(np.float32)
+                top = pts[ok][np.argmax(pts[ok, 2])]
+                label.position = top + np.array([0.0, 0.0, B_LABEL_LIFT_M])
+            pc.visible = label.visible = bool(ok.any())
+
+    # ------------------------------------------------------------------ worker
+
+    def _work(self) -> None:
+        t_start = time.perf_counter()
+        try:
+            params = self.params_b
+        except (ValueError, TypeError) as exc:
+            self.gui.status.content = f"**B is not valid:** {exc}"
+            return
+        with self._lock:
+            data, run_b = self._data, self.run_b
+        if params != run_b.params:  # 1. re-filter the whole sequence
+            t0 = time.perf_counter()
+            run = run_filter(data.results.track_raw, params)
+            self.timings["filter_ms"] = (time.perf_counter() - t0) * 1e3
+            with self._lock:
+                if data is not self._data:
+                    self._worker.request()  # results changed meanwhile: redo on theirs
+                    return
+                self.run_b = run
+            if self._auto_show and params != self.run_a.params:
+                self._auto_show = False
+                self.gui.show_b.value = True
+        st = self.app.state
+        with self._lock:  # 2. skeletons (a no-op when nothing they show changed)
+            self._draw_b(st.frame, st.layers.offset_filtered)
+        self._update_plot()  # 3. plots, 4. metrics
+        self._update_metrics()
+        self.timings["work_ms"] = (time.perf_counter() - t_start) * 1e3
+        self._show_status()
+
+    def _update_plot(self) -> None:
+        st = self.app.state
+        with self._lock:
+            data, run_a, run_b = self._data, self.run_a, self.run_b
+        frame, sel = int(st.frame), st.selection
+        lo, hi = plot_range(data.num_frames, frame, WINDOWS.get(self.gui.window.value))
+        key = (id(data), id(run_a), id(run_b), sel.track, sel.joint, lo, hi)
+        if key == self._plot_key and frame == self._marker_frame:
+            return
+        wait = self._last_plot_t + PLOT_INTERVAL_S - time.monotonic()
+        if wait > 0:
+            self._worker.request(delay=wait)
+            return
+        t0 = time.perf_counter()
+        if key != self._plot_key:
+            self._plot.render(joint_trace(data, run_a, run_b, sel.track, sel.joint), lo, hi)
+            self._plot_key = key
+            self.timings["plot_ms"] = (time.perf_counter() - t0) * 1e3
+        img = self._plot.image(frame)
+        self.gui.plot.image = img
+        self.plot_image, self._marker_frame = img, frame
+        self._last_plot_t = time.monotonic()
+        self.timings["plot_send_ms"] = (time.perf_counter() - t0) * 1e3
+
+    def _score(self, name: str, track: np.ndarray, key: tuple) -> dict[str, float]:
+        if key not in self._score_cache:
+            res = self._data.results
+            self._score_cache[key] = score(track, res.track_raw, res.joint_set, self._gt)
+        return self._score_cache[key]
+
+    def _update_metrics(self) -> None:
+        with self._lock:
+            data, run_a, run_b = self._data, self.run_a, self.run_b
+        t0 = time.perf_counter()
+        rows = {
+            "raw": self._score("raw", data.results.track_raw, (id(data), "raw")),
+            "A": self._score("A", run_a.shown, (id(data), id(run_a))),
+            "B": self._score("B", run_b.shown, (id(data), id(run_b))),
+        }
+        if rows == self.metrics:
+            return
+        for stale in [k for k in self._score_cache if k[1] not in ("raw", id(run_a), id(run_b))]:
+            del self._score_cache[stale]
+        self.metrics = rows
+        self.gui.metrics.content = metrics_table(rows)
+        self.timings["metrics_ms"] = (time.perf_counter() - t0) * 1e3
+
+    def _show_status(self) -> None:
+        t = self.timings
+        parts = [f"{name} {t[k]:.0f} ms" for name, k in (
+            ("re-filter", "filter_ms"), ("plot", "plot_ms"), ("metrics", "metrics_ms"),
+        ) if k in t]  # fmt: skip
+        same = "B = A" if self.run_b.params == self.run_a.params else f"B: {describe(self.run_b.params)}"
+        lines = [f"<small>{same}<br/>{' · '.join(parts)}</small>"]
+        if self.message:
+            lines.append(self.message)
+        self.gui.status.content = "\n\n".join(lines)
+
+
+def make_filter_panel(app: ViewerApp) -> FilterTuning:
+    """The "Filter A/B" folder in ``app``'s GUI, following the app's state."""
+    return FilterTuning(app)
