@@ -47,10 +47,9 @@ from pipeline.smpl_fit import (  # noqa: E402
     _pack,
     fit_sequence,
     initial_alignment,
-    keypoint_buffers,
-    matrix_to_rotvec,
     plausibility,
 )
+from pipeline.smpl_kinematics import keypoint_buffers, matrix_to_rotvec  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -52,19 +52,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-video", action="store_true", help="skip writing videos (still renders)")
     p.add_argument("--smpl-model", default=None, help="body model file (.npz/.pkl)")
     p.add_argument("--overwrite", action="store_true")
+    noise = p.add_argument_group(
+        "detector noise model",
+        "fields of pipeline.synth.detectors.DetectorNoise (documented there and in "
+        "sample_data/README.md)",
+    )
     for f in dataclasses.fields(DetectorNoise):
-        p.add_argument(
+        noise.add_argument(
             f"--noise-{f.name.replace('_', '-')}",
             type=float,
             default=f.default,
             dest=f"noise_{f.name}",
-            help=argparse.SUPPRESS,
+            metavar="X",
+            help=f"(default {f.default})",
         )
-    p.add_argument(
-        "--noise",
-        action="store_true",
-        help="(every field of the detector noise model is a flag --noise-FIELD, see DetectorNoise)",
-    )
     p.set_defaults(func=run)
 
 

@@ -44,7 +44,7 @@ import torch
 from tqdm import tqdm
 
 from pipeline import pose_limits
-from pipeline.smpl_fit import (
+from pipeline.smpl_kinematics import (
     matrix_to_rot6d,
     matrix_to_rotvec,
     rot6d_to_matrix,

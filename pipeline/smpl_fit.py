@@ -71,37 +71,27 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from pipeline import pose_limits
 from pipeline.body_model import BodyModel
-from pipeline.joint_sets import COCO17, SMPL24, get_joint_set, mapping_indices
+from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
+from pipeline.smpl_kinematics import (
+    NUM_JOINTS,
+    KeypointBuffers,
+    keypoint_buffers,
+    matrix_to_rot6d,
+    matrix_to_rotvec,
+    predict_targets,
+    rot6d_to_matrix,
+    rotvec_to_matrix,
+)
 
 if TYPE_CHECKING:
     from pipeline.pose_prior import PosePrior
 
 MM_PER_M = 1000.0
-NUM_JOINTS = SMPL24.num_joints
-SUPPORTED_JOINT_SETS = (COCO17.name, SMPL24.name)
 _J = SMPL24.index
-
-# Joints whose rotation the targets leave (nearly) free: pulled towards rest by w_free.
-FREE_JOINTS: dict[str, tuple[str, ...]] = {
-    COCO17.name: (
-        "spine1", "spine2", "spine3", "neck", "head", "left_collar", "right_collar",
-        "left_wrist", "right_wrist", "left_hand", "right_hand", "left_ankle", "right_ankle",
-        "left_foot", "right_foot",
-    ),
-    SMPL24.name: ("head", "left_hand", "right_hand", "left_foot", "right_foot"),
-}  # fmt: skip
-# Torso points for the closed-form root alignment (phase 0).
-TORSO_JOINTS: dict[str, tuple[str, ...]] = {
-    COCO17.name: ("left_shoulder", "right_shoulder", "left_hip", "right_hip"),
-    SMPL24.name: (
-        "pelvis", "left_hip", "right_hip", "spine3", "neck", "left_shoulder", "right_shoulder",
-    ),
-}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -123,7 +113,7 @@ class FitParams:
     w_pose: float = 2e-5
     """|R - I|_F^2 of every non-root joint."""
     w_free: float = 2e-4
-    """|R - I|_F^2 of the joints the target set leaves free (:data:`FREE_JOINTS`)."""
+    """|R - I|_F^2 of the joints the target set leaves free (``smpl_kinematics.FREE_JOINTS``)."""
     iters_latent: int = 60
     iters_refine: int = 60
     w_latent: float = 1e-4
@@ -135,207 +125,6 @@ class FitParams:
     """torch intra-op threads during the fit (restored after). The work per op is small
     (about 1000 x 24 3x3 matrices), so on a busy 2-core machine one thread is both
     faster and steadier than two; 0 leaves torch's setting alone."""
-
-
-# --------------------------------------------------------------------------- rotations
-
-
-def rot6d_to_matrix(rot6d: torch.Tensor) -> torch.Tensor:
-    """Zhou et al.'s 6D representation -> rotation matrices by Gram-Schmidt.
-
-    Args:
-        rot6d: (..., 6), the first two columns ``(a1, a2)`` of a matrix, concatenated.
-    Returns:
-        (..., 3, 3) with columns ``b1 = a1/|a1|``, ``b2`` = unit part of ``a2`` orthogonal
-        to ``b1``, ``b3 = b1 x b2``.
-    """
-    a1, a2 = rot6d[..., :3], rot6d[..., 3:]
-    b1 = a1 * torch.rsqrt((a1 * a1).sum(-1, keepdim=True).clamp_min(1e-12))
-    u2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
-    b2 = u2 * torch.rsqrt((u2 * u2).sum(-1, keepdim=True).clamp_min(1e-12))
-    x1, y1, z1 = b1.unbind(-1)
-    x2, y2, z2 = b2.unbind(-1)
-    b3 = torch.stack([y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2], -1)
-    return torch.stack([b1, b2, b3], -1)
-
-
-def matrix_to_rot6d(rotmats: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) -> (..., 6): the first two columns, concatenated."""
-    return torch.cat([rotmats[..., :, 0], rotmats[..., :, 1]], -1)
-
-
-def matrix_to_rotvec(rotmats: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) -> (..., 3) axis-angle (angle in [0, pi])."""
-    R = np.asarray(rotmats, float)
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
-
-
-def rotvec_to_matrix(rotvecs: np.ndarray) -> np.ndarray:
-    """(..., 3) axis-angle -> (..., 3, 3)."""
-    r = np.asarray(rotvecs, float)
-    return Rotation.from_rotvec(r.reshape(-1, 3)).as_matrix().reshape(r.shape[:-1] + (3, 3))
-
-
-# --------------------------------------------------------------------------- kinematics
-
-
-@dataclass(frozen=True, eq=False)
-class KeypointBuffers:
-    """What the fit needs of a body model for one target joint set, precomputed once.
-
-    Shapes: J = 24 joints, T target joints, B betas. Metres.
-    """
-
-    joint_set: str
-    parents: np.ndarray  # (J,) kinematic parent, -1 for the root
-    level_joints: tuple[torch.Tensor, ...]  # per tree level: joint indices
-    level_parents: tuple[torch.Tensor, ...]  # per level: parent's position in the level above
-    level_order: torch.Tensor  # (J,) position of each joint in the level-concatenated order
-    J_template: torch.Tensor  # (J, 3)
-    J_shapedirs: torch.Tensor  # (J, 3, B)
-    A: torch.Tensor | None  # (T, J) regressor-blended skinning weights (COCO targets)
-    D0: torch.Tensor | None  # (T, J, 3)
-    Dbeta: torch.Tensor | None  # (T, J, 3, B)
-    E: torch.Tensor | None  # (T, J, 3, 207) pose blend shapes, licensed SMPL only
-    rowsum: torch.Tensor | None  # (T,) regressor row sums (1 for a proper regressor)
-    free_weight: torch.Tensor  # (J,) 1 for joints of FREE_JOINTS
-    torso: np.ndarray  # indices into the target set
-
-    @property
-    def num_targets(self) -> int:
-        return get_joint_set(self.joint_set).num_joints
-
-
-_BUFFER_CACHE: dict[tuple[int, str], KeypointBuffers] = {}
-
-
-def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
-    """Precompute (once per model and joint set) the kinematic tree and target regressor."""
-    js = get_joint_set(joint_set)
-    if js.name not in SUPPORTED_JOINT_SETS:
-        raise ValueError(f"SMPL fit targets must be one of {SUPPORTED_JOINT_SETS}, got {js.name!r}")
-    key = (id(model), js.name)
-    if key in _BUFFER_CACHE:
-        return _BUFFER_CACHE[key]
-    parents = model.parents
-    levels = model.levels
-    level_joints, level_parents = [], []
-    for d, lv in enumerate(levels):
-        level_joints.append(torch.as_tensor(lv, dtype=torch.long))
-        if d > 0:
-            prev = list(levels[d - 1])
-            level_parents.append(torch.as_tensor([prev.index(parents[j]) for j in lv]))
-        else:
-            level_parents.append(torch.zeros(0, dtype=torch.long))
-    order = np.concatenate(levels)
-    level_order = torch.as_tensor(np.argsort(order), dtype=torch.long)
-    with torch.no_grad():
-        A = D0 = Dbeta = E = rowsum = None
-        if js.name == COCO17.name:
-            if model.coco_regressor is None:
-                raise ValueError(f"body model {model.source} has no coco_regressor")
-            # Only the vertices the regressor reads matter (4,465 of the open model's).
-            used = torch.nonzero(model.coco_regressor.abs().sum(0) > 0)[:, 0]
-            Rk = model.coco_regressor[:, used].double()  # (T, V')
-            W = model.weights[used].double()  # (V', J)
-            RW = Rk[:, :, None] * W[None]  # (T, V', J): each keypoint's skinning blend
-            A = RW.sum(1)
-            B0 = torch.einsum("tvj,vc->tjc", RW, model.v_template[used].double())
-            Bb = torch.einsum("tvj,vcb->tjcb", RW, model.shapedirs[used].double())
-            D0 = B0 - A[..., None] * model.J_template.double()[None]
-            Dbeta = Bb - A[..., None, None] * model.J_shapedirs.double()[None]
-            if model.has_posedirs:
-                pd = model.posedirs.double().T.reshape(model.num_vertices, 3, -1)[used]
-                E = torch.einsum("tvj,vcp->tjcp", RW, pd).float()
-            rowsum = Rk.sum(1).float()
-            A, D0, Dbeta = A.float(), D0.float(), Dbeta.float()
-    free = torch.zeros(NUM_JOINTS)
-    free[[_J[n] for n in FREE_JOINTS[js.name]]] = 1.0
-    buf = KeypointBuffers(
-        joint_set=js.name,
-        parents=np.asarray(parents),
-        level_joints=tuple(level_joints),
-        level_parents=tuple(level_parents),
-        level_order=level_order,
-        J_template=model.J_template.detach().clone(),
-        J_shapedirs=model.J_shapedirs.detach().clone(),
-        A=A,
-        D0=D0,
-        Dbeta=Dbeta,
-        E=E,
-        rowsum=rowsum,
-        free_weight=free,
-        torso=np.array([js.index[n] for n in TORSO_JOINTS[js.name]]),
-    )
-    _BUFFER_CACHE[key] = buf
-    return buf
-
-
-def rest_joints(betas: torch.Tensor, buf: KeypointBuffers) -> torch.Tensor:
-    """(N, B) betas -> (N, 24, 3) rest joints, metres."""
-    return buf.J_template + torch.einsum("jcb,nb->njc", buf.J_shapedirs, betas)
-
-
-def forward_kinematics(
-    rotmats: torch.Tensor, rest: torch.Tensor, buf: KeypointBuffers
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Forward kinematics composed one tree level at a time (9 levels for SMPL).
-
-    Args:
-        rotmats: (N, 24, 3, 3) local rotations; rest: (N, 24, 3) rest joints.
-    Returns:
-        glob_rot (N, 24, 3, 3) and posed joints (N, 24, 3), metres, no translation.
-    """
-    rots, poss = [], []
-    for d, (lv, par) in enumerate(zip(buf.level_joints, buf.level_parents, strict=True)):
-        R = rotmats[:, lv]
-        if d == 0:
-            rots.append(R)
-            poss.append(rest[:, lv])
-            continue
-        Rp = rots[-1][:, par]
-        offset = rest[:, lv] - rest[:, buf.level_joints[d - 1][par]]
-        rots.append(Rp @ R)
-        poss.append(poss[-1][:, par] + (Rp @ offset[..., None])[..., 0])
-    glob = torch.cat(rots, 1)[:, buf.level_order]
-    posed = torch.cat(poss, 1)[:, buf.level_order]
-    return glob, posed
-
-
-def predict_targets(
-    rotmats: torch.Tensor,
-    betas: torch.Tensor,
-    transl: torch.Tensor,
-    buf: KeypointBuffers,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The model's target joints and its SMPL-24 joints.
-
-    Args:
-        rotmats: (N, 24, 3, 3) local rotations; betas: (N, B); transl: (N, 3) metres.
-    Returns:
-        targets (N, T, 3) in ``buf.joint_set`` and joints (N, 24, 3), metres, world.
-    """
-    rest = rest_joints(betas, buf)
-    glob, posed = forward_kinematics(rotmats, rest, buf)
-    joints = posed + transl[:, None]
-    if buf.A is None:
-        return joints, joints
-    N = rotmats.shape[0]
-    # sum_j G_j D_tj as matrix products over the flattened (joint, column) index:
-    # (N, 3, J*3) @ (J*3, T [* B]) then the betas contraction.
-    G = glob.permute(0, 2, 1, 3).reshape(N, 3, -1)  # (N, a, j*b)
-    kp = G @ buf.D0.permute(1, 2, 0).reshape(-1, buf.D0.shape[0])  # (N, 3, T)
-    GDb = (G @ buf.Dbeta.permute(1, 2, 0, 3).reshape(G.shape[-1], -1)).reshape(
-        N, 3, -1, betas.shape[1]
-    )
-    kp = kp + (GDb * betas[:, None, None]).sum(-1)
-    if buf.E is not None:
-        eye = torch.eye(3, dtype=rotmats.dtype)
-        feat = (rotmats[:, 1:] - eye).reshape(N, -1)  # (N, 207)
-        Ef = torch.einsum("tjcp,np->ntjc", buf.E, feat)  # pose blend shapes (licensed SMPL)
-        kp = kp + torch.einsum("njab,ntjb->nat", glob, Ef)
-    kp = kp.transpose(1, 2) + torch.einsum("tj,nja->nta", buf.A, posed)
-    return kp + buf.rowsum[:, None] * transl[:, None], joints
 
 
 # --------------------------------------------------------------------------- results

@@ -11,16 +11,12 @@ from pipeline.body_model import BodyModel, axis_angle_to_matrix, load_body_model
 from pipeline.evaluate import _frames_of_gt, ground_truth_slots, stage_metrics
 from pipeline.joint_sets import SMPL24
 from pipeline.scene import load_scene
-from pipeline.smpl_fit import (
-    FitParams,
-    SmplFit,
-    fit_sequence,
+from pipeline.smpl_fit import FitParams, SmplFit, fit_sequence, plausibility, target_slots
+from pipeline.smpl_kinematics import (
     keypoint_buffers,
     matrix_to_rot6d,
-    plausibility,
     predict_targets,
     rot6d_to_matrix,
-    target_slots,
 )
 from tests.conftest import REPO, tiny_body_model_arrays
 
