@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import viser
 
+from mvviz.filter_panel import make_filter_panel
 from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
 from mvviz.layers import (
     LayerToggles,
@@ -37,6 +38,7 @@ from mvviz.layers import (
     frame_geometry,
     prepare,
 )
+from mvviz.pipeline_panel import make_pipeline_panel
 from pipeline.body_model import BodyModel
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
@@ -200,6 +202,7 @@ LAYER_LABELS = {
     "gt": "Ground-truth skeletons",
     "trails": "Trails (selected joint)",
     "meshes": "Ground-truth meshes",
+    "fit_meshes": "Fitted SMPL meshes",
 }
 
 
@@ -393,6 +396,8 @@ class ViewerApp:
         self.selection_panel = make_selection_panel(server, state, self._on_change)
         self.layers_panel = make_layers_panel(server, state, self._on_change)
         self.camera_panel = make_camera_panel(server, state, self._on_change)
+        self.filter_panel = make_filter_panel(self)
+        self.pipeline_panel = make_pipeline_panel(self)
         self._renderer = LatestWins(self._render)
         self._player = threading.Thread(target=self._play_loop, name="mvviz-play", daemon=True)
         self._player.start()

@@ -17,6 +17,7 @@ The scene tree is the layer system (hiding a parent hides its children)::
     /world/skeletons/gt/<person>        ground truth (neutral colour)
     /world/trails/<track>/{raw,filtered}  selected joint over +-N frames
     /world/meshes/gt/<person>           ground-truth body, skinned in the browser
+    /world/meshes/fit/<track>           fitted SMPL body (SMPL + VAE), skinned likewise
 
 :func:`frame_geometry` computes a :class:`FrameGeometry` from the viewer state without
 touching viser (unit-testable); :class:`SceneLayers` owns the nodes and applies one.
@@ -29,12 +30,12 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 import trimesh
 import viser
 import viser.transforms as vtf
 
-from pipeline.body_model import BodyModel, axis_angle_to_matrix, rigid_chain
+from mvviz.bodies import Bodies, GtBodies, fitted_bodies, gt_bodies
+from pipeline.body_model import BodyModel
 from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 from pipeline.results import PipelineResults
@@ -101,6 +102,7 @@ class LayerToggles:
     trails: bool = True
     trail_window: int = 25
     meshes: bool = False  # opaque bodies hide the skeletons inside them
+    fit_meshes: bool = False
 
 
 @dataclass(frozen=True)
@@ -170,75 +172,6 @@ def camera_geometry(camera: Camera, *, plane_depth: float = 0.6) -> CameraGeomet
 
 
 @dataclass(frozen=True, eq=False)
-class GtBodies:
-    """Ground-truth bodies as skinned meshes: bind pose per person, bone poses per frame.
-
-    A bone's world pose is the joint's global rotation and posed position (metres) from
-    forward kinematics; the browser skins ``vertices`` (bind pose: identity rotations at
-    ``rest_joints``) with ``T_world_bone(t) @ T_world_bone(bind)^-1``, which is linear
-    blend skinning without pose blend shapes.
-    """
-
-    person_ids: np.ndarray  # (P,)
-    vertices: np.ndarray  # (P, V, 3) shaped rest vertices, m
-    rest_joints: np.ndarray  # (P, 24, 3) m
-    faces: np.ndarray  # (T, 3)
-    weights: np.ndarray  # (V, 24)
-    bone_wxyz: np.ndarray  # (P, F, 24, 4)
-    bone_position: np.ndarray  # (P, F, 24, 3) m
-    present: np.ndarray  # (P, F) bool
-
-
-def gt_bodies(scene: Scene, model: BodyModel) -> GtBodies | None:
-    """Bone poses of every ground-truth person-frame (None without GT SMPL parameters)."""
-    gt = scene.gt
-    if gt is None or gt.smpl_pose is None or gt.smpl_betas is None or gt.transl is None:
-        return None
-    ok = np.isfinite(gt.smpl_pose).all(1) & np.isfinite(gt.transl).all(1)
-    ok &= np.isfinite(gt.smpl_betas).all(1) & (gt.frame < scene.num_frames)
-    ids = np.unique(gt.person_id[ok])
-    P, F = len(ids), scene.num_frames
-    if P == 0:
-        return None
-
-    def betas_tensor(b: np.ndarray) -> torch.Tensor:
-        b = torch.as_tensor(b, dtype=torch.float32).reshape(len(b), -1)[:, : model.num_betas]
-        return torch.nn.functional.pad(b, (0, model.num_betas - b.shape[1]))
-
-    with torch.no_grad():
-        rows = np.flatnonzero(ok)
-        # 1. forward kinematics of every valid person-frame
-        pose = torch.as_tensor(gt.smpl_pose[rows], dtype=torch.float32).reshape(-1, 24, 3)
-        rest = model.rest_joints(betas_tensor(gt.smpl_betas[rows]))
-        posed, T = rigid_chain(axis_angle_to_matrix(pose), rest, model.parents, model.levels)
-        glob_rot = T[..., :3, :3].numpy().astype(np.float64)
-        pos = posed.numpy() + gt.transl[rows, None, :] * MM
-        # 2. bind pose per person, from the person's first valid frame
-        first = np.array([rows[gt.person_id[rows] == p][0] for p in ids])
-        b0 = betas_tensor(gt.smpl_betas[first])
-        verts = model.v_template + torch.einsum("vcb,nb->nvc", model.shapedirs, b0)
-        rest0 = model.rest_joints(b0)
-    wxyz = vtf.SO3.from_matrix(glob_rot.reshape(-1, 3, 3)).wxyz.reshape(len(rows), 24, 4)
-    bone_wxyz = np.tile(np.array([1.0, 0, 0, 0]), (P, F, 24, 1))
-    bone_pos = np.zeros((P, F, 24, 3))
-    present = np.zeros((P, F), bool)
-    pi = np.searchsorted(ids, gt.person_id[rows])
-    bone_wxyz[pi, gt.frame[rows]] = wxyz
-    bone_pos[pi, gt.frame[rows]] = pos
-    present[pi, gt.frame[rows]] = True
-    return GtBodies(
-        person_ids=ids,
-        vertices=verts.numpy(),
-        rest_joints=rest0.numpy(),
-        faces=model.faces.numpy(),
-        weights=model.weights.numpy(),
-        bone_wxyz=bone_wxyz,
-        bone_position=bone_pos,
-        present=present,
-    )
-
-
-@dataclass(frozen=True, eq=False)
 class ViewerData:
     """Everything the viewer derives once from a scene and its results (read-only).
 
@@ -259,6 +192,7 @@ class ViewerData:
     gt_points: np.ndarray | None  # (M, Jg, 3) mm
     cameras: list[CameraGeometry]
     bodies: GtBodies | None
+    fit_bodies: Bodies | None
     min_confidence: float
     center: np.ndarray  # (3,) m, middle of the action
     spread: float  # m, horizontal half-size of the action
@@ -336,6 +270,7 @@ def prepare(
         gt_points=gt_points,
         cameras=[camera_geometry(c) for c in scene.rig],
         bodies=bodies if bodies is not None else gt_bodies(scene, model) if model else None,
+        fit_bodies=fitted_bodies(results),
         min_confidence=results.config.triangulation.min_confidence,
         center=center,
         spread=spread,
@@ -405,6 +340,7 @@ class FrameGeometry:
     gt: dict[int, Skeleton] = field(default_factory=dict)
     trails: dict[int, Trail] = field(default_factory=dict)
     meshes: dict[int, BonePoses] = field(default_factory=dict)
+    fit_meshes: dict[int, BonePoses] = field(default_factory=dict)
 
 
 def bone_segments(joints: np.ndarray, bones: tuple[tuple[int, int], ...]) -> np.ndarray:
@@ -544,13 +480,16 @@ def frame_geometry(state: ViewerState, frame: int | None = None) -> FrameGeometr
     if lay.trails and lay.trail_window > 0 and 0 <= sel.joint < data.joint_set.num_joints:
         # the selected track's trail; every track's while none is selected
         geom["trails"] = trails(data, f, sel.joint, lay.trail_window, track=track)
-    if lay.meshes and data.bodies is not None:
-        b = data.bodies
-        geom["meshes"] = {
-            int(p): BonePoses(b.bone_wxyz[i, f], b.bone_position[i, f])
-            for i, p in enumerate(b.person_ids)
-            if b.present[i, f]
-        }
+    for key, on, b in (
+        ("meshes", lay.meshes, data.bodies),
+        ("fit_meshes", lay.fit_meshes, data.fit_bodies),
+    ):
+        if on and b is not None:
+            geom[key] = {
+                int(p): BonePoses(b.bone_wxyz[i, f], b.bone_position[i, f])
+                for i, p in enumerate(b.ids)
+                if b.present[i, f]
+            }
     return FrameGeometry(**geom)
 
 
@@ -598,6 +537,7 @@ class SceneLayers:
     colors: dict[str, np.ndarray | None] = field(default_factory=dict)  # single-colour lines
     gt_ids: list[int] = field(default_factory=list)
     meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
+    fit_meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
     _frustum_key: dict[str, object] = field(default_factory=dict)
     _selected: tuple[int | None, int] = (None, -1)
 
@@ -636,6 +576,7 @@ class SceneLayers:
             "/world/trails",
             "/world/meshes",
             "/world/meshes/gt",
+            "/world/meshes/fit",
         ):
             group(path)
         for cam in data.cameras:
@@ -705,18 +646,20 @@ class SceneLayers:
             self.gt_ids = [int(p) for p in np.unique(data.scene.gt.person_id)]
         for pid in self.gt_ids:
             self._lines(f"/world/skeletons/gt/{pid}", GT_SKELETON, 0.012, "world")
-        b = data.bodies
-        if b is not None:
+        for kind, b, colour in (("gt", data.bodies, None), ("fit", data.fit_bodies, track_color)):
+            if b is None:
+                continue
             ident = np.tile([1.0, 0, 0, 0], (24, 1))
-            for i, pid in enumerate(b.person_ids):
-                self.meshes[int(pid)] = scene.add_mesh_skinned(
-                    f"/world/meshes/gt/{pid}",
+            store = self.meshes if kind == "gt" else self.fit_meshes
+            for i, pid in enumerate(b.ids):
+                store[int(pid)] = scene.add_mesh_skinned(
+                    f"/world/meshes/{kind}/{pid}",
                     b.vertices[i],
                     b.faces,
                     bone_wxyzs=ident,
                     bone_positions=b.rest_joints[i],
                     skin_weights=b.weights,
-                    color=GT_MESH,
+                    color=GT_MESH if colour is None else tuple(int(c) for c in colour(int(pid))),
                     # Opaque: a translucent skinned mesh washes out every line in
                     # viser 1.1's renderer (the lines' blended fringe pass).
                     opacity=None,
@@ -727,7 +670,8 @@ class SceneLayers:
 
     def remove(self) -> None:
         """Remove every node this object created (children before parents)."""
-        handles = list(self.meshes.values()) + list(self.nodes.values())
+        handles = list(self.meshes.values()) + list(self.fit_meshes.values())
+        handles += list(self.nodes.values())
         handles += sorted(self.groups.values(), key=lambda h: -h.name.count("/"))
         for h in handles:
             h.remove()
@@ -754,7 +698,9 @@ class SceneLayers:
         g["/world/skeletons/filtered"].visible = lay.filtered
         g["/world/skeletons/gt"].visible = lay.gt
         g["/world/trails"].visible = lay.trails
-        g["/world/meshes"].visible = lay.meshes
+        g["/world/meshes"].visible = lay.meshes or lay.fit_meshes
+        g["/world/meshes/gt"].visible = lay.meshes
+        g["/world/meshes/fit"].visible = lay.fit_meshes
         offset = OFFSET_FILTERED_M if lay.offset_filtered else np.zeros(3)
         g["/world/skeletons/filtered"].position = offset
         for cam in self.data.cameras:
@@ -821,12 +767,13 @@ class SceneLayers:
         for pid in self.gt_ids:
             s = geom.gt.get(pid)
             self._update(f"/world/skeletons/gt/{pid}", s.segments if s else _NO_SEG)
-        for pid, mesh in self.meshes.items():
-            bp = geom.meshes.get(pid)
-            if bp is None:
-                mesh.visible = False
-                continue
-            for i, bone in enumerate(mesh.bones):
-                bone.wxyz = bp.wxyz[i]
-                bone.position = bp.position[i]
-            mesh.visible = True
+        for store, poses in ((self.meshes, geom.meshes), (self.fit_meshes, geom.fit_meshes)):
+            for pid, mesh in store.items():
+                bp = poses.get(pid)
+                if bp is None:
+                    mesh.visible = False
+                    continue
+                for i, bone in enumerate(mesh.bones):
+                    bone.wxyz = bp.wxyz[i]
+                    bone.position = bp.position[i]
+                mesh.visible = True

@@ -345,3 +345,21 @@ def test_detections_dataclass_roundtrip_unchanged(viewer_scene):
         frame_geometry(st, f)
     assert isinstance(scene.detections, Detections)
     np.testing.assert_array_equal(scene.detections.keypoints, before)
+
+
+def test_fitted_meshes_follow_the_smpl_fit(viewer_scene, viewer_state):
+    """The fitted-mesh layer skins the SMPL + VAE fit: bone positions are its joints, and
+    the layer draws one body per tracked person of the frame when switched on."""
+    _, results, _ = viewer_scene
+    fit = results.smpl_vae
+    b = viewer_state.data.fit_bodies
+    assert fit is not None and b is not None
+    k, f = np.argwhere(fit.present)[len(np.argwhere(fit.present)) // 2]
+    i = int(np.searchsorted(b.ids, k))
+    np.testing.assert_allclose(b.bone_position[i, f] / MM, fit.joints[k, f], atol=0.05)
+    st = viewer_state
+    st.layers.fit_meshes = False
+    assert frame_geometry(st, int(f)).fit_meshes == {}
+    st.layers.fit_meshes = True
+    geom = frame_geometry(st, int(f))
+    assert set(geom.fit_meshes) == set(np.flatnonzero(fit.present[:, f]).tolist())
