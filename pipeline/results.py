@@ -225,20 +225,13 @@ def run_pipeline(
 
 # --------------------------------------------------------------------------- file io
 
+# Fields stored as one array each; the others go into the file's JSON meta or, for the
+# optional arrays and the fits, are handled one by one.
+_NOT_ARRAYS = {"config", "joint_set", "num_frames", "num_views", "cache_key", "det_restored"}
 _ARRAY_FIELDS = [
     f.name
     for f in dataclasses.fields(PipelineResults)
-    if f.name
-    not in (
-        "config",
-        "joint_set",
-        "num_frames",
-        "num_views",
-        "cache_key",
-        "det_restored",
-        "smpl",
-        "smpl_vae",
-    )
+    if f.name not in _NOT_ARRAYS | {"smpl", "smpl_vae"}
 ]
 _FIT_PREFIXES = {"smpl": "smpl_", "smpl_vae": "smplvae_"}
 
