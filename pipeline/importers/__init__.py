@@ -1,7 +1,8 @@
 """Importers: other tools' calibrations and detections -> a native scene directory.
 
 Calibration formats (:data:`CALIBRATION_FORMATS`): ``voxelpose``, ``easymocap``,
-``pose2sim``. Detection formats (:data:`DETECTION_FORMATS`): ``openpose``, ``easymocap``.
+``pose2sim``, ``qualisys``. Detection formats (:data:`DETECTION_FORMATS`): ``openpose``,
+``easymocap``.
 :func:`convert_scene` reads one of each and writes a scene with
 :func:`pipeline.scene.write_scene` (atomic: a failure leaves nothing behind).
 
@@ -36,6 +37,7 @@ from pipeline.importers.detections import (
     read_openpose_folders,
     resolve_joint_set,
 )
+from pipeline.importers.qualisys import read_qualisys_calibration, write_qualisys_calibration
 from pipeline.joint_sets import JointSet
 from pipeline.scene import Detections, write_scene
 
@@ -54,9 +56,11 @@ __all__ = [
     "read_easymocap_calibration",
     "read_openpose_folders",
     "read_pose2sim_calibration",
+    "read_qualisys_calibration",
     "read_voxelpose_calibration",
     "write_easymocap_calibration",
     "write_pose2sim_calibration",
+    "write_qualisys_calibration",
     "write_voxelpose_calibration",
 ]
 
@@ -112,6 +116,11 @@ def _read_pose2sim(paths: list[Path], image_size) -> CameraRig:
     return read_pose2sim_calibration(_one_file(paths, "pose2sim", ".toml"))
 
 
+def _read_qualisys(paths: list[Path], image_size) -> CameraRig:
+    path = _one_file(paths, "qualisys", ".qca.txt")
+    return read_qualisys_calibration(path, image_size=image_size)
+
+
 def _read_easymocap(paths: list[Path], image_size) -> CameraRig:
     if len(paths) == 1 and paths[0].is_dir():
         intri, extri = paths[0] / "intri.yml", paths[0] / "extri.yml"
@@ -148,6 +157,13 @@ CALIBRATION_FORMATS: dict[str, CalibrationFormat] = {
             "one Calib.toml (Pose2Sim / aniposelib); translation in metres",
             _read_pose2sim,
             write_pose2sim_calibration,
+        ),
+        CalibrationFormat(
+            "qualisys",
+            "one Qualisys QTM .qca.txt (XML; mm, intrinsics in 1/64 px); --image-size W H "
+            "if the videos are scaled",
+            _read_qualisys,
+            write_qualisys_calibration,
         ),
     )
 }
