@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import viser
 
+from mvviz.failure_panel import make_failure_panel
 from mvviz.filter_panel import make_filter_panel
 from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
 from mvviz.layers import (
@@ -397,6 +398,7 @@ class ViewerApp:
         self.layers_panel = make_layers_panel(server, state, self._on_change)
         self.camera_panel = make_camera_panel(server, state, self._on_change)
         self.filter_panel = make_filter_panel(self)
+        self.failure_panel = make_failure_panel(self)
         self.pipeline_panel = make_pipeline_panel(self)
         self._renderer = LatestWins(self._render)
         self._player = threading.Thread(target=self._play_loop, name="mvviz-play", daemon=True)

@@ -12,14 +12,22 @@ from pipeline.files import SceneFormatError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from mvviz import cli_convert, cli_export, cli_prior, cli_run, cli_synth, cli_view  # noqa: PLC0415  (keeps --help fast)
+    from mvviz import (  # noqa: PLC0415  (keeps --help fast)
+        cli_convert,
+        cli_detect,
+        cli_export,
+        cli_prior,
+        cli_run,
+        cli_synth,
+        cli_view,
+    )
 
     parser = argparse.ArgumentParser(
         prog="mvviz",
         description="Multi-view, multi-person 3D pose and SMPL reconstruction, and its debugger.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in (cli_convert, cli_synth, cli_run, cli_export, cli_view, cli_prior):
+    for module in (cli_convert, cli_synth, cli_detect, cli_run, cli_export, cli_view, cli_prior):
         module.register(sub)
     return parser
 

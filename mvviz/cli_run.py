@@ -109,7 +109,7 @@ def run_eval(args: argparse.Namespace) -> int:
     print(format_table(ev, view_names=scene.rig.names))
     report = ev.to_json()
     report["source"] = results.config.source
-    if scene.detections.has_smpl and not args.no_other_source:
+    if scene.detections.has_mono3d and not args.no_other_source:
         # Rows carry both 2D keypoints and monocular SMPL output: score the other source too.
         other = "smpl" if results.config.source == "keypoints" else "keypoints"
         model = load_body_model(args.smpl_model)

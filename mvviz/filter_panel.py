@@ -36,6 +36,8 @@ import numpy as np
 import viser
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.ticker import MaxNLocator
 
 from mvviz.layers import MM, OFFSET_FILTERED_M, ViewerData, bone_segments, track_color
 from pipeline import metrics
@@ -51,12 +53,12 @@ if TYPE_CHECKING:
 CONFIG_NAME = "mvviz_config.json"  # the scene's run config (mvviz/cli_run.py resolve_config)
 B_ROOT = "/world/skeletons/filter_b"
 B_BONE_WIDTH_M = 0.016  # A's filtered bones are 0.022 m
-B_LABEL_LIFT_M = 0.2
-PLOT_WIDTH, PLOT_HEIGHT, PLOT_DPI = 680, 860, 200  # shown at half size in the 340 px panel
+B_LABEL_LIFT_M = 0.12
+PLOT_WIDTH, PLOT_HEIGHT, PLOT_DPI = 680, 860, 220  # shown ~300 px wide in the panel
 PLOT_INTERVAL_S = 0.1  # at most ~10 plot images per second while scrubbing or playing
 WINDOWS = {"all": None, "±25": 25, "±50": 50, "±100": 100}  # plotted frames around the frame
-Q_SCALES = ("÷4", "÷2", "×2", "×4")
-A_COLOR, B_COLOR, RAW_COLOR, REJECT_COLOR = "#1f77b4", "#e6550d", "#6b6b6b", "#d62728"
+Q_SCALES = {"÷4": 0.25, "÷2": 0.5, "×2": 2.0, "×4": 4.0}  # B's q scale buttons
+A_COLOR, B_COLOR, RAW_COLOR = "#1f77b4", "#e6550d", "#6b6b6b"
 MARKER_RGB = (25, 25, 25)
 
 
@@ -100,12 +102,14 @@ def run_filter(track_raw: np.ndarray, params: KalmanParams) -> FilterRun:
 
 
 def results_run(results: PipelineResults) -> FilterRun:
-    """Filter A: the results' own arrays (gate rejections recomputed when it gates)."""
+    """Filter A: the results' own arrays. A gate rejected exactly the measurements whose
+    Mahalanobis distance exceeds it (the initialising one has distance 0)."""
     params = results.config.kalman
-    if params.gate is not None and results.num_tracks:
-        rejected = run_filter(results.track_raw, params).rejected
-    else:
-        rejected = np.zeros(results.track_mahalanobis.shape, bool)
+    rejected = np.zeros(results.track_mahalanobis.shape, bool)
+    if params.gate is not None:
+        with np.errstate(invalid="ignore"):
+            rejected = results.track_mahalanobis > params.gate
+        rejected &= np.isfinite(results.track_raw).all(-1)
     return FilterRun(
         params=params,
         forward=results.track_forward,
@@ -258,30 +262,60 @@ def plot_range(num_frames: int, frame: int, window: int | None) -> tuple[int, in
     return lo, lo + 2 * window + 1
 
 
-def _limits(values: list[np.ndarray], *, floor: float | None = None) -> tuple[float, float]:
+def _limits(values: list[np.ndarray]) -> tuple[float, float]:
+    """y limits spanning the finite values, padded (at least +-2 mm)."""
     v = np.concatenate([np.ravel(x) for x in values])
     v = v[np.isfinite(v)]
     if v.size == 0:
-        return (0.0, 1.0) if floor is not None else (-1.0, 1.0)
+        return -1.0, 1.0
     lo, hi = float(v.min()), float(v.max())
-    if floor is not None:
-        lo = floor
-    pad = max(0.06 * (hi - lo), 2.0 if floor is None else 0.1)
-    return (lo if floor is not None else lo - pad), hi + pad
+    pad = max(0.06 * (hi - lo), 2.0)
+    return lo - pad, hi + pad
 
 
 class TracePlot:
     """Matplotlib (Agg, no pyplot) figure of a :class:`JointTrace`: x, y, z over time and
-    the Mahalanobis distances. :meth:`render` draws and caches the pixels; :meth:`image`
-    paints the current-frame line on a copy of them. Use from one thread."""
+    the Mahalanobis distances. The artists are made once and :meth:`render` only sets
+    their data and limits, then caches the pixels; :meth:`image` paints the current-frame
+    line on a copy of them. Use from one thread."""
 
     def __init__(
         self, *, width: int = PLOT_WIDTH, height: int = PLOT_HEIGHT, dpi: int = PLOT_DPI
     ) -> None:
-        self.fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="white")
-        self.canvas = FigureCanvasAgg(self.fig)
-        self.axes = self.fig.subplots(4, 1, sharex=True, gridspec_kw={"height_ratios": [1, 1, 1, 1.15]})
-        self.fig.subplots_adjust(left=0.16, right=0.97, top=0.935, bottom=0.075, hspace=0.14)
+        fig = self.fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="white")
+        self.canvas = FigureCanvasAgg(fig)
+        self.axes = fig.subplots(4, 1, sharex=True, gridspec_kw={"height_ratios": [1, 1, 1, 1.15]})
+        fig.subplots_adjust(left=0.18, right=0.97, top=0.93, bottom=0.085, hspace=0.15)
+        nan = np.full(1, np.nan)
+        self.lines: list[dict[str, Line2D]] = []
+        for i, ax in enumerate(self.axes):
+            ax.tick_params(labelsize=7, length=2, pad=1.5)
+            ax.grid(True, lw=0.3, color="#dddddd")
+            if i < 3:
+                ax.set_ylabel(f"{'xyz'[i]} (mm)", fontsize=7.5, labelpad=1)
+                self.lines.append({
+                    "raw": ax.plot(nan, nan, ".", ms=2.2, color=RAW_COLOR, label="raw")[0],
+                    "a": ax.plot(nan, nan, "-", lw=0.9, color=A_COLOR, label="A")[0],
+                    "b": ax.plot(nan, nan, "-", lw=0.9, color=B_COLOR, label="B")[0],
+                    "rejected_a": ax.plot(nan, nan, "x", ms=3, mew=0.8, color=A_COLOR)[0],
+                    "rejected_b": ax.plot(nan, nan, "x", ms=3, mew=0.8, color=B_COLOR)[0],
+                })  # fmt: skip
+            else:
+                ax.set_ylabel("Mahalanobis", fontsize=7.5, labelpad=1)
+                ax.set_xlabel("frame", fontsize=7.5, labelpad=1)
+                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+                self.lines.append({
+                    "a": ax.plot(nan, nan, "-", lw=0.8, color=A_COLOR)[0],
+                    "b": ax.plot(nan, nan, "-", lw=0.8, color=B_COLOR)[0],
+                    "gate_a": ax.plot(nan, nan, "--", lw=0.8, color=A_COLOR)[0],
+                    "gate_b": ax.plot(nan, nan, "--", lw=0.8, color=B_COLOR)[0],
+                })  # fmt: skip
+        self.axes[0].legend(
+            loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3, fontsize=7, frameon=False,
+            borderaxespad=0.1, handlelength=1.0, handletextpad=0.4, columnspacing=0.9,
+            markerscale=2,
+        )  # fmt: skip
+        self.title = self.axes[0].set_title("", fontsize=8, loc="left", pad=3)
         self._pixels = np.zeros((height, width, 3), np.uint8)
         self.render(None, 0, 1)
 
@@ -291,46 +325,37 @@ class TracePlot:
         return self._pixels.shape[1], self._pixels.shape[0]
 
     def render(self, trace: JointTrace | None, lo: int, hi: int) -> None:
-        """Draw frames ``[lo, hi)`` of ``trace`` (None: a hint to select a joint)."""
-        t = np.arange(lo, hi)
-        axes = self.axes
-        for ax in axes:
-            ax.cla()
-            ax.tick_params(labelsize=6, length=2, pad=1.5)
-            ax.grid(True, lw=0.3, color="#dddddd")
-        if trace is None:
-            axes[0].set_title("select a track and joint", fontsize=7)
-        else:
-            s = slice(lo, hi)
-            for i, ax in enumerate(axes[:3]):
-                raw, a, b = trace.raw[s, i], trace.a[s, i], trace.b[s, i]
-                ax.plot(t, raw, ".", ms=2.2, color=RAW_COLOR, label="raw", zorder=1)
-                ax.plot(t, a, "-", lw=0.9, color=A_COLOR, label="A", zorder=2)
-                ax.plot(t, b, "-", lw=0.9, color=B_COLOR, label="B", zorder=3)
-                for rej, col in ((trace.rejected_a[s], A_COLOR), (trace.rejected_b[s], B_COLOR)):
-                    if rej.any():
-                        ax.plot(t[rej], raw[rej], "x", ms=3, mew=0.8, color=col, zorder=4)
-                ax.set_ylim(*_limits([raw, a, b]))
-                ax.set_ylabel(f"{'xyz'[i]} (mm)", fontsize=6.5, labelpad=1)
-            m = axes[3]
-            ma, mb = trace.maha_a[s], trace.maha_b[s]
-            m.plot(t, ma, "-", lw=0.8, color=A_COLOR, label="A")
-            m.plot(t, mb, "-", lw=0.8, color=B_COLOR, label="B")
-            gates = [g for g in (trace.gate_a, trace.gate_b) if g is not None]
-            for g, col in ((trace.gate_a, A_COLOR), (trace.gate_b, B_COLOR)):
-                if g is not None:
-                    m.axhline(g, color=col, lw=0.8, ls="--")
-            finite = np.concatenate([ma[np.isfinite(ma)], mb[np.isfinite(mb)]])
-            top = float(np.percentile(finite, 99)) * 1.15 if finite.size else 1.0
-            m.set_ylim(0.0, max([top, 1.0] + [1.15 * g for g in gates]))
-            axes[0].legend(
-                loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize=6, frameon=False,
-                borderaxespad=0.1, handlelength=1.5, markerscale=2,
-            )  # fmt: skip
-            axes[0].set_title(trace.title, fontsize=7, loc="right", pad=2)
-        axes[3].set_ylabel("Mahalanobis", fontsize=6.5, labelpad=1)
-        axes[3].set_xlabel("frame", fontsize=6.5, labelpad=1)
-        axes[3].set_xlim(lo - 0.5, max(hi - 1, lo + 1) + 0.5)
+        """Draw frames ``[lo, hi)`` of ``trace`` (None: empty, with a hint to select one)."""
+        t = np.arange(lo, hi, dtype=float)
+        s = slice(lo, hi)
+        empty = np.full(hi - lo, np.nan)
+        for i, lines in enumerate(self.lines[:3]):
+            raw = trace.raw[s, i] if trace else empty
+            a = trace.a[s, i] if trace else empty
+            b = trace.b[s, i] if trace else empty
+            lines["raw"].set_data(t, raw)
+            lines["a"].set_data(t, a)
+            lines["b"].set_data(t, b)
+            for name in ("rejected_a", "rejected_b"):
+                rej = getattr(trace, name)[s] if trace else np.zeros(hi - lo, bool)
+                lines[name].set_data(t[rej], raw[rej])
+            self.axes[i].set_ylim(*_limits([raw, a, b]))
+        ma = trace.maha_a[s] if trace else empty
+        mb = trace.maha_b[s] if trace else empty
+        m = self.lines[3]
+        m["a"].set_data(t, ma)
+        m["b"].set_data(t, mb)
+        tops = [1.0]
+        for name in ("gate_a", "gate_b"):
+            g = getattr(trace, name) if trace else None
+            m[name].set_data([lo - 1, hi + 1], [np.nan, np.nan] if g is None else [g, g])
+            tops += [] if g is None else [1.15 * g]
+        finite = np.concatenate([ma[np.isfinite(ma)], mb[np.isfinite(mb)]])
+        if finite.size:
+            tops.append(1.15 * float(np.percentile(finite, 99)))
+        self.axes[3].set_ylim(0.0, max(tops))
+        self.axes[3].set_xlim(lo - 0.5, max(hi - 1, lo + 1) + 0.5)
+        self.title.set_text(trace.title if trace else "select a track and joint")
         self.canvas.draw()
         self._pixels = np.asarray(self.canvas.buffer_rgba())[..., :3].copy()
 
@@ -378,10 +403,6 @@ class FilterPanel:
     metrics: viser.GuiMarkdownHandle
     status: viser.GuiMarkdownHandle
 
-    @property
-    def b_controls(self) -> tuple[viser.GuiInputHandle, ...]:
-        return (self.model, self.q, self.r, self.p0, self.control_gain, self.smoother)
-
     def set_params(self, params: KalmanParams) -> None:
         """Show ``params`` in B's controls (each assignment fires its callback)."""
         self.model.value = params.model
@@ -421,7 +442,7 @@ def make_filter_gui(server: viser.ViserServer, a: KalmanParams) -> FilterPanel:
         a_info = gui.add_markdown(f"**A** (run): {describe(a)}")
         model = gui.add_dropdown("B model", MODELS, initial_value=a.model)
         q = gui.add_number("B q", float(a.q), min=0.0, step=0.1)
-        q_scale = gui.add_button_group("B q scale", Q_SCALES)
+        q_scale = gui.add_button_group("B q scale", tuple(Q_SCALES))
         r = gui.add_number("B r (mm²)", float(a.r), min=1e-3, step=0.1)
         p0 = gui.add_number("B p0 (mm²)", float(a.p0), min=1e-3, step=1.0)
         gain = gui.add_number("B control gain", float(a.control_gain), step=0.05)
@@ -430,12 +451,12 @@ def make_filter_gui(server: viser.ViserServer, a: KalmanParams) -> FilterPanel:
         gate = gui.add_number("B gate (Mahal.)", float(a.gate or 6.0), min=0.1, step=0.1)
         reset = gui.add_button("Reset B to A", icon=viser.Icon.ARROW_BACK_UP)
         apply = gui.add_button("Apply B", icon=viser.Icon.CHECK, color="green")
+        status = gui.add_markdown("")
+        metrics_md = gui.add_markdown("")
         show_b = gui.add_checkbox("Show B skeletons", False)
         offset = gui.add_slider("B x offset (m)", min=-3.0, max=3.0, step=0.1, initial_value=1.0)
         window = gui.add_dropdown("Plot frames", tuple(WINDOWS), initial_value="all")
         plot = gui.add_image(blank, format="png")
-        metrics_md = gui.add_markdown("")
-        status = gui.add_markdown("")
     panel = FilterPanel(
         folder, a_info, model, q, q_scale, r, p0, gain, smoother, gate_on, gate, reset, apply,
         show_b, offset, window, plot, metrics_md, status,
@@ -449,13 +470,15 @@ def make_filter_gui(server: viser.ViserServer, a: KalmanParams) -> FilterPanel:
 
 class _Worker:
     """One daemon thread running ``work()`` when requested; requests made while it runs
-    collapse into one more run (latest wins). ``request(delay)`` asks for a later run."""
+    collapse into one more run (latest wins). ``request(delay)`` asks for a later run.
+    The thread ends at :meth:`stop` or when ``halted()`` is true at a request."""
 
-    def __init__(self, work: Callable[[], None], name: str) -> None:
-        self._work = work
+    def __init__(self, work: Callable[[], None], name: str, halted: Callable[[], bool]) -> None:
+        self._work, self._halted = work, halted
         self._cv = threading.Condition()
         self._pending = self._busy = self._stopped = False
         self._due: float | None = None
+        self.errors: list[str] = []
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
         self._thread.start()
 
@@ -492,13 +515,16 @@ class _Worker:
                         break
                     wait = None if self._due is None else max(self._due - time.monotonic(), 0)
                     self._cv.wait(wait)
-                if self._stopped:
+                if self._stopped or self._halted():
+                    self._stopped, self._pending, self._due = True, False, None
+                    self._cv.notify_all()
                     return
                 self._pending, self._due, self._busy = False, None, True
             try:
                 self._work()
             except Exception as exc:  # keep the panel alive; the next request retries
-                print(f"mvviz view: filter panel failed: {type(exc).__name__}: {exc}")
+                self.errors.append(f"{type(exc).__name__}: {exc}")
+                print(f"mvviz view: filter panel failed: {self.errors[-1]}")
             finally:
                 with self._cv:
                     self._busy = False
@@ -506,11 +532,6 @@ class _Worker:
 
 
 # --------------------------------------------------------------------------- the panel
-
-
-def _b_color(track: int) -> np.ndarray:
-    """B's skeleton colour: the track colour, darkened."""
-    return (track_color(track).astype(float) * 0.55).astype(np.uint8)
 
 
 class FilterTuning:
@@ -528,7 +549,7 @@ class FilterTuning:
         data = app.state.data
         self._data = data
         self.run_a = results_run(data.results)
-        self.run_b = self.run_a
+        self.run_b: FilterRun | None = self.run_a  # None: being re-filtered
         self.gui = make_filter_gui(app.server, self.run_a.params)
         self.metrics: dict[str, dict[str, float]] = {}
         self.plot_image: np.ndarray | None = None
@@ -545,7 +566,9 @@ class FilterTuning:
         self._nodes: dict[str, viser.SceneNodeHandle] = {}
         self._build_nodes()
         self._bind()
-        self._worker = _Worker(self._work, "mvviz-filter-ab")
+        # the app has no stop hook: its stop flag ends the worker and skips GUI writes
+        self._halted = app._stopped.is_set
+        self._worker = _Worker(self._work, "mvviz-filter-ab", self._halted)
         app.state_changed.append(self._on_state_changed)
         self._worker.request()
 
@@ -555,6 +578,10 @@ class FilterTuning:
     def params_b(self) -> KalmanParams:
         """B's parameters as its controls show them (raises ValueError if invalid)."""
         return self.gui.read_params(self.run_a.params)
+
+    def scale_q(self, label: str) -> None:
+        """Multiply B's q by one of :data:`Q_SCALES` ("÷2", "×2", ...)."""
+        self.gui.q.value = float(f"{float(self.gui.q.value) * Q_SCALES[label]:.4g}")
 
     def reset_b(self) -> None:
         """Set B's controls to filter A."""
@@ -567,7 +594,7 @@ class FilterTuning:
         params = self.params_b
         with self._lock:
             data, run = self._data, self.run_b
-        if run.params != params or run.forward.shape != data.results.track_forward.shape:
+        if run is None or run.params != params:
             run = run_filter(data.results.track_raw, params)
         path = save_filter_config(data.scene.root, params, data.results.config)
         self.app.set_results(with_filter(data.results, run))
@@ -594,8 +621,10 @@ class FilterTuning:
             g.sync_enabled()
             self._worker.request()
 
-        for h in (*g.b_controls, g.gate_on, g.gate, g.offset, g.window):
-            h.on_update(edited)
+        for h in (g.model, g.q, g.r, g.p0, g.control_gain, g.smoother, g.gate_on, g.gate):
+            h.on_update(edited)  # B's parameters
+        g.offset.on_update(edited)
+        g.window.on_update(edited)
 
         @g.show_b.on_update
         def _(_) -> None:
@@ -604,9 +633,7 @@ class FilterTuning:
 
         @g.q_scale.on_click
         def _(event) -> None:
-            s = event.target.value
-            factor = {"÷4": 0.25, "÷2": 0.5, "×2": 2.0, "×4": 4.0}[s]
-            g.q.value = float(f"{float(g.q.value) * factor:.4g}")
+            self.scale_q(event.target.value)
 
         @g.reset.on_click
         def _(_) -> None:
@@ -635,11 +662,12 @@ class FilterTuning:
         empty = np.zeros((1, 2, 3), np.float32)
         self._nodes = {B_ROOT: scene.add_frame(B_ROOT, show_axes=False, visible=False)}
         for k in range(K):
-            col, base = _b_color(k), f"{B_ROOT}/{k}"
+            col, base = (track_color(k) * 0.55).astype(np.uint8), f"{B_ROOT}/{k}"  # darker
+            # world-width lines take one uniform colour (see SceneLayers._lines)
             self._nodes[f"{base}/bones"] = scene.add_line_segments(
                 f"{base}/bones", empty, col, thickness=B_BONE_WIDTH_M,
                 thickness_units="world", visible=False,
-            )  # fmt: skip  (world-width lines: one uniform colour, see SceneLayers._lines)
+            )  # fmt: skip
             self._nodes[f"{base}/joints"] = scene.add_point_cloud(
                 f"{base}/joints", np.zeros((1, 3), np.float32), col, point_size=0.025,
                 point_shape="circle", precision="float32", visible=False,
@@ -666,9 +694,8 @@ class FilterTuning:
             params = self.params_b
         except ValueError:
             params = self.run_a.params
-        self.run_b = self.run_a if params == self.run_a.params else run_filter(
-            data.results.track_raw, params
-        )
+        # the worker re-filters B off this (render) thread; until then B is not drawn
+        self.run_b = self.run_a if params == self.run_a.params else None
         self._gt = gt_dense(data)
         self._score_cache.clear()
         self._build_nodes()
@@ -676,7 +703,7 @@ class FilterTuning:
     def _draw_b(self, frame: int, offset_filtered: bool) -> None:
         """B's skeletons at ``frame`` (call with the lock held)."""
         show, dx = bool(self.gui.show_b.value), float(self.gui.offset.value)
-        key = (id(self._data), id(self.run_b), frame, show, dx, offset_filtered)
+        key = (self._data, self.run_b, frame, show, dx, offset_filtered)
         if key == self._drawn_key:
             return
         t0 = time.perf_counter()
@@ -684,8 +711,8 @@ class FilterTuning:
         try:
             base = OFFSET_FILTERED_M if offset_filtered else np.zeros(3)
             group.position = base + np.array([dx, 0.0, 0.0])
-            group.visible = show
-            if show:
+            group.visible = show and self.run_b is not None
+            if group.visible:
                 self._draw_b_skeletons(frame)
         except RuntimeError:  # nodes removed with a results change: the rebuild redraws
             return
@@ -720,7 +747,7 @@ class FilterTuning:
             return
         with self._lock:
             data, run_b = self._data, self.run_b
-        if params != run_b.params:  # 1. re-filter the whole sequence
+        if run_b is None or params != run_b.params:  # 1. re-filter the whole sequence
             t0 = time.perf_counter()
             run = run_filter(data.results.track_raw, params)
             self.timings["filter_ms"] = (time.perf_counter() - t0) * 1e3
@@ -744,9 +771,11 @@ class FilterTuning:
         st = self.app.state
         with self._lock:
             data, run_a, run_b = self._data, self.run_a, self.run_b
+        if run_b is None:
+            return  # new results: the worker's next pass re-filters B first
         frame, sel = int(st.frame), st.selection
         lo, hi = plot_range(data.num_frames, frame, WINDOWS.get(self.gui.window.value))
-        key = (id(data), id(run_a), id(run_b), sel.track, sel.joint, lo, hi)
+        key = (data, run_a, run_b, sel.track, sel.joint, lo, hi)
         if key == self._plot_key and frame == self._marker_frame:
             return
         wait = self._last_plot_t + PLOT_INTERVAL_S - time.monotonic()
@@ -759,32 +788,40 @@ class FilterTuning:
             self._plot_key = key
             self.timings["plot_ms"] = (time.perf_counter() - t0) * 1e3
         img = self._plot.image(frame)
+        if self._halted():
+            return
         self.gui.plot.image = img
         self.plot_image, self._marker_frame = img, frame
         self._last_plot_t = time.monotonic()
         self.timings["plot_send_ms"] = (time.perf_counter() - t0) * 1e3
 
-    def _score(self, name: str, track: np.ndarray, key: tuple) -> dict[str, float]:
+    def _score(self, data: ViewerData, what: object, track: np.ndarray) -> dict[str, float]:
+        """Scores cached per (results, run): A's and raw's survive B's edits."""
+        key = (data, what)
         if key not in self._score_cache:
-            res = self._data.results
+            res = data.results
             self._score_cache[key] = score(track, res.track_raw, res.joint_set, self._gt)
         return self._score_cache[key]
 
     def _update_metrics(self) -> None:
         with self._lock:
             data, run_a, run_b = self._data, self.run_a, self.run_b
+        if run_b is None:
+            return
         t0 = time.perf_counter()
         rows = {
-            "raw": self._score("raw", data.results.track_raw, (id(data), "raw")),
-            "A": self._score("A", run_a.shown, (id(data), id(run_a))),
-            "B": self._score("B", run_b.shown, (id(data), id(run_b))),
+            "raw": self._score(data, "raw", data.results.track_raw),
+            "A": self._score(data, run_a, run_a.shown),
+            "B": self._score(data, run_b, run_b.shown),
         }
+        keep = ((data, "raw"), (data, run_a), (data, run_b))
+        for stale in [k for k in self._score_cache if k not in keep]:
+            del self._score_cache[stale]
         if rows == self.metrics:
             return
-        for stale in [k for k in self._score_cache if k[1] not in ("raw", id(run_a), id(run_b))]:
-            del self._score_cache[stale]
         self.metrics = rows
-        self.gui.metrics.content = metrics_table(rows)
+        if not self._halted():
+            self.gui.metrics.content = metrics_table(rows)
         self.timings["metrics_ms"] = (time.perf_counter() - t0) * 1e3
 
     def _show_status(self) -> None:
@@ -792,11 +829,13 @@ class FilterTuning:
         parts = [f"{name} {t[k]:.0f} ms" for name, k in (
             ("re-filter", "filter_ms"), ("plot", "plot_ms"), ("metrics", "metrics_ms"),
         ) if k in t]  # fmt: skip
-        same = "B = A" if self.run_b.params == self.run_a.params else f"B: {describe(self.run_b.params)}"
+        a, b = self.run_a.params, self.run_b.params if self.run_b else None
+        same = "B = A" if b == a else "B: …" if b is None else f"B: {describe(b)}"
         lines = [f"<small>{same}<br/>{' · '.join(parts)}</small>"]
         if self.message:
             lines.append(self.message)
-        self.gui.status.content = "\n\n".join(lines)
+        if not self._halted():
+            self.gui.status.content = "\n\n".join(lines)
 
 
 def make_filter_panel(app: ViewerApp) -> FilterTuning:

@@ -154,7 +154,9 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
         association = metrics.association_scores(results.det_person, det.gt_person_id, det.frame)
     else:
         association = {}
-    reproj = results.person_reproj  # (Q, J, V)
+    # Reprojection error of the views each joint was triangulated from (a rejected view
+    # is an outlier by definition; its error is in the results, not in this mean).
+    reproj = np.where(results.person_used, results.person_reproj, np.nan)  # (Q, J, V)
     with np.errstate(invalid="ignore"):
         vj = np.array(
             [
@@ -189,10 +191,12 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
                 if fit is not None:
                     smpl24[name], _ = stage_metrics(fit.joints, dense24)
     plaus = {}
+    measured = np.isfinite(results.track_raw).all(-1, keepdims=True)
     for name, arr in stage_tracks(results).items():
         if name in ("smpl", "smpl_vae"):
             plaus[name] = plausibility(getattr(results, name))
-        else:
+        else:  # like the pose rows: where the raw triangulation has the joint
+            arr = np.where(measured, arr, np.nan)
             plaus[name] = dict(
                 limit_violations_per_1000=float("nan"),
                 **pose_limits.skeleton_plausibility(to_smpl_slots(arr, results.joint_set)),
@@ -264,14 +268,19 @@ def format_table(ev: Evaluation, *, view_names: list[str] | None = None) -> str:
                 f"{v['foot_jitter']:8.1f} {v['wrist_jitter']:9.1f}"
             )
         lines.append("(limit violations need joint rotations: SMPL rows only; jitter mm/frame^2)")
-    if ev.association:
-        a = ev.association
+    a = ev.association
+    if "precision" in a:
         lines.append("")
         lines.append(
             f"association: precision {a['precision']:.4f}  recall {a['recall']:.4f}  "
             f"false positives assigned {a['false_positives_assigned']}  "
             f"unassigned {a['detections_unassigned']}"
             + (f"  ID switches {a['id_switches']}" if "id_switches" in a else "")
+        )
+    elif "id_switches" in a:
+        lines.append("")
+        lines.append(
+            f"ID switches {a['id_switches']} (no per-detection truth to score association)"
         )
     names = view_names or [str(i) for i in range(len(ev.reprojection_view_mean))]
     lines.append("")

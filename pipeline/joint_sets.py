@@ -142,7 +142,46 @@ HALPE26 = JointSet(
     ),
 )  # fmt: skip
 
-JOINT_SETS: dict[str, JointSet] = {js.name: js for js in (SMPL24, COCO17, BODY25, HALPE26)}
+# BlazePose's 33 landmarks (Google MediaPipe's pose_landmark models), in the models'
+# order; "left" is the person's left, as in every set here.
+BLAZEPOSE33_NAMES = (
+    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye",
+    "right_eye_outer", "left_ear", "right_ear", "left_mouth", "right_mouth", "left_shoulder",
+    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_pinky",
+    "right_pinky", "left_index", "right_index", "left_thumb", "right_thumb", "left_hip",
+    "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel",
+    "right_heel", "left_foot_index", "right_foot_index",
+)  # fmt: skip
+BLAZEPOSE33 = JointSet(
+    name="blazepose33",
+    names=BLAZEPOSE33_NAMES,
+    bones=_bones(
+        BLAZEPOSE33_NAMES,
+        [
+            ("nose", "left_eye_inner"), ("left_eye_inner", "left_eye"),
+            ("left_eye", "left_eye_outer"), ("left_eye_outer", "left_ear"),
+            ("nose", "right_eye_inner"), ("right_eye_inner", "right_eye"),
+            ("right_eye", "right_eye_outer"), ("right_eye_outer", "right_ear"),
+            ("left_mouth", "right_mouth"), ("left_shoulder", "right_shoulder"),
+            ("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"),
+            ("left_wrist", "left_pinky"), ("left_wrist", "left_index"),
+            ("left_pinky", "left_index"), ("left_wrist", "left_thumb"),
+            ("right_shoulder", "right_elbow"), ("right_elbow", "right_wrist"),
+            ("right_wrist", "right_pinky"), ("right_wrist", "right_index"),
+            ("right_pinky", "right_index"), ("right_wrist", "right_thumb"),
+            ("left_shoulder", "left_hip"), ("right_shoulder", "right_hip"),
+            ("left_hip", "right_hip"), ("left_hip", "left_knee"), ("left_knee", "left_ankle"),
+            ("left_ankle", "left_heel"), ("left_heel", "left_foot_index"),
+            ("left_ankle", "left_foot_index"), ("right_hip", "right_knee"),
+            ("right_knee", "right_ankle"), ("right_ankle", "right_heel"),
+            ("right_heel", "right_foot_index"), ("right_ankle", "right_foot_index"),
+        ],
+    ),
+)  # fmt: skip
+
+JOINT_SETS: dict[str, JointSet] = {
+    js.name: js for js in (SMPL24, COCO17, BODY25, HALPE26, BLAZEPOSE33)
+}
 
 # COCO-17 joints that have an SMPL-24 counterpart (same anatomical joint, modulo the
 # usual offset of COCO hips, which sit a little higher and wider than SMPL's).
@@ -153,6 +192,35 @@ COCO17_TO_SMPL24: dict[str, str] = {
         "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle",
         "right_ankle",
     )
+}  # fmt: skip
+
+
+# BlazePose-33 -> COCO-17: every COCO joint is a BlazePose landmark of the same name
+# (COCO's eyes are BlazePose's eye centres, ``left_eye`` / ``right_eye``), so
+# ``convert_keypoints(kp, BLAZEPOSE33, COCO17)`` maps by name.
+BLAZEPOSE33_TO_COCO17: dict[str, str] = {n: n for n in COCO17_NAMES}
+
+# BlazePose-33 -> SMPL-24: each SMPL joint that BlazePose locates, as the mean of these
+# landmarks. BlazePose's hips sit a little higher and wider than SMPL's (as COCO's);
+# SMPL's head joint is inside the skull, here the mean of nose and ears; SMPL's foot
+# joint is at the ball of the foot, here the toe tip (``foot_index``); SMPL's hand joint
+# is at the knuckles, here the mean of the index and pinky knuckles. spine1-3, neck and
+# the collars have no BlazePose counterpart (NaN).
+BLAZEPOSE33_TO_SMPL24: dict[str, tuple[str, ...]] = {
+    "pelvis": ("left_hip", "right_hip"),
+    **{
+        n: (n,)
+        for n in (
+            "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
+            "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
+            "right_wrist",
+        )
+    },
+    "left_foot": ("left_foot_index",),
+    "right_foot": ("right_foot_index",),
+    "head": ("nose", "left_ear", "right_ear"),
+    "left_hand": ("left_index", "left_pinky"),
+    "right_hand": ("right_index", "right_pinky"),
 }  # fmt: skip
 
 
@@ -203,3 +271,14 @@ def coco17_smpl24_pairs() -> tuple[np.ndarray, np.ndarray]:
     c = np.array([COCO17.index[k] for k in COCO17_TO_SMPL24])
     s = np.array([SMPL24.index[v] for v in COCO17_TO_SMPL24.values()])
     return c, s
+
+
+def blazepose33_to_smpl24_matrix() -> np.ndarray:
+    """(24, 33) averaging matrix of :data:`BLAZEPOSE33_TO_SMPL24`: ``M @ landmarks`` gives
+    the SMPL-24 joints; rows of SMPL joints BlazePose lacks are NaN."""
+    m = np.full((SMPL24.num_joints, BLAZEPOSE33.num_joints), np.nan)
+    for smpl_name, sources in BLAZEPOSE33_TO_SMPL24.items():
+        row = m[SMPL24.index[smpl_name]]
+        row[:] = 0.0
+        row[[BLAZEPOSE33.index[s] for s in sources]] = 1.0 / len(sources)
+    return m

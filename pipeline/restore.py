@@ -1,5 +1,5 @@
-"""Stage 1, 2D restoration: monocular SMPL predictions -> 2D joints by their weak-perspective
-camera, depth dropped.
+"""Stage 1, 2D restoration: monocular SMPL predictions (or monocular 3D joints, e.g.
+BlazePose's world landmarks) -> 2D joints by their weak-perspective camera, depth dropped.
 
 Weak-perspective convention (SPIN's): with joints ``(X, Y, Z)`` in metres in the
 regressor's camera frame (x right, y down), the crop-normalised image coordinates are
@@ -122,4 +122,34 @@ def restore_joints_2d(
             )
         out[r, :, :2] = weak_perspective_project(joints, cam_weak[r], bbox[r])
         out[r, :, 2] = 1.0 if score is None else np.clip(score[r], 0, 1)[:, None]
+    return out
+
+
+def restore_mono_joints_2d(
+    mono_joints3d: np.ndarray,
+    cam_weak: np.ndarray,
+    bbox: np.ndarray,
+    *,
+    score: np.ndarray | None = None,
+) -> np.ndarray:
+    """2D SMPL-24 joints of monocular 3D joint predictions: the same weak-perspective
+    projection as :func:`restore_joints_2d`, on joints given directly.
+
+    Args:
+        mono_joints3d: (N, 24, 3) metres, camera axes; NaN for joints not predicted.
+        cam_weak: (N, 3); bbox: (N, 4). Rows with NaN cam_weak are "no prediction".
+        score: (N,) confidence given to every predicted joint of a row (default 1).
+    Returns:
+        (N, 24, 3) x px, y px, confidence; NaN x, y and confidence 0 where no prediction.
+    """
+    joints = np.asarray(mono_joints3d, float)
+    n = joints.shape[0]
+    out = np.full((n, joints.shape[1], 3), np.nan)
+    out[..., 2] = 0.0
+    rows = np.flatnonzero(np.isfinite(cam_weak).all(1))
+    if rows.size:
+        out[rows, :, :2] = weak_perspective_project(joints[rows], cam_weak[rows], bbox[rows])
+        have = np.isfinite(out[rows, :, :2]).all(-1)
+        conf = np.ones(rows.size) if score is None else np.clip(score[rows], 0, 1)
+        out[rows, :, 2] = np.where(have, conf[:, None], 0.0)
     return out

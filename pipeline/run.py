@@ -21,7 +21,7 @@ from pipeline.body_model import BodyModel
 from pipeline.config import PipelineConfig
 from pipeline.joint_sets import SMPL24, JointSet
 from pipeline.kalman import FilterResult, kalman_filter
-from pipeline.restore import restore_joints_2d
+from pipeline.restore import restore_joints_2d, restore_mono_joints_2d
 from pipeline.scene import Scene
 from pipeline.track import Tracks, track_people
 from pipeline.triangulate import Triangulation, triangulate_people
@@ -69,17 +69,29 @@ def source_joint_set(scene: Scene, config: PipelineConfig) -> JointSet:
 def restored_joints(scene: Scene, model: BodyModel) -> np.ndarray | None:
     """(N, 24, 3) SMPL joints restored from the monocular predictions, or None.
 
-    Every joint of a row gets the row's mean keypoint confidence (the detector's score
-    for that person), so that a weak detection stays weak whichever source is used.
+    Rows with SMPL regressor output restore its joints; rows without it but with
+    monocular 3D joints (``mono_joints3d``) project those the same way (joints they lack
+    get confidence 0). Every joint of a row gets the row's mean keypoint confidence (the
+    detector's score for that person), so that a weak detection stays weak whichever
+    source is used.
     """
     det = scene.detections
-    if not det.has_smpl:
+    if not det.has_mono3d:
         return None
     conf = det.keypoints[..., 2]
     score = np.where((conf > 0).any(1), conf.sum(1) / np.maximum((conf > 0).sum(1), 1), 1.0)
-    return restore_joints_2d(
-        det.smpl_pose, det.smpl_betas, det.cam_weak, det.bbox, model, score=score
-    )
+    out = np.full((len(det), SMPL24.num_joints, 3), np.nan)
+    out[..., 2] = 0.0
+    if det.has_smpl:
+        out = restore_joints_2d(
+            det.smpl_pose, det.smpl_betas, det.cam_weak, det.bbox, model, score=score
+        )
+    mono = det.mono_valid
+    if mono.any():
+        out[mono] = restore_mono_joints_2d(
+            det.mono_joints3d[mono], det.cam_weak[mono], det.bbox[mono], score=score[mono]
+        )
+    return out
 
 
 def select_2d(scene: Scene, config: PipelineConfig, restored: np.ndarray | None) -> np.ndarray:
@@ -87,8 +99,8 @@ def select_2d(scene: Scene, config: PipelineConfig, restored: np.ndarray | None)
     if config.source == "smpl":
         if restored is None:
             raise ValueError(
-                f"{scene.root}: source 'smpl' needs smpl_pose/smpl_betas/cam_weak/bbox in "
-                "detections.npz; this scene has only keypoints"
+                f"{scene.root}: source 'smpl' needs smpl_pose/smpl_betas/cam_weak/bbox or "
+                "mono_joints3d/cam_weak/bbox in detections.npz; this scene has only keypoints"
             )
         return restored
     return scene.detections.keypoints
@@ -181,4 +193,17 @@ def run_sequence(
     # Always smooth too: the forward and RTS outputs are both in the result, and the
     # configured ``smoother`` flag only picks which one is "the" filtered trajectory.
     filtered = kalman_filter(measurements, dataclasses.replace(config.kalman, smoother=True))
+    # A track that has died does not coast on: its filter output ends at its last
+    # measurement (coasting through gaps inside a track's life is kept).
+    frames_idx = np.arange(num_frames)[:, None]
+    after = frames_idx > tracks.last_frame[None, :]  # (F, K)
+    if after.any():
+        cut = {}
+        for f in dataclasses.fields(filtered):
+            a = getattr(filtered, f.name)
+            if a.dtype.kind == "f":
+                a = a.copy()
+                a[after] = np.nan
+                cut[f.name] = a
+        filtered = dataclasses.replace(filtered, **cut)
     return SequenceResult(person_track=tracks.track_of, tracks=tracks, filtered=filtered)

@@ -22,6 +22,8 @@ from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 
 SMPL_FIELDS = ("smpl_pose", "smpl_betas", "cam_weak", "bbox")
 SMPL_FIELD_WIDTH = {"smpl_pose": 72, "smpl_betas": 10, "cam_weak": 3, "bbox": 4}
+# Monocular 3D joints instead of (or beside) SMPL parameters: they share cam_weak/bbox.
+MONO_FIELDS = ("mono_joints3d", "cam_weak", "bbox")
 
 
 @dataclass(frozen=True, eq=False)
@@ -37,6 +39,10 @@ class Detections:
             (x right, y down, z forward); a NaN row means "no regressor output".
         smpl_betas: (N, 10); cam_weak: (N, 3) weak-perspective (s, tx, ty);
         bbox: (N, 4) x0, y0, x1, y1 pixels of the crop cam_weak refers to.
+        mono_joints3d: (N, 24, 3) optional monocular 3D joints in metres, SMPL-24 order,
+            camera axes (x right, y down, z forward), projected by cam_weak/bbox like the
+            SMPL joints (e.g. BlazePose's world landmarks); NaN for joints it lacks. Rows
+            with smpl_pose use SMPL; the others use these.
         gt_person_id: (N,) optional ground truth of synthetic scenes: the person a row
             shows, -1 for a false positive (used to score association).
     """
@@ -49,6 +55,7 @@ class Detections:
     cam_weak: np.ndarray | None = None
     bbox: np.ndarray | None = None
     gt_person_id: np.ndarray | None = None
+    mono_joints3d: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.frame.shape[0])
@@ -64,18 +71,32 @@ class Detections:
             return np.zeros(len(self), bool)
         return np.isfinite(self.smpl_pose).all(1) & np.isfinite(self.cam_weak).all(1)
 
+    @property
+    def has_mono3d(self) -> bool:
+        """Whether any monocular 3D (SMPL parameters or 3D joints) is present."""
+        return self.has_smpl or self.mono_joints3d is not None
+
+    @property
+    def mono_valid(self) -> np.ndarray:
+        """(N,) bool: rows without SMPL output that carry monocular 3D joints."""
+        if self.mono_joints3d is None:
+            return np.zeros(len(self), bool)
+        has = np.isfinite(self.mono_joints3d).all(-1).any(-1) & np.isfinite(self.cam_weak).all(1)
+        return has & ~self.smpl_valid
+
     def take(self, rows: np.ndarray) -> Detections:
         """The subset of rows ``rows`` (index or boolean mask)."""
         kw = {
             k: (None if getattr(self, k) is None else getattr(self, k)[rows])
-            for k in ("frame", "view", "keypoints", "gt_person_id") + SMPL_FIELDS
+            for k in ("frame", "view", "keypoints", "gt_person_id", "mono_joints3d") + SMPL_FIELDS
         }
         return Detections(**kw)
 
     def arrays(self) -> dict[str, np.ndarray]:
         out = {"frame": self.frame, "view": self.view, "keypoints": self.keypoints}
-        if self.has_smpl:
-            out.update({k: getattr(self, k) for k in SMPL_FIELDS})
+        for k in SMPL_FIELDS + ("mono_joints3d",):
+            if getattr(self, k) is not None:
+                out[k] = getattr(self, k)
         if self.gt_person_id is not None:
             out["gt_person_id"] = self.gt_person_id
         return out
@@ -184,31 +205,58 @@ def check_detections(
         raise SceneFormatError(
             source, "keypoints[..., :2]", "NaN coordinates on a joint with confidence > 0"
         )
-    present = [k for k in SMPL_FIELDS if k in arrays]
-    smpl: dict[str, np.ndarray | None] = dict.fromkeys(SMPL_FIELDS)
-    if present:
-        if len(present) != len(SMPL_FIELDS):
-            missing = sorted(set(SMPL_FIELDS) - set(present))
-            raise SceneFormatError(
-                source, missing[0], f"monocular SMPL fields come together; missing {missing}"
-            )
-        for k in SMPL_FIELDS:
-            smpl[k] = _check_array(
-                source, k, np.asarray(arrays[k]), ndim_shape=(n, SMPL_FIELD_WIDTH[k])
-            )
-        valid = np.isfinite(smpl["smpl_pose"]).all(1)
-        for k in ("smpl_betas", "cam_weak", "bbox"):
-            if not np.isfinite(smpl[k][valid]).all():
-                raise SceneFormatError(source, k, "NaN in a row whose smpl_pose is given")
-        bb = smpl["bbox"][valid]
-        if ((bb[:, 2] <= bb[:, 0]) | (bb[:, 3] <= bb[:, 1])).any():
-            raise SceneFormatError(source, "bbox", "expected x1 > x0 and y1 > y0")
+    smpl = _check_monocular(arrays, source=source, n=n)
     gt_person = None
     if "gt_person_id" in arrays:
         gt_person = _check_array(
             source, "gt_person_id", np.asarray(arrays["gt_person_id"]), ndim_shape=(n,), kind="i"
         )
     return Detections(frame=frame, view=view, keypoints=kp, gt_person_id=gt_person, **smpl)
+
+
+def _check_monocular(arrays: dict[str, np.ndarray], *, source, n: int) -> dict:
+    """The optional monocular columns: the SMPL group (smpl_pose, smpl_betas, cam_weak,
+    bbox: all or none) and/or mono_joints3d (with cam_weak and bbox)."""
+    out: dict[str, np.ndarray | None] = dict.fromkeys(SMPL_FIELDS + ("mono_joints3d",))
+    has_smpl = any(k in arrays for k in ("smpl_pose", "smpl_betas"))
+    has_mono = "mono_joints3d" in arrays
+    group = SMPL_FIELDS if has_smpl else MONO_FIELDS if has_mono else ()
+    if not group:
+        if "cam_weak" in arrays or "bbox" in arrays:
+            raise SceneFormatError(
+                source, "cam_weak", "cam_weak/bbox need smpl_pose + smpl_betas or mono_joints3d"
+            )
+        return out
+    missing = sorted(set(group) - set(arrays))
+    if missing:
+        raise SceneFormatError(
+            source, missing[0], f"monocular fields {list(group)} come together; missing {missing}"
+        )
+    for k in SMPL_FIELDS:
+        if k in arrays:
+            out[k] = _check_array(
+                source, k, np.asarray(arrays[k]), ndim_shape=(n, SMPL_FIELD_WIDTH[k])
+            )
+    valid = np.zeros(n, bool)
+    if has_smpl:
+        valid |= np.isfinite(out["smpl_pose"]).all(1)
+    if has_mono:
+        mono = _check_array(
+            source, "mono_joints3d", np.asarray(arrays["mono_joints3d"]), ndim_shape=(n, 24, 3)
+        )
+        if np.isinf(mono).any():
+            raise SceneFormatError(source, "mono_joints3d", "infinite values (NaN marks a gap)")
+        out["mono_joints3d"] = mono
+        valid |= np.isfinite(mono).all(-1).any(-1)
+    for k in ("smpl_betas", "cam_weak", "bbox"):
+        if out[k] is not None and not np.isfinite(out[k][valid]).all():
+            raise SceneFormatError(
+                source, k, "NaN in a row whose smpl_pose or mono_joints3d is given"
+            )
+    bb = out["bbox"][valid]
+    if ((bb[:, 2] <= bb[:, 0]) | (bb[:, 3] <= bb[:, 1])).any():
+        raise SceneFormatError(source, "bbox", "expected x1 > x0 and y1 > y0")
+    return out
 
 
 def check_ground_truth(arrays: dict[str, np.ndarray], *, source) -> GroundTruth:

@@ -1,0 +1,431 @@
+"""Benchmark one frame change of the viewer: server time and bytes sent to the browser.
+
+On sample_data/shelf_synth (5 cameras, 4 people, 250 frames) with every layer on: video
+on the frustums, 2D detections, every person's rays, raw / filtered / ground-truth
+skeletons, trails, and the ground-truth and fitted SMPL bodies as skinned meshes. A
+viser server runs on a free port; no browser is needed. Over --changes random frame
+changes it reports:
+
+- the server-side time to apply one frame change (median and p95): the viewer's own
+  render timing (geometry, frame images, assigning the scene nodes, flush), and the
+  render thread's CPU time, which a busy machine inflates much less;
+- the bytes sent per frame change: every message queued during the change, serialised
+  the way viser's websocket producer does it for one message window (msgpack +
+  zstd for the structure, raw binary buffers appended), broken down by what the
+  message updates. With --client, a headless websocket client also counts the bytes
+  it actually receives.
+
+In the same run the meshes are then replaced by ``add_mesh_simple`` nodes that get
+their full vertex arrays each frame (skinned on the server with the same bone poses),
+and the figures and the ratio are printed. Targets with skinned meshes: median <= 20 ms
+and <= 50 KB per frame change; if one is missed, the dominating part is named and the
+figures are measured again for the viewer alone (other panels' per-frame work, e.g. the
+filter panel's plot, detached), without the skinned meshes (what posing bones costs),
+with the bone messages queued directly (what a batched bone update would cost), and
+with smaller frustum and camera-panel images.
+
+Usage:
+    python bench/bench_viewer.py [--scene DIR] [--changes N] [--client] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import socket
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import viser
+import viser.transforms as vtf
+import zstandard
+from viser._messages import SetBoneOrientationMessage, SetBonePositionMessage
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import mvviz.app as viewer_app  # noqa: E402
+from mvviz.app import ViewerApp, ViewerState  # noqa: E402
+from mvviz.images import FrameStore  # noqa: E402
+from mvviz.layers import GT_MESH, track_color  # noqa: E402
+from pipeline.body_model import load_body_model  # noqa: E402
+from pipeline.config import PipelineConfig  # noqa: E402
+from pipeline.results import run_or_load  # noqa: E402
+from pipeline.scene import load_scene  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+TARGET_MS, TARGET_KB = 20.0, 50.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# --------------------------------------------------------------------------- bytes
+
+
+class MessageTap:
+    """Records every message the server queues (wraps the websocket server's
+    ``queue_message``); :meth:`window_bytes` serialises them as one window."""
+
+    def __init__(self, server: viser.ViserServer) -> None:
+        self.messages: list = []
+        self._ws = server._websock_server
+        self._orig = self._ws.queue_message
+        self._zstd = zstandard.ZstdCompressor(level=1)  # as viser's producer
+
+        def queue_message(message) -> None:
+            self.messages.append(message)
+            self._orig(message)
+
+        self._ws.queue_message = queue_message
+
+    def take(self) -> list:
+        out, self.messages = self.messages, []
+        return out
+
+    def window_bytes(self, messages: list) -> int:
+        """Bytes of one websocket frame holding ``messages`` (see
+        viser.infra._infra._message_producer)."""
+        buffers: list[memoryview] = []
+        dicts = tuple(m.as_serializable_dict(buffers) for m in messages)
+        inner = msgspec.msgpack.encode(
+            {
+                "messages": dicts,
+                "timestampSec": time.perf_counter(),
+                "binaryBufferLengths": tuple(b.nbytes for b in buffers),
+            }
+        )
+        n = 16 + len(self._zstd.compress(inner))
+        for b in buffers:
+            n += (8 - n % 8) % 8 + b.nbytes
+        return n
+
+    @staticmethod
+    def raw_bytes(message) -> int:
+        """Uncompressed size of one message: its msgpack structure plus binary buffers."""
+        buffers: list[memoryview] = []
+        d = message.as_serializable_dict(buffers)
+        return len(msgspec.msgpack.encode(d)) + sum(b.nbytes for b in buffers)
+
+
+def is_mesh(message) -> bool:
+    name = getattr(message, "name", "")
+    return isinstance(name, str) and name.startswith(("/world/meshes/", "/bench/"))
+
+
+def category(message, gui_names: dict[str, str]) -> str:
+    """What a message updates, for the breakdown."""
+    name = getattr(message, "name", None)
+    if is_mesh(message):
+        return f"meshes ({type(message).__name__})"
+    if isinstance(name, str) and name.startswith("/world/"):
+        parts = name.split("/")
+        if parts[2] == "cameras":
+            return "frustum images" if parts[-1] == "frustum" else "cameras"
+        return f"skeletons/{parts[3]}" if parts[2] == "skeletons" else parts[2]
+    uuid = getattr(message, "uuid", None)
+    if uuid is not None:
+        return gui_names.get(uuid, "gui (other)")
+    return type(message).__name__
+
+
+def gui_names(app: ViewerApp) -> dict[str, str]:
+    """uuid -> "panel.field" of every GUI handle in the app's panel dataclasses."""
+    names = {}
+    for attr, panel in vars(app).items():
+        panel = getattr(panel, "gui", panel)  # controllers keep their handles in .gui
+        if not dataclasses.is_dataclass(panel):
+            continue
+        for f in dataclasses.fields(panel):
+            impl = getattr(getattr(panel, f.name), "_impl", None)
+            if impl is not None and hasattr(impl, "uuid"):
+                names[impl.uuid] = f"{attr}.{f.name}"
+    return names
+
+
+class WireClient:
+    """A headless websocket client counting the bytes it receives (--client)."""
+
+    def __init__(self, url: str) -> None:
+        from websockets.sync.client import connect  # noqa: PLC0415  (optional tool)
+
+        self.bytes = 0
+        self._ws = connect(
+            url.replace("http", "ws"),
+            subprotocols=[f"viser-v{viser.__version__}"],
+            max_size=None,
+        )
+        self._thread = threading.Thread(target=self._recv, daemon=True)
+        self._thread.start()
+
+    def _recv(self) -> None:
+        try:
+            for msg in self._ws:
+                self.bytes += len(msg)
+        except Exception:
+            pass
+
+    def close(self) -> None:
+        self._ws.close()
+
+
+# --------------------------------------------------------------------------- full-vertex mode
+
+
+def lbs_vertices(bodies, i: int, frame: int) -> np.ndarray:
+    """(V, 3) float32 vertices of body ``i`` at ``frame``: the browser's skinning
+    (``T_world_bone(t) @ T_world_bone(bind)^-1``) done on the server."""
+    R = vtf.SO3(bodies.bone_wxyz[i, frame]).as_matrix().astype(np.float32)  # (24, 3, 3)
+    p = bodies.bone_position[i, frame].astype(np.float32)  # (24, 3)
+    t = p - np.einsum("bij,bj->bi", R, bodies.rest_joints[i].astype(np.float32))
+    w = bodies.weights.astype(np.float32)  # (V, 24)
+    M = (w @ R.reshape(24, 9)).reshape(-1, 3, 3)  # (V, 3, 3)
+    return np.einsum("vij,vj->vi", M, bodies.vertices[i].astype(np.float32)) + w @ t
+
+
+def use_full_vertex_meshes(app: ViewerApp) -> float:
+    """Replace the skinned meshes by simple meshes updated with full vertices in every
+    frame change (inside the viewer's timed render). Returns their vertex count."""
+    layers, data, scene = app.layers, app.state.data, app.server.scene
+    bodies = [(data.bodies, layers.meshes, "gt"), (data.fit_bodies, layers.fit_meshes, "fit")]
+    simple = []
+    with app.server.atomic():
+        for b, store, kind in bodies:
+            if b is None:
+                continue
+            for pid, handle in store.items():
+                handle.visible = False
+                i = list(b.ids).index(pid)
+                color = GT_MESH if kind == "gt" else tuple(int(c) for c in track_color(pid))
+                h = scene.add_mesh_simple(
+                    f"/bench/{kind}/{pid}", b.vertices[i], b.faces, color=color,
+                    cast_shadow=False, receive_shadow=False,
+                )  # fmt: skip
+                simple.append((b, i, h))
+            store.clear()  # the viewer no longer poses the skinned ones
+    apply = layers.apply
+
+    def apply_full(geom, selection) -> None:
+        apply(geom, selection)
+        for b, i, h in simple:
+            if b.present[i, geom.frame]:
+                h.vertices = lbs_vertices(b, i, geom.frame)
+                h.visible = True
+            else:
+                h.visible = False
+
+    layers.apply = apply_full
+    return float(sum(b.vertices.shape[1] for b, _, _ in simple))
+
+
+def use_direct_bone_messages(app: ViewerApp) -> None:
+    """Pose the skinned meshes by queueing viser's bone messages directly (private API),
+    skipping the per-bone setters' casting and change checks: what a batched bone
+    update would cost."""
+    layers, data = app.layers, app.state.data
+    queue = app.server.scene._queue_scene_message
+    meshes = []
+    for b, store in ((data.bodies, layers.meshes), (data.fit_bodies, layers.fit_meshes)):
+        if b is not None:
+            meshes += [(b, list(b.ids).index(pid), h) for pid, h in store.items()]
+            store.clear()
+    apply = layers.apply
+
+    def apply_direct(geom, selection) -> None:
+        apply(geom, selection)
+        f = geom.frame
+        for b, i, h in meshes:
+            h.visible = bool(b.present[i, f])
+            if h.visible:
+                wxyz, pos = b.bone_wxyz[i, f].tolist(), b.bone_position[i, f].tolist()
+                for j in range(len(wxyz)):
+                    queue(SetBoneOrientationMessage(h.name, j, tuple(wxyz[j])))
+                    queue(SetBonePositionMessage(h.name, j, tuple(pos[j])))
+
+    layers.apply = apply_direct
+
+
+# --------------------------------------------------------------------------- runs
+
+
+def measure(app: ViewerApp, tap: MessageTap, frames: np.ndarray, client: WireClient | None):
+    """Time and bytes of each frame change to ``frames``."""
+    names = gui_names(app)
+    ms, cpu, wire, meshes, by_cat = [], [], [], [], defaultdict(float)
+    client_bytes = 0
+    for f in frames:
+        tap.take()
+        c0 = client.bytes if client else 0
+        app.frame_times_ms.clear()
+        app.bench_cpu_ms.clear()
+        app.set_frame(int(f))
+        assert app.wait_idle(30)
+        time.sleep(0.01)  # callbacks after the render (other panels' status lines)
+        msgs = tap.take()
+        ms.append(app.frame_times_ms[0])
+        cpu.append(app.bench_cpu_ms[0])
+        wire.append(tap.window_bytes(msgs))
+        meshes.append(tap.window_bytes([m for m in msgs if is_mesh(m)]))
+        for m in msgs:
+            by_cat[category(m, names)] += tap.raw_bytes(m)
+        if client:
+            time.sleep(0.05)
+            client_bytes += client.bytes - c0
+    n = len(frames)
+    return {
+        "median_ms": float(np.median(ms)),
+        "p95_ms": float(np.percentile(ms, 95)),
+        "median_cpu_ms": float(np.median(cpu)),
+        "p95_cpu_ms": float(np.percentile(cpu, 95)),
+        "median_kb": float(np.median(wire)) / 1024,
+        "mean_kb": float(np.mean(wire)) / 1024,
+        "meshes_kb": float(np.median(meshes)) / 1024,
+        "client_kb": client_bytes / n / 1024 if client else None,
+        "breakdown_kb": {k: v / n / 1024 for k, v in sorted(by_cat.items(), key=lambda x: -x[1])},
+        "render_parts_ms": dict(app.last_render_ms),
+    }
+
+
+def report(label: str, r: dict) -> None:
+    client = f"; client got {r['client_kb']:.1f} KB" if r["client_kb"] is not None else ""
+    print(
+        f"{label}: median {r['median_ms']:.1f} ms, p95 {r['p95_ms']:.1f} ms "
+        f"(render thread CPU {r['median_cpu_ms']:.1f} / {r['p95_cpu_ms']:.1f} ms); "
+        f"{r['median_kb']:.1f} KB per frame change (mean {r['mean_kb']:.1f}{client}), "
+        f"of which meshes {r['meshes_kb']:.1f} KB"
+    )
+    for k, v in list(r["breakdown_kb"].items())[:8]:
+        print(f"    {k:<40s} {v:8.1f} KB (uncompressed)")
+
+
+def start_app(scene, results, model, frames) -> tuple[ViewerApp, MessageTap]:
+    state = ViewerState.create(scene, results, model)
+    on = {f.name: True for f in dataclasses.fields(state.layers) if f.type in ("bool", bool)}
+    on["rays_selected_only"] = False  # every person's rays: the worst case
+    on["offset_filtered"] = False  # a display option, not a layer
+    state.layers = dataclasses.replace(state.layers, **on)
+    app = ViewerApp(state, host="127.0.0.1", port=free_port(), frames=frames)
+    assert app.wait_idle(60)
+    render, cpu_ms = app._render_locked, []
+
+    def timed_render() -> None:  # CPU time of the render thread: robust to a busy machine
+        t0 = time.thread_time()
+        try:
+            render()
+        finally:
+            cpu_ms.append((time.thread_time() - t0) * 1e3)
+
+    app._render_locked, app.bench_cpu_ms = timed_render, cpu_ms
+    return app, MessageTap(app.server)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--scene", type=Path, default=REPO / "sample_data" / "shelf_synth")
+    ap.add_argument("--changes", type=int, default=100, help="random frame changes per mode")
+    ap.add_argument("--client", action="store_true", help="also count bytes at a ws client")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json", type=Path, default=None, help="write the figures here")
+    args = ap.parse_args(argv)
+
+    scene = load_scene(args.scene)
+    model = load_body_model()
+    results, _ = run_or_load(scene, PipelineConfig(), model, progress=False)
+    frames = FrameStore(scene, cache_dir=scene.root / ".mvviz" / "frames").start()
+    assert frames.wait(600), "decoding the videos took too long"
+    rng = np.random.default_rng(args.seed)
+    changes = rng.integers(0, scene.num_frames, args.changes)
+    warm = rng.integers(0, scene.num_frames, 5)
+    out: dict = {"scene": scene.name, "changes": int(args.changes)}
+
+    def run(
+        label: str, setup=None, frames: FrameStore = frames, core: bool = False, meshes=True
+    ) -> dict:
+        app, tap = start_app(scene, results, model, frames)
+        if core:  # the viewer alone: other panels' per-frame work (e.g. plots) detached
+            app.state_changed.clear()
+        if not meshes:
+            for name in ("meshes", "fit_meshes"):
+                app.layers_panel.toggles[name].value = False
+        client = WireClient(app.url) if args.client else None
+        try:
+            if client:
+                time.sleep(2.0)  # the initial scene
+            extra = setup(app) if setup else None
+            measure(app, tap, warm, None)
+            r = measure(app, tap, changes, client)
+            if extra is not None:
+                r["full_mesh_vertices"] = extra
+            report(label, r)
+            return r
+        finally:
+            if client:
+                client.close()
+            app.stop()
+
+    load = os.getloadavg()[0] / (os.cpu_count() or 1)
+    print(
+        f"{scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames, every layer on; "
+        f"load {load:.1f} per CPU (wall-clock times grow with it; CPU times much less)"
+    )
+    out["load_per_cpu"] = load
+    skinned = out["skinned"] = run("skinned meshes (bone poses)")
+    full = out["full"] = run("full vertex arrays", use_full_vertex_meshes)
+    ratio_kb = full["median_kb"] / skinned["median_kb"]
+    ratio_mesh = full["meshes_kb"] / max(skinned["meshes_kb"], 1e-9)
+    ratio_ms = full["median_ms"] / skinned["median_ms"]
+    out.update(ratio_bytes=ratio_kb, ratio_mesh_bytes=ratio_mesh, ratio_time=ratio_ms)
+    print(
+        f"full vertices / skinned: {ratio_kb:.1f}x the bytes per frame change "
+        f"({ratio_mesh:.0f}x for the meshes alone), {ratio_ms:.1f}x the time"
+    )
+
+    ok_ms, ok_kb = skinned["median_ms"] <= TARGET_MS, skinned["median_kb"] <= TARGET_KB
+    print(
+        f"targets (skinned): median {skinned['median_ms']:.1f} ms "
+        f"(CPU {skinned['median_cpu_ms']:.1f} ms) <= {TARGET_MS:.0f} ms "
+        f"{'met' if ok_ms else 'MISSED'}; {skinned['median_kb']:.1f} KB <= {TARGET_KB:.0f} KB "
+        f"{'met' if ok_kb else 'MISSED'}"
+    )
+    if not (ok_ms and ok_kb):
+        top = next(iter(skinned["breakdown_kb"].items()))
+        parts = skinned["render_parts_ms"]
+        print(
+            f"dominating: bytes {top[0]} ({top[1]:.1f} KB); time "
+            + ", ".join(f"{k} {v:.1f} ms" for k, v in parts.items())
+        )
+        out["smaller_images"] = {}
+        small = FrameStore(scene, width=320, cache_dir=scene.root / ".mvviz" / "frames").start()
+        assert small.wait(600)
+        core = "viewer alone (other panels' per-frame callbacks detached)"
+        out["viewer_alone"] = run(core, core=True)
+        label = "viewer alone, skinned meshes off (what posing the bones costs)"
+        out["viewer_alone_no_meshes"] = run(label, core=True, meshes=False)
+        label = "viewer alone, bone messages queued directly (private API)"
+        out["viewer_alone_direct_bones"] = run(label, use_direct_bone_messages, core=True)
+        for store, reduce, label in (
+            (frames, 4, "viewer alone, frustum images 160 px, camera panel 640 px"),
+            (small, 2, "viewer alone, frustum images 160 px, camera panel 320 px"),
+            (small, 4, "viewer alone, frustum images 80 px, camera panel 320 px"),
+        ):
+            viewer_app.FRUSTUM_IMAGE_REDUCE = reduce
+            out["smaller_images"][label] = run(label, frames=store, core=True)
+        viewer_app.FRUSTUM_IMAGE_REDUCE = 2
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1))
+    return out
+
+
+if __name__ == "__main__":
+    main()
