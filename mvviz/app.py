@@ -369,9 +369,11 @@ class ViewerApp:
         host: str = "127.0.0.1",
         port: int = 8080,
         frames: FrameStore | None = None,
+        model: BodyModel | None = None,
         verbose: bool = False,
     ) -> None:
         self.state = state
+        self.model = model  # the body model of the run (None: the shipped one)
         self.frames = frames
         self.state_changed: list[Callable[[ViewerState, str], None]] = []
         self.frame_times_ms: deque[float] = deque(maxlen=500)
@@ -399,7 +401,7 @@ class ViewerApp:
         self.camera_panel = make_camera_panel(server, state, self._on_change)
         self.filter_panel = make_filter_panel(self)
         self.failure_panel = make_failure_panel(self)
-        self.pipeline_panel = make_pipeline_panel(self)
+        self.pipeline_panel = make_pipeline_panel(self, model=self.model)
         self._renderer = LatestWins(self._render)
         self._player = threading.Thread(target=self._play_loop, name="mvviz-play", daemon=True)
         self._player.start()
@@ -461,10 +463,22 @@ class ViewerApp:
         old = self.state.data
         data = prepare(old.scene, results, None, bodies=old.bodies)
         with self._render_lock, self.server.atomic():
+            skinned = {
+                h.name for h in (*self.layers.meshes.values(), *self.layers.fit_meshes.values())
+            }
             self.layers.remove()
             self.state.data = data
             self.layers = SceneLayers(self.server, data, on_joint_click=self._on_joint_click)
             self._applied_layers = None
+            # viser 1.1.1's client blanks the page ("Cannot read properties of null
+            # (reading 'remove')") when a skinned mesh is removed and nothing of that name
+            # is added in the same batch; fewer tracks or no fits remove some. Leave an
+            # empty node in each one's place.
+            kept = {
+                h.name for h in (*self.layers.meshes.values(), *self.layers.fit_meshes.values())
+            }
+            for name in sorted(skinned - kept):
+                self.server.scene.add_frame(name, show_axes=False, visible=False)
         sel = self.selection_panel
         sel.track.options = (NO_TRACK,) + tuple(str(k) for k in range(data.num_tracks))
         sel.joint.options = data.joint_set.names

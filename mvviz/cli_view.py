@@ -69,7 +69,7 @@ def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
     print(f"{'cached' if cached else 'computed'} results: {results.num_tracks} tracks")
     frames = FrameStore(scene, cache_dir=scene.root / ".mvviz" / "frames").start()
     state = ViewerState.create(scene, results, model)
-    app = ViewerApp(state, host=args.host, port=args.port, frames=frames)
+    app = ViewerApp(state, host=args.host, port=args.port, frames=frames, model=model)
     app.wait_idle(30)
     print(f"ready in {time.perf_counter() - t0:.1f} s: {app.url}")
     if frames.sources and not frames.ready:

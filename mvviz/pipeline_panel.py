@@ -296,22 +296,6 @@ def tqdm_progress(prefix: str) -> tuple[str, int, int] | None:
     return None
 
 
-def set_results(app: ViewerApp, results: PipelineResults) -> None:
-    """``app.set_results(results)``, leaving an empty node in place of every skinned mesh
-    that goes away. viser 1.1.1's client crashes (blank page: "Cannot read properties of
-    null (reading 'remove')") when a skinned mesh is removed and nothing of that name is
-    added in the same message batch: its cleanup reads the unmounted node's null ref.
-    Fewer tracks, or results without SMPL fits, remove some."""
-    skinned = lambda: {  # noqa: E731
-        h.name for h in (*app.layers.meshes.values(), *app.layers.fit_meshes.values())
-    }
-    with app.server.atomic():
-        before = skinned()
-        app.set_results(results)
-        for name in sorted(before - skinned()):
-            app.server.scene.add_frame(name, show_axes=False, visible=False)
-
-
 # --------------------------------------------------------------------------- GUI
 
 
@@ -654,7 +638,7 @@ class PipelinePanel:
         same = same and results.smpl is r.smpl and results.smpl_vae is r.smpl_vae
         self._shown = results
         if full or not same:
-            set_results(app, results)
+            app.set_results(results)
         else:
             app.state.data = preview_data(old, results)
             app.redraw()

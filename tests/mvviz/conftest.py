@@ -4,6 +4,8 @@ port, and a headless chromium page on it (skipped when /usr/bin/chromium is abse
 from __future__ import annotations
 
 import dataclasses
+import os
+import shutil
 import socket
 import time
 from pathlib import Path
@@ -155,3 +157,12 @@ def wait_rendered(app: ViewerApp, page, seconds: float = 1.5) -> None:
     page.wait_for_function("t => document.body.innerText.includes(t)", arg=text, timeout=30_000)
     time.sleep(0.1)
     settle(page, seconds)
+
+
+def keep_screenshot(path: Path, name: str) -> None:
+    """Copy a test's screenshot to docs/screenshots/ (the README's pictures) when
+    MVVIZ_UPDATE_SCREENSHOTS=1; a normal test run never changes the work tree."""
+    if os.environ.get("MVVIZ_UPDATE_SCREENSHOTS") == "1":
+        docs = REPO / "docs" / "screenshots"
+        docs.mkdir(parents=True, exist_ok=True)
+        shutil.copy(path, docs / name)

@@ -8,7 +8,6 @@ Skipped when /usr/bin/chromium is absent.
 
 from __future__ import annotations
 
-import shutil
 import time
 from pathlib import Path
 
@@ -16,7 +15,14 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.mvviz.conftest import REPO, canvas_image, open_viewer, settle, wait_rendered
+from tests.mvviz.conftest import (
+    REPO,
+    canvas_image,
+    keep_screenshot,
+    open_viewer,
+    settle,
+    wait_rendered,
+)
 
 DOCS = REPO / "docs" / "screenshots"
 
@@ -32,8 +38,7 @@ def save(page, shots: Path, name: str, *, docs: bool = False) -> np.ndarray:
     path = shots / f"{name}.png"
     page.screenshot(path=str(path))
     if docs:
-        DOCS.mkdir(parents=True, exist_ok=True)
-        shutil.copy(path, DOCS / f"{name}.png")
+        keep_screenshot(path, f"{name}.png")
     return canvas_image(page)
 
 

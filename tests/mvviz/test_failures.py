@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 import time
 
 import numpy as np
@@ -36,7 +35,7 @@ from pipeline.joint_sets import COCO17, SMPL24, mapping_indices
 from pipeline.results import run_pipeline
 from pipeline.scene import load_scene
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
-from tests.mvviz.conftest import CAMPUS, REPO, free_port, open_viewer, settle
+from tests.mvviz.conftest import CAMPUS, REPO, free_port, keep_screenshot, open_viewer, settle
 
 NAMES = COCO17.names
 DOCS = REPO / "docs" / "screenshots"
@@ -453,7 +452,6 @@ def test_clicking_a_failure_in_the_page_moves_the_timeline(browser, app, tiny, n
         settle(page, 2.0)
         shot = tmp_path / "failures.png"
         page.screenshot(path=str(shot))
-        DOCS.mkdir(parents=True, exist_ok=True)
-        shutil.copy(shot, DOCS / "failures.png")
+        keep_screenshot(shot, "failures.png")
     finally:
         page.close()

@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import shutil
 import time
 
 import cv2
@@ -35,7 +34,7 @@ from mvviz.filter_panel import (
 from pipeline.config import load_config
 from pipeline.evaluate import evaluate
 from pipeline.kalman import KalmanParams, kalman_filter
-from tests.mvviz.conftest import REPO, free_port, settle, wait_rendered
+from tests.mvviz.conftest import free_port, keep_screenshot, settle, wait_rendered
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -336,9 +335,7 @@ def test_browser_plot_follows_filter_b(browser, running_app, tmp_path):
         settle(page, 2.5)
         shot = tmp_path / "filter_ab.png"
         page.screenshot(path=str(shot))
-        docs = REPO / "docs" / "screenshots"
-        docs.mkdir(parents=True, exist_ok=True)
-        shutil.copy(shot, docs / "filter_ab.png")
+        keep_screenshot(shot, "filter_ab.png")
     finally:
         page.close()
         fp.reset_b()

@@ -34,9 +34,9 @@ from pipeline.results import (
 from pipeline.run import run_frame
 from pipeline.scene import load_scene
 from tests.mvviz.conftest import (
-    REPO,
     canvas_image,
     free_port,
+    keep_screenshot,
     open_viewer,
     settle,
     wait_rendered,
@@ -346,7 +346,7 @@ def browser_app(viewer_scene, frame_store):
     a.stop()
 
 
-def test_switching_a_camera_off_changes_the_canvas(browser, browser_app):
+def test_switching_a_camera_off_changes_the_canvas(browser, browser_app, tmp_path):
     app, panel = browser_app, browser_app.pipeline_panel
     page = open_viewer(browser, app.url)
     try:
@@ -374,9 +374,9 @@ def test_switching_a_camera_off_changes_the_canvas(browser, browser_app):
         for i in range(notices.count()):  # the software-WebGL notice, if it came back
             notices.nth(i).click()
         settle(page, 0.5)
-        shots = REPO / "docs" / "screenshots"
-        shots.mkdir(parents=True, exist_ok=True)
-        page.screenshot(path=str(shots / "pipeline_panel.png"))
+        shot = tmp_path / "pipeline_panel.png"
+        page.screenshot(path=str(shot))
+        keep_screenshot(shot, "pipeline_panel.png")
         b = canvas_image(page)
         d = float(np.abs(a.astype(np.int16) - b.astype(np.int16)).mean())
         assert d > 0.05, f"switching camera {cam} off barely changed the canvas ({d:.3f})"

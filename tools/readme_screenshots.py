@@ -1,0 +1,72 @@
+"""Take the README's viewer screenshots: the debugger on a scene, in headless Chromium.
+
+Starts the viewer on SCENE (cached results), opens it in Debian's chromium (software
+WebGL), sets a frame, selection and layers, and writes a PNG.
+
+Usage:
+    python tools/readme_screenshots.py SCENE OUT.png [--frame F] [--track K]
+        [--fit-meshes] [--no-rays] [--camera NAME] [--port P]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from mvviz.cli_view import add_view_options, start  # noqa: E402
+
+CHROMIUM_ARGS = [
+    "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--no-sandbox",
+    "--disable-gpu-sandbox", "--disable-background-networking", "--disable-component-update",
+    "--disable-sync", "--no-first-run",
+]  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    add_view_options(ap)
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--frame", type=int, default=60)
+    ap.add_argument("--track", type=int, default=0)
+    ap.add_argument("--fit-meshes", action="store_true")
+    ap.add_argument("--no-rays", action="store_true")
+    ap.add_argument("--camera", default=None)
+    args = ap.parse_args()
+    app = start(args, progress=False)
+    if app.frames is not None:
+        deadline = time.time() + 120
+        while not app.frames.ready and time.time() < deadline:
+            time.sleep(0.5)
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(
+            executable_path="/usr/bin/chromium", headless=True, args=CHROMIUM_ARGS
+        )
+        page = browser.new_page(viewport={"width": 1600, "height": 900})
+        page.goto(app.url)
+        page.wait_for_selector("canvas", timeout=60_000)
+        page.wait_for_timeout(3000)
+        close = page.locator("button.mantine-Notification-closeButton")
+        for i in range(close.count()):
+            close.nth(i).click()
+        lp = app.layers_panel.toggles
+        lp["fit_meshes"].value = args.fit_meshes
+        lp["rays"].value = not args.no_rays
+        app.jump_to(frame=args.frame, track=args.track, view=args.camera)
+        app.wait_idle(30)
+        page.wait_for_timeout(6000)
+        page.screenshot(path=str(args.out))
+        browser.close()
+    app.stop()
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
