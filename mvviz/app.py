@@ -40,6 +40,7 @@ from mvviz.layers import (
     prepare,
 )
 from mvviz.pipeline_panel import make_pipeline_panel
+from mvviz.workers import LatestWins
 from pipeline.body_model import BodyModel
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
@@ -304,59 +305,6 @@ def make_camera_panel(
 
 
 # --------------------------------------------------------------------------- rendering
-
-
-class LatestWins:
-    """One worker thread running ``render()`` whenever requested; requests made while it
-    runs collapse into one more run, so only the newest state is ever drawn."""
-
-    def __init__(self, render: Callable[[], None]) -> None:
-        self._render = render
-        self._cv = threading.Condition()
-        self._pending = False
-        self._busy = False
-        self._stopped = False
-        self._thread = threading.Thread(target=self._loop, name="mvviz-render", daemon=True)
-        self._thread.start()
-
-    def request(self) -> None:
-        with self._cv:
-            self._pending = True
-            self._cv.notify_all()
-
-    def wait_idle(self, timeout: float = 10.0) -> bool:
-        """Block until no render is pending or running (for tests and scripts)."""
-        end = time.monotonic() + timeout
-        with self._cv:
-            while self._pending or self._busy:
-                left = end - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cv.wait(left)
-        return True
-
-    def stop(self) -> None:
-        with self._cv:
-            self._stopped = True
-            self._cv.notify_all()
-        self._thread.join(timeout=5)
-
-    def _loop(self) -> None:
-        while True:
-            with self._cv:
-                while not self._pending and not self._stopped:
-                    self._cv.wait()
-                if self._stopped:
-                    return
-                self._pending, self._busy = False, True
-            try:
-                self._render()
-            except Exception as exc:  # keep the viewer alive; the next request retries
-                print(f"mvviz view: render failed: {type(exc).__name__}: {exc}")
-            finally:
-                with self._cv:
-                    self._busy = False
-                    self._cv.notify_all()
 
 
 class ViewerApp:

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -37,6 +36,7 @@ from mvviz.failures import (
     save_notes,
 )
 from mvviz.layers import MM, ViewerData
+from mvviz.workers import LatestWins
 from pipeline.files import SceneFormatError
 
 if TYPE_CHECKING:
@@ -132,58 +132,6 @@ def failure_point(data: ViewerData, failure: Failure) -> np.ndarray | None:
     return None
 
 
-class _Worker:
-    """One daemon thread running ``work()`` when requested; requests made meanwhile
-    collapse into one more run."""
-
-    def __init__(self, work: Callable[[], None], name: str) -> None:
-        self._work = work
-        self._cv = threading.Condition()
-        self._pending = self._busy = self._stopped = False
-        self.errors: list[str] = []
-        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
-        self._thread.start()
-
-    def request(self) -> None:
-        with self._cv:
-            self._pending = True
-            self._cv.notify_all()
-
-    def wait_idle(self, timeout: float = 10.0) -> bool:
-        end = time.monotonic() + timeout
-        with self._cv:
-            while self._pending or self._busy:
-                left = end - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cv.wait(left)
-        return True
-
-    def stop(self) -> None:
-        with self._cv:
-            self._stopped = True
-            self._cv.notify_all()
-        self._thread.join(timeout=5)
-
-    def _loop(self) -> None:
-        while True:
-            with self._cv:
-                while not self._pending and not self._stopped:
-                    self._cv.wait()
-                if self._stopped:
-                    return
-                self._pending, self._busy = False, True
-            try:
-                self._work()
-            except Exception as exc:  # keep the panel alive; the next request retries
-                self.errors.append(f"{type(exc).__name__}: {exc}")
-                print(f"mvviz view: failure panel failed: {self.errors[-1]}")
-            finally:
-                with self._cv:
-                    self._busy = False
-                    self._cv.notify_all()
-
-
 class FailureReview:
     """The "Failures" panel at work.
 
@@ -210,7 +158,7 @@ class FailureReview:
         self.message = ""
         self._load_notes()
         self._bind()
-        self._worker = _Worker(self._refresh, "mvviz-failures")
+        self._worker = LatestWins(self._refresh, name="mvviz-failures")
         app.state_changed.append(self._on_state_changed)
         self._worker.request()
 
