@@ -6,8 +6,11 @@ Usage:
 Loads SCENE (default sample_data/shelf_synth), runs the pipeline or reuses its cached
 results (SCENE/.mvviz/results.npz), and serves the viewer at http://127.0.0.1:8080.
 Scrub the timeline, toggle layers (cameras with their video, 2D detections on the image
-planes, rays, raw / filtered / ground-truth skeletons, trails, ground-truth meshes),
-click a joint to select it. Same as ``mvviz view SCENE``. Ctrl-C stops the server.
+planes, rays, raw / filtered / ground-truth skeletons, trails, ground-truth and fitted
+SMPL meshes), click a joint to select it; re-run the per-frame stages with other
+parameters or cameras off (Pipeline), tune a second Kalman filter side by side
+(Filter A/B), jump to the worst moments (Failures). Same as ``mvviz view SCENE``.
+Binds to 127.0.0.1 unless --host says otherwise. Ctrl-C stops the server.
 """
 
 from __future__ import annotations

@@ -47,7 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "Loads SCENE, runs the pipeline (or reuses cached results) and serves a viser "
             "viewer: timeline, cameras with their video, 2D detections, rays, raw / filtered "
-            "/ ground-truth skeletons, trails and ground-truth meshes. Blocks until Ctrl-C."
+            "/ ground-truth skeletons, trails, ground-truth and fitted meshes, and the pipeline, "
+            "filter A/B and failure panels. Blocks until Ctrl-C."
         ),
     )
     add_view_options(p)
