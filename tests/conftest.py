@@ -16,8 +16,9 @@ CAMPUS_CALIB = SHARED / "data" / "calibration" / "campus_voxelpose.json"
 def tiny_body_model_arrays(seed: int = 0) -> dict[str, np.ndarray]:
     """A small SMPL-layout model: 24 joints on SMPL's tree, 8 vertices per joint.
 
-    Each joint owns a little cube of vertices around its rest position, skinned
-    rigidly to that joint; joints regress from the cube of their parent... of themselves.
+    Each joint owns a little cube of vertices around its rest position, skinned rigidly
+    to that joint, and its regressor is the mean of its own cube (so the cube's centre
+    is the joint in every pose).
     """
     from pipeline.joint_sets import SMPL24_PARENTS
 
