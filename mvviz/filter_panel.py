@@ -27,7 +27,6 @@ import dataclasses
 import threading
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -40,6 +39,7 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
 from mvviz.layers import MM, OFFSET_FILTERED_M, ViewerData, bone_segments, track_color
+from mvviz.workers import LatestWins
 from pipeline import metrics
 from pipeline.config import PipelineConfig, load_config, save_config
 from pipeline.evaluate import _frames_of_gt, ground_truth_slots, stage_metrics, to_smpl_slots
@@ -468,69 +468,6 @@ def make_filter_gui(server: viser.ViserServer, a: KalmanParams) -> FilterPanel:
 # --------------------------------------------------------------------------- worker
 
 
-class _Worker:
-    """One daemon thread running ``work()`` when requested; requests made while it runs
-    collapse into one more run (latest wins). ``request(delay)`` asks for a later run.
-    The thread ends at :meth:`stop` or when ``halted()`` is true at a request."""
-
-    def __init__(self, work: Callable[[], None], name: str, halted: Callable[[], bool]) -> None:
-        self._work, self._halted = work, halted
-        self._cv = threading.Condition()
-        self._pending = self._busy = self._stopped = False
-        self._due: float | None = None
-        self.errors: list[str] = []
-        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
-        self._thread.start()
-
-    def request(self, delay: float = 0.0) -> None:
-        with self._cv:
-            if delay <= 0:
-                self._pending = True
-            else:
-                due = time.monotonic() + delay
-                self._due = due if self._due is None else min(self._due, due)
-            self._cv.notify_all()
-
-    def wait_idle(self, timeout: float = 10.0) -> bool:
-        end = time.monotonic() + timeout
-        with self._cv:
-            while self._pending or self._busy or self._due is not None:
-                left = end - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cv.wait(min(left, 0.05))
-        return True
-
-    def stop(self) -> None:
-        with self._cv:
-            self._stopped = True
-            self._cv.notify_all()
-        self._thread.join(timeout=5)
-
-    def _loop(self) -> None:
-        while True:
-            with self._cv:
-                while not self._stopped and not self._pending:
-                    if self._due is not None and time.monotonic() >= self._due:
-                        break
-                    wait = None if self._due is None else max(self._due - time.monotonic(), 0)
-                    self._cv.wait(wait)
-                if self._stopped or self._halted():
-                    self._stopped, self._pending, self._due = True, False, None
-                    self._cv.notify_all()
-                    return
-                self._pending, self._due, self._busy = False, None, True
-            try:
-                self._work()
-            except Exception as exc:  # keep the panel alive; the next request retries
-                self.errors.append(f"{type(exc).__name__}: {exc}")
-                print(f"mvviz view: filter panel failed: {self.errors[-1]}")
-            finally:
-                with self._cv:
-                    self._busy = False
-                    self._cv.notify_all()
-
-
 # --------------------------------------------------------------------------- the panel
 
 
@@ -568,7 +505,7 @@ class FilterTuning:
         self._bind()
         # the app has no stop hook: its stop flag ends the worker and skips GUI writes
         self._halted = app._stopped.is_set
-        self._worker = _Worker(self._work, "mvviz-filter-ab", self._halted)
+        self._worker = LatestWins(self._work, name="mvviz-filter-ab", halted=self._halted)
         app.state_changed.append(self._on_state_changed)
         self._worker.request()
 
