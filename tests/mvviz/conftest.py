@@ -46,21 +46,25 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="session")
-def viewer_scene(tmp_path_factory):
-    """(scene, results, model): 2 people, 20 frames on the 3-camera campus rig, videos."""
+def synth_campus_scene(root: Path, num_frames: int):
+    """(scene, results, model): 2 people on the 3-camera campus rig, with videos."""
     model = load_body_model()
-    root = tmp_path_factory.mktemp("viewer") / "scene"
     write_synth_scene(
         root,
         read_voxelpose_calibration(CAMPUS),
         model,
-        SynthConfig(num_people=2, num_frames=NUM_FRAMES, seed=3),
+        SynthConfig(num_people=2, num_frames=num_frames, seed=3),
         progress=False,
     )
     scene = load_scene(root)
     results, _ = run_or_load(scene, PipelineConfig(), model, progress=False)
     return scene, results, model
+
+
+@pytest.fixture(scope="session")
+def viewer_scene(tmp_path_factory):
+    """(scene, results, model): 2 people, 20 frames on the 3-camera campus rig, videos."""
+    return synth_campus_scene(tmp_path_factory.mktemp("viewer") / "scene", NUM_FRAMES)
 
 
 @pytest.fixture

@@ -27,12 +27,8 @@ from mvviz.rerun_export import (
     select_frames,
 )
 from pipeline.body_model import load_body_model
-from pipeline.config import PipelineConfig
-from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.joint_sets import COCO17
-from pipeline.results import run_or_load
-from pipeline.scene import load_scene
-from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
+from tests.mvviz.conftest import synth_campus_scene
 
 REPO = Path(__file__).resolve().parents[2]
 CAMPUS = REPO / "sample_data" / "rigs" / "campus_voxelpose.json"
@@ -42,18 +38,7 @@ NUM_FRAMES = 10
 @pytest.fixture(scope="session")
 def tiny(tmp_path_factory):
     """(scene, results, model): 2 people, 10 frames on the campus rig, with videos."""
-    model = load_body_model()
-    root = tmp_path_factory.mktemp("rrd") / "scene"
-    write_synth_scene(
-        root,
-        read_voxelpose_calibration(CAMPUS),
-        model,
-        SynthConfig(num_people=2, num_frames=NUM_FRAMES, seed=3),
-        progress=False,
-    )
-    scene = load_scene(root)
-    results, _ = run_or_load(scene, PipelineConfig(), model, progress=False)
-    return scene, results, model
+    return synth_campus_scene(tmp_path_factory.mktemp("rrd") / "scene", NUM_FRAMES)
 
 
 @pytest.fixture(scope="session")
