@@ -1,28 +1,29 @@
 """Benchmark one frame change of the viewer: server time and bytes sent to the browser.
 
-On sample_data/shelf_synth (5 cameras, 4 people, 250 frames) with every layer on: video
-on the frustums, 2D detections, every person's rays, raw / filtered / ground-truth
-skeletons, trails, and the ground-truth and fitted SMPL bodies as skinned meshes. A
-viser server runs on a free port; no browser is needed. Over --changes random frame
-changes it reports:
+On sample_data/shelf_synth (5 cameras, 4 people, 250 frames) with every layer on and
+the app's default options: video on the frustums (160 px) and in the camera panel
+(400 px), 2D detections, the selected track's rays, raw / filtered / ground-truth
+skeletons, trails, and the ground-truth and fitted SMPL bodies as skinned meshes; every
+panel attached (the filter panel's playhead, the failure and pipeline panels). A viser
+server runs on a free port; no browser is needed. Over --changes random frame changes
+it reports:
 
 - the server-side time to apply one frame change (median and p95): the viewer's own
-  render timing (geometry, frame images, assigning the scene nodes, flush), and the
-  render thread's CPU time, which a busy machine inflates much less;
-- the bytes sent per frame change: every message queued during the change, serialised
-  the way viser's websocket producer does it for one message window (msgpack +
-  zstd for the structure, raw binary buffers appended), broken down by what the
-  message updates. With --client, a headless websocket client also counts the bytes
-  it actually receives.
+  render timing (geometry, assigning the scene nodes, frame images, flush), and the
+  CPU time of its render and image threads, which a busy machine inflates much less;
+- the bytes sent per frame change: every message queued during the change (including
+  other panels' updates it triggers), serialised the way viser's websocket producer
+  does it for one message window (msgpack + zstd for the structure, raw binary buffers
+  appended), broken down by what the message updates. With --client, a headless
+  websocket client also counts the bytes it actually receives.
 
 In the same run the meshes are then replaced by ``add_mesh_simple`` nodes that get
 their full vertex arrays each frame (skinned on the server with the same bone poses),
 and the figures and the ratio are printed. Targets with skinned meshes: median <= 20 ms
-and <= 50 KB per frame change; if one is missed, the dominating part is named and the
-figures are measured again for the viewer alone (other panels' per-frame work, e.g. the
-filter panel's plot, detached), without the skinned meshes (what posing bones costs),
-with the bone messages queued directly (what a batched bone update would cost), and
-with smaller frustum and camera-panel images.
+and <= 50 KB per frame change. Then what the options and design choices cost: every
+track's rays, sharp videos (320 px frustums, 640 px panel), bones posed through viser's
+per-bone setters instead of mvviz.skinned.BonePoser, and the viewer alone (other
+panels detached).
 
 Usage:
     python bench/bench_viewer.py [--scene DIR] [--changes N] [--client] [--json FILE]
@@ -46,16 +47,15 @@ import numpy as np
 import viser
 import viser.transforms as vtf
 import zstandard
-from viser._messages import SetBoneOrientationMessage, SetBonePositionMessage
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import mvviz.app as viewer_app  # noqa: E402
 from mvviz.app import ViewerApp, ViewerState  # noqa: E402
 from mvviz.images import FrameStore  # noqa: E402
 from mvviz.layers import GT_MESH, track_color  # noqa: E402
 from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
+from pipeline.files import atomic_write  # noqa: E402
 from pipeline.results import run_or_load  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 
@@ -227,31 +227,11 @@ def use_full_vertex_meshes(app: ViewerApp) -> float:
     return float(sum(b.vertices.shape[1] for b, _, _ in simple))
 
 
-def use_direct_bone_messages(app: ViewerApp) -> None:
-    """Pose the skinned meshes by queueing viser's bone messages directly (private API),
-    skipping the per-bone setters' casting and change checks: what a batched bone
-    update would cost."""
-    layers, data = app.layers, app.state.data
-    queue = app.server.scene._queue_scene_message
-    meshes = []
-    for b, store in ((data.bodies, layers.meshes), (data.fit_bodies, layers.fit_meshes)):
-        if b is not None:
-            meshes += [(b, list(b.ids).index(pid), h) for pid, h in store.items()]
-            store.clear()
-    apply = layers.apply
-
-    def apply_direct(geom, selection) -> None:
-        apply(geom, selection)
-        f = geom.frame
-        for b, i, h in meshes:
-            h.visible = bool(b.present[i, f])
-            if h.visible:
-                wxyz, pos = b.bone_wxyz[i, f].tolist(), b.bone_position[i, f].tolist()
-                for j in range(len(wxyz)):
-                    queue(SetBoneOrientationMessage(h.name, j, tuple(wxyz[j])))
-                    queue(SetBonePositionMessage(h.name, j, tuple(pos[j])))
-
-    layers.apply = apply_direct
+def use_public_bone_setters(app: ViewerApp) -> None:
+    """Pose the skinned meshes through viser's per-bone setters (``bone.wxyz = ...``)
+    instead of :class:`mvviz.skinned.BonePoser`'s bulk path: what that path saves."""
+    app.layers.fast_bones = False
+    app.layers.bone_posers.clear()
 
 
 # --------------------------------------------------------------------------- runs
@@ -299,7 +279,7 @@ def report(label: str, r: dict) -> None:
     client = f"; client got {r['client_kb']:.1f} KB" if r["client_kb"] is not None else ""
     print(
         f"{label}: median {r['median_ms']:.1f} ms, p95 {r['p95_ms']:.1f} ms "
-        f"(render thread CPU {r['median_cpu_ms']:.1f} / {r['p95_cpu_ms']:.1f} ms); "
+        f"(CPU {r['median_cpu_ms']:.1f} / {r['p95_cpu_ms']:.1f} ms); "
         f"{r['median_kb']:.1f} KB per frame change (mean {r['mean_kb']:.1f}{client}), "
         f"of which meshes {r['meshes_kb']:.1f} KB"
     )
@@ -307,22 +287,27 @@ def report(label: str, r: dict) -> None:
         print(f"    {k:<40s} {v:8.1f} KB (uncompressed)")
 
 
-def start_app(scene, results, model, frames) -> tuple[ViewerApp, MessageTap]:
+def start_app(scene, results, model, frames, **options) -> tuple[ViewerApp, MessageTap]:
+    """The viewer with every layer on; ``options`` override layer options (e.g.
+    ``rays_selected_only=False``, ``frustum_image_width=320``) or, for
+    ``panel_image_width``, the state."""
     state = ViewerState.create(scene, results, model)
     on = {f.name: True for f in dataclasses.fields(state.layers) if f.type in ("bool", bool)}
-    on["rays_selected_only"] = False  # every person's rays: the worst case
+    on["rays_selected_only"] = True  # the app's default: the selected track's rays
     on["offset_filtered"] = False  # a display option, not a layer
-    state.layers = dataclasses.replace(state.layers, **on)
+    if "panel_image_width" in options:
+        state.panel_image_width = options.pop("panel_image_width")
+    state.layers = dataclasses.replace(state.layers, **{**on, **options})
     app = ViewerApp(state, host="127.0.0.1", port=free_port(), frames=frames)
     assert app.wait_idle(60)
     render, cpu_ms = app._render_locked, []
 
-    def timed_render() -> None:  # CPU time of the render thread: robust to a busy machine
-        t0 = time.thread_time()
+    def timed_render() -> None:  # CPU time of the render and image threads: robust to a
+        t0 = time.thread_time()  # busy machine
         try:
             render()
         finally:
-            cpu_ms.append((time.thread_time() - t0) * 1e3)
+            cpu_ms.append((time.thread_time() - t0) * 1e3 + app.last_image_cpu_ms)
 
     app._render_locked, app.bench_cpu_ms = timed_render, cpu_ms
     return app, MessageTap(app.server)
@@ -349,15 +334,10 @@ def main(argv: list[str] | None = None) -> dict:
     warm = rng.integers(0, scene.num_frames, 5)
     out: dict = {"scene": scene.name, "changes": int(args.changes)}
 
-    def run(
-        label: str, setup=None, frames: FrameStore = frames, core: bool = False, meshes=True
-    ) -> dict:
-        app, tap = start_app(scene, results, model, frames)
+    def run(label: str, setup=None, core: bool = False, **options) -> dict:
+        app, tap = start_app(scene, results, model, frames, **options)
         if core:  # the viewer alone: other panels' per-frame work (e.g. plots) detached
             app.state_changed.clear()
-        if not meshes:
-            for name in ("meshes", "fit_meshes"):
-                app.layers_panel.toggles[name].value = False
         client = WireClient(app.url) if args.client else None
         try:
             if client:
@@ -376,8 +356,11 @@ def main(argv: list[str] | None = None) -> dict:
 
     load = os.getloadavg()[0] / (os.cpu_count() or 1)
     print(
-        f"{scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames, every layer on; "
-        f"load {load:.1f} per CPU (wall-clock times grow with it; CPU times much less)"
+        f"{scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames, every layer on "
+        f"(videos on the frustums and in the camera panel, 2D joints, the selected track's "
+        f"rays, raw / filtered / ground-truth skeletons, trails, ground-truth and fitted "
+        f"skinned meshes) and every panel attached; load {load:.1f} per CPU (wall-clock "
+        f"times grow with it; CPU times much less)"
     )
     out["load_per_cpu"] = load
     skinned = out["skinned"] = run("skinned meshes (bone poses)")
@@ -398,6 +381,7 @@ def main(argv: list[str] | None = None) -> dict:
         f"{'met' if ok_ms else 'MISSED'}; {skinned['median_kb']:.1f} KB <= {TARGET_KB:.0f} KB "
         f"{'met' if ok_kb else 'MISSED'}"
     )
+    out["targets_met"] = {"time": bool(ok_ms), "bytes": bool(ok_kb)}
     if not (ok_ms and ok_kb):
         top = next(iter(skinned["breakdown_kb"].items()))
         parts = skinned["render_parts_ms"]
@@ -405,25 +389,26 @@ def main(argv: list[str] | None = None) -> dict:
             f"dominating: bytes {top[0]} ({top[1]:.1f} KB); time "
             + ", ".join(f"{k} {v:.1f} ms" for k, v in parts.items())
         )
-        out["smaller_images"] = {}
-        small = FrameStore(scene, width=320, cache_dir=scene.root / ".mvviz" / "frames").start()
-        assert small.wait(600)
-        core = "viewer alone (other panels' per-frame callbacks detached)"
-        out["viewer_alone"] = run(core, core=True)
-        label = "viewer alone, skinned meshes off (what posing the bones costs)"
-        out["viewer_alone_no_meshes"] = run(label, core=True, meshes=False)
-        label = "viewer alone, bone messages queued directly (private API)"
-        out["viewer_alone_direct_bones"] = run(label, use_direct_bone_messages, core=True)
-        for store, reduce, label in (
-            (frames, 4, "viewer alone, frustum images 160 px, camera panel 640 px"),
-            (small, 2, "viewer alone, frustum images 160 px, camera panel 320 px"),
-            (small, 4, "viewer alone, frustum images 80 px, camera panel 320 px"),
-        ):
-            viewer_app.FRUSTUM_IMAGE_REDUCE = reduce
-            out["smaller_images"][label] = run(label, frames=store, core=True)
-        viewer_app.FRUSTUM_IMAGE_REDUCE = 2
+    # What the options and the design choices cost, in the same run:
+    variants = out["variants"] = {}
+    for key, label, setup, kw in (
+        ("all_rays", "every track's rays (the 'selected track only' option off)", None,
+         {"rays_selected_only": False}),
+        ("sharp_images", "sharp videos: 320 px frustums, 640 px camera panel", None,
+         {"frustum_image_width": 320, "panel_image_width": 640}),
+        ("public_bone_setters", "bones posed through viser's per-bone setters",
+         use_public_bone_setters, {}),
+        ("viewer_alone", "viewer alone (other panels' per-frame callbacks detached)", None,
+         {"core": True}),
+    ):  # fmt: skip
+        r = variants[key] = run(label, setup, **kw)
+        print(
+            f"    -> {r['median_ms'] / skinned['median_ms']:.2f}x the time, "
+            f"{r['median_kb'] / skinned['median_kb']:.2f}x the bytes of the default"
+        )
     if args.json:
-        args.json.write_text(json.dumps(out, indent=1))
+        with atomic_write(args.json, "w") as fh:
+            fh.write(json.dumps(out, indent=1))
     return out
 
 

@@ -35,6 +35,7 @@ import viser
 import viser.transforms as vtf
 
 from mvviz.bodies import Bodies, GtBodies, fitted_bodies, gt_bodies
+from mvviz.skinned import BonePoser
 from pipeline.body_model import BodyModel
 from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
@@ -101,6 +102,7 @@ class LayerToggles:
     gt: bool = True
     trails: bool = True
     trail_window: int = 25
+    frustum_image_width: int = 128  # px of the video on the frustums (see FRUSTUM_WIDTHS)
     meshes: bool = False  # opaque bodies hide the skeletons inside them
     fit_meshes: bool = False
 
@@ -114,6 +116,11 @@ class Selection:
     joint: int = 0
     view: int | None = None
 
+
+# Frustum video widths offered (px): an image plane is ~100-200 px on screen at the
+# default view; 128 px JPEGs (~2 kB each) cost 1/4 of the 320 px ones per frame change.
+FRUSTUM_WIDTHS = (128, 320)
+FRUSTUM_JPEG_QUALITY = 50
 
 OFFSET_FILTERED_M = np.array([1.0, 0.0, 0.0])  # "side by side": filtered shifted 1 m in x
 
@@ -187,6 +194,8 @@ class ViewerData:
     people_per_frame: list[np.ndarray]  # person-frame rows (q) of each frame
     gt_rows_per_frame: list[np.ndarray]
     det_track: np.ndarray  # (N,) track of the row's person; -1 untracked / unassigned
+    det_rays: np.ndarray  # (N, J, 3) world unit ray through each detected joint; NaN
+    det_plane: np.ndarray  # (N, J, 3) each detected joint on its frustum's image plane, m
     track_person: np.ndarray  # (K, F) person-frame row of each track and frame, -1
     filtered: np.ndarray  # (K, F, J, 3) the configured filter's output, mm
     gt_points: np.ndarray | None  # (M, Jg, 3) mm
@@ -256,6 +265,8 @@ def prepare(
     else:
         center, spread = np.array([0.0, 0.0, 1.0]), 2.0
     extent = float(np.max(np.linalg.norm((centers - center)[:, :2], axis=1), initial=3.0))
+    cameras = [camera_geometry(c) for c in scene.rig]
+    det_rays, det_plane = detection_rays(scene, results, cameras)
     return ViewerData(
         scene=scene,
         results=results,
@@ -265,10 +276,12 @@ def prepare(
         people_per_frame=people,
         gt_rows_per_frame=gt_rows,
         det_track=det_track,
+        det_rays=det_rays,
+        det_plane=det_plane,
         track_person=track_person,
         filtered=results.track_filtered,
         gt_points=gt_points,
-        cameras=[camera_geometry(c) for c in scene.rig],
+        cameras=cameras,
         bodies=bodies if bodies is not None else gt_bodies(scene, model) if model else None,
         fit_bodies=fitted_bodies(results),
         min_confidence=results.config.triangulation.min_confidence,
@@ -276,6 +289,25 @@ def prepare(
         spread=spread,
         extent=extent,
     )
+
+
+def detection_rays(
+    scene: Scene, results: PipelineResults, cameras: list[CameraGeometry]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per detected joint, once for the sequence (a frame change then only indexes):
+    (N, J, 3) world unit rays through it, and (N, J, 3) float32 camera-frame metres on
+    its frustum's image plane. NaN where the 2D joint is not finite."""
+    kp = results.det_joints2d[..., :2]  # (N, J, 2) px
+    rays_ = np.full(kp.shape[:-1] + (3,), np.nan)
+    plane = np.full(kp.shape[:-1] + (3,), np.nan, np.float32)
+    finite = np.isfinite(kp).all(-1)
+    view = scene.detections.view
+    for v, (cam, geo) in enumerate(zip(scene.rig, cameras, strict=True)):
+        ok = finite & (view == v)[:, None]
+        if ok.any():
+            rays_[ok] = cam.pixels_to_rays(kp[ok])
+            plane[ok] = geo.pixels_to_plane(kp[ok])
+    return rays_, plane
 
 
 # --------------------------------------------------------------------------- per frame
@@ -373,12 +405,16 @@ def detections_2d(data: ViewerData, frame: int) -> dict[str, Detections2D]:
     out = {}
     for v, cam in enumerate(data.cameras):
         r = rows[data.scene.detections.view[rows] == v]
+        # in track order (unassigned last): the colour arrays then repeat from frame to
+        # frame while the same people are seen, and viser does not send them again
+        t = data.det_track[r]
+        r = r[np.argsort(np.where(t < 0, np.iinfo(np.int64).max, t), kind="stable")]
         kp = res.det_joints2d[r]  # (n, J, 3)
         col = np.where(
             (res.det_person[r] < 0)[:, None], UNASSIGNED, track_color(data.det_track[r])
         )  # (n, 3)
         ok = (kp[..., 2] > 0) & np.isfinite(kp[..., :2]).all(-1)  # (n, J)
-        plane = cam.pixels_to_plane(np.nan_to_num(kp[..., :2]))  # (n, J, 3)
+        plane = data.det_plane[r]  # (n, J, 3)
         pts = plane[ok]
         pcol = np.broadcast_to(col[:, None], ok.shape + (3,))[ok]
         bok = ok[:, bones[:, 0]] & ok[:, bones[:, 1]]  # (n, B)
@@ -411,7 +447,7 @@ def rays(data: ViewerData, frame: int, *, track: int | None = None) -> Rays:
         qi, j = np.nonzero(obs)
         if len(qi) == 0:
             continue
-        d = cam.pixels_to_rays(kp[qi, j, :2])  # (r, 3) unit
+        d = data.det_rays[m[qi], j]  # (r, 3) unit
         c = cam.center
         length = np.einsum("rc,rc->r", X[qi, j] - c, d) * 1.1
         ok = np.isfinite(d).all(1) & (length > 0)
@@ -538,6 +574,8 @@ class SceneLayers:
     gt_ids: list[int] = field(default_factory=list)
     meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
     fit_meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
+    bone_posers: dict[str, BonePoser] = field(default_factory=dict)  # by mesh name
+    fast_bones: bool | None = None  # None: the bulk path when viser has its internals
     _frustum_key: dict[str, object] = field(default_factory=dict)
     _selected: tuple[int | None, int] = (None, -1)
 
@@ -592,6 +630,7 @@ class SceneLayers:
                 thickness=1.5,
                 thickness_units="screen",
                 color=(60, 60, 60),
+                jpeg_quality=FRUSTUM_JPEG_QUALITY,
                 cast_shadow=False,
                 receive_shadow=False,
             )
@@ -608,7 +647,8 @@ class SceneLayers:
                 np.zeros((1, 3), np.uint8),
                 point_size=0.008,
                 point_shape="circle",
-                precision="float32",
+                # camera-frame metres on a plane ~0.6 m ahead: float16 steps are ~0.2 px
+                precision="float16",
                 visible=False,
             )
             self._lines(f"{d2}/bones", UNASSIGNED, 1.5)
@@ -646,27 +686,33 @@ class SceneLayers:
             self.gt_ids = [int(p) for p in np.unique(data.scene.gt.person_id)]
         for pid in self.gt_ids:
             self._lines(f"/world/skeletons/gt/{pid}", GT_SKELETON, 0.012, "world")
-        for kind, b, colour in (("gt", data.bodies, None), ("fit", data.fit_bodies, track_color)):
-            if b is None:
-                continue
-            ident = np.tile([1.0, 0, 0, 0], (24, 1))
-            store = self.meshes if kind == "gt" else self.fit_meshes
-            for i, pid in enumerate(b.ids):
-                store[int(pid)] = scene.add_mesh_skinned(
-                    f"/world/meshes/{kind}/{pid}",
-                    b.vertices[i],
-                    b.faces,
-                    bone_wxyzs=ident,
-                    bone_positions=b.rest_joints[i],
-                    skin_weights=b.weights,
-                    color=GT_MESH if colour is None else tuple(int(c) for c in colour(int(pid))),
-                    # Opaque: a translucent skinned mesh washes out every line in
-                    # viser 1.1's renderer (the lines' blended fringe pass).
-                    opacity=None,
-                    cast_shadow=False,
-                    receive_shadow=False,
-                    visible=False,
-                )
+
+    def _ensure_meshes(self, kind: str) -> None:
+        """Create the skinned meshes of ``kind`` ("gt" or "fit") the first time their
+        layer is shown: each body is ~0.8 MB to the browser (vertices, faces, skin
+        weights), so a page whose mesh layers are off loads ~8 MB less."""
+        b = self.data.bodies if kind == "gt" else self.data.fit_bodies
+        store = self.meshes if kind == "gt" else self.fit_meshes
+        if b is None or store:
+            return
+        ident = np.tile([1.0, 0, 0, 0], (24, 1))
+        for i, pid in enumerate(b.ids):
+            color = GT_MESH if kind == "gt" else tuple(int(c) for c in track_color(int(pid)))
+            store[int(pid)] = self.server.scene.add_mesh_skinned(
+                f"/world/meshes/{kind}/{pid}",
+                b.vertices[i],
+                b.faces,
+                bone_wxyzs=ident,
+                bone_positions=b.rest_joints[i],
+                skin_weights=b.weights,
+                color=color,
+                # Opaque: a translucent skinned mesh washes out every line in
+                # viser 1.1's renderer (the lines' blended fringe pass).
+                opacity=None,
+                cast_shadow=False,
+                receive_shadow=False,
+                visible=False,
+            )
 
     def remove(self) -> None:
         """Remove every node this object created (children before parents)."""
@@ -689,6 +735,10 @@ class SceneLayers:
         _set_segments(self.nodes[path], segments, self.colors[path])
 
     def set_visibility(self, lay: LayerToggles) -> None:
+        if lay.meshes:
+            self._ensure_meshes("gt")
+        if lay.fit_meshes:
+            self._ensure_meshes("fit")
         g = self.groups
         g["/world/grid"].visible = lay.grid
         g["/world/cameras"].visible = lay.cameras
@@ -726,7 +776,7 @@ class SceneLayers:
             if d is None or len(d.points) == 0:
                 pc.visible = False
             else:
-                pc.points = d.points.astype(np.float32)
+                pc.points = d.points.astype(np.float16)
                 pc.colors = d.colors
                 pc.visible = True
             seg = d.segments if d is not None else _NO_SEG
@@ -773,7 +823,8 @@ class SceneLayers:
                 if bp is None:
                     mesh.visible = False
                     continue
-                for i, bone in enumerate(mesh.bones):
-                    bone.wxyz = bp.wxyz[i]
-                    bone.position = bp.position[i]
+                poser = self.bone_posers.get(mesh.name)
+                if poser is None or poser.mesh is not mesh:
+                    poser = self.bone_posers[mesh.name] = BonePoser(mesh, fast=self.fast_bones)
+                poser.pose(bp.wxyz, bp.position)
                 mesh.visible = True

@@ -38,7 +38,6 @@ from scipy.optimize import linear_sum_assignment
 from tqdm import tqdm
 
 from mvviz.layers import ViewerData
-from mvviz.rerun_export import export_rrd
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import PipelineConfig, save_config
 from pipeline.results import (
@@ -764,6 +763,9 @@ class PipelinePanel:
             watch = threading.Thread(target=self._watch_export, args=(done,), daemon=True)
             watch.start()
             try:
+                # rerun (~0.3 s to import) loads on the first export, not at every start
+                from mvviz.rerun_export import export_rrd  # noqa: PLC0415
+
                 export_rrd(self.scene, results, self.model, path, progress=True)
             finally:
                 done.set()

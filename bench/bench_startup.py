@@ -1,0 +1,139 @@
+"""Benchmark the time from ``python app.py`` to a usable page, with a warm cache.
+
+Starts ``python app.py SCENE --port P`` as a user would (cached pipeline results and
+decoded videos from an earlier start; one uncounted warm-up start makes sure), and
+measures from the command:
+
+- to the URL line ("ready in ... s: http://..."): the server is up with the scene;
+- with Debian's chromium (playwright): to a page showing the scene, i.e. the viewer
+  has loaded, the frame label has arrived and the 3D canvas is not blank.
+
+Baseline measured in the same run: ``python -c "import mvviz.cli_view"``, the imports
+alone (torch, viser, scipy, matplotlib), the floor any start pays. Prints medians of
+--runs starts and the ratios to the floor.
+
+Usage:
+    python bench/bench_startup.py [--scene DIR] [--runs N] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from pipeline.files import atomic_write  # noqa: E402
+from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium  # noqa: E402
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def time_imports() -> float:
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import mvviz.cli_view"], check=True, cwd=REPO)
+    return time.perf_counter() - t0
+
+
+def canvas_std(page) -> float:
+    png = page.locator("canvas").first.screenshot()
+    return float(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).std())
+
+
+def time_start(scene: Path, browser) -> dict[str, float]:
+    """Seconds from the command to the URL line and (with ``browser``) to a drawn page."""
+    port = free_port()
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [sys.executable, "app.py", str(scene), "--port", str(port)],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    out: dict[str, float] = {}
+    try:
+        for line in proc.stdout:
+            if line.startswith("ready in"):
+                out["url_s"] = time.perf_counter() - t0
+                break
+        else:
+            raise RuntimeError(f"app.py exited with {proc.wait()} before it was ready")
+        if browser is not None:
+            page = browser.new_page(viewport={"width": 1400, "height": 860})
+            page.goto(f"http://127.0.0.1:{port}")
+            page.wait_for_selector("canvas", timeout=60_000)
+            page.wait_for_function(
+                "() => /frame \\d+ \\/ \\d+/.test(document.body.innerText)", timeout=60_000
+            )
+            close_webgl_notice(page, timeout_ms=500)
+            deadline = time.perf_counter() + 60
+            while canvas_std(page) < 15 and time.perf_counter() < deadline:
+                time.sleep(0.1)
+            out["page_s"] = time.perf_counter() - t0
+            page.close()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--scene", type=Path, default=REPO / "sample_data" / "shelf_synth")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+
+    load = os.getloadavg()[0] / (os.cpu_count() or 1)
+    print(f"{args.scene.name}: {args.runs} starts after a warm-up; load {load:.1f} per CPU")
+    pw_ctx = browser = None
+    if CHROMIUM.exists():
+        from playwright.sync_api import sync_playwright  # noqa: PLC0415  (dev extra)
+
+        pw_ctx = sync_playwright().start()
+        browser = launch_chromium(pw_ctx)
+    else:
+        print(f"({CHROMIUM} absent: only the time to the URL line is measured)")
+    try:
+        time_start(args.scene, None)  # warm-up: caches, OS file cache
+        imports = [time_imports() for _ in range(args.runs)]
+        starts = [time_start(args.scene, browser) for _ in range(args.runs)]
+    finally:
+        if browser is not None:
+            browser.close()
+            pw_ctx.stop()
+    out = {"scene": args.scene.name, "runs": args.runs, "load_per_cpu": load}
+    out["imports_s"] = statistics.median(imports)
+    print(f"imports alone (python -c 'import mvviz.cli_view'): {out['imports_s']:.2f} s")
+    for key, label in (("url_s", "to the URL line"), ("page_s", "to a drawn page")):
+        values = [s[key] for s in starts if key in s]
+        if values:
+            out[key] = statistics.median(values)
+            print(
+                f"python app.py {label}: median {out[key]:.2f} s "
+                f"(runs: {', '.join(f'{v:.2f}' for v in values)}); "
+                f"{out[key] / out['imports_s']:.1f}x the imports"
+            )
+    if args.json:
+        with atomic_write(args.json, "w") as fh:
+            fh.write(json.dumps(out, indent=1))
+    return out
+
+
+if __name__ == "__main__":
+    main()

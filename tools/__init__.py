@@ -1,0 +1,1 @@
+"""Developer tools (not shipped behaviour): README screenshots, model builders, browser."""
