@@ -8,9 +8,11 @@ measures from the command:
 - with Debian's chromium (playwright): to a page showing the scene, i.e. the viewer
   has loaded, the frame label has arrived and the 3D canvas is not blank.
 
-Baseline measured in the same run: ``python -c "import mvviz.cli_view"``, the imports
-alone (torch, viser, scipy, matplotlib), the floor any start pays. Prints medians of
---runs starts and the ratios to the floor.
+Baselines measured in the same run: ``python -c "import mvviz.cli_view"``, the imports
+alone (torch, viser, scipy, matplotlib), the floor any start pays; and a bare viser
+server showing a grid and a box, opened the same way, the floor of the browser side (loading
+viser's client and software-rendering WebGL in headless chromium). Prints medians of
+--runs starts and the differences to the floors.
 
 Usage:
     python bench/bench_startup.py [--scene DIR] [--runs N] [--json FILE]
@@ -55,14 +57,28 @@ def canvas_std(page) -> float:
     return float(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).std())
 
 
-def time_start(scene: Path, browser) -> dict[str, float]:
-    """Seconds from the command to the URL line and (with ``browser``) to a drawn page."""
+BARE_VISER = """
+import sys, time, viser
+server = viser.ViserServer(port=int(sys.argv[1]))
+server.scene.add_grid("/grid", width=6.0, height=6.0)
+server.scene.add_box("/box", color=(200, 40, 40), dimensions=(1.5, 1.5, 1.5))
+server.gui.add_markdown("frame 0 / 1")
+print("ready in 0 s", flush=True)
+time.sleep(600)
+"""
+
+
+def time_start(scene: Path | None, browser) -> dict[str, float]:
+    """Seconds from the command to the URL line and (with ``browser``) to a drawn page.
+    ``scene`` None: the bare viser server instead of the app."""
     port = free_port()
     t0 = time.perf_counter()
+    cmd = [sys.executable, "app.py", str(scene), "--port", str(port)]
+    if scene is None:
+        cmd = [sys.executable, "-c", BARE_VISER, str(port)]
     proc = subprocess.Popen(
-        [sys.executable, "app.py", str(scene), "--port", str(port)],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
+        cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     out: dict[str, float] = {}
     try:
         for line in proc.stdout:
@@ -113,6 +129,7 @@ def main(argv: list[str] | None = None) -> dict:
         time_start(args.scene, None)  # warm-up: caches, OS file cache
         imports = [time_imports() for _ in range(args.runs)]
         starts = [time_start(args.scene, browser) for _ in range(args.runs)]
+        bare = [time_start(None, browser) for _ in range(args.runs)] if browser else []
     finally:
         if browser is not None:
             browser.close()
@@ -129,6 +146,15 @@ def main(argv: list[str] | None = None) -> dict:
                 f"(runs: {', '.join(f'{v:.2f}' for v in values)}); "
                 f"{out[key] / out['imports_s']:.1f}x the imports"
             )
+    if bare and "page_s" in out:
+        out["bare_viser_page_s"] = statistics.median(b["page_s"] for b in bare)
+        out["bare_viser_url_s"] = statistics.median(b["url_s"] for b in bare)
+        print(
+            f"bare viser server (grid and box): URL {out['bare_viser_url_s']:.2f} s, drawn page "
+            f"{out['bare_viser_page_s']:.2f} s; the browser side of python app.py takes "
+            f"{out['page_s'] - out['url_s']:.2f} s vs "
+            f"{out['bare_viser_page_s'] - out['bare_viser_url_s']:.2f} s for the bare server"
+        )
     if args.json:
         with atomic_write(args.json, "w") as fh:
             fh.write(json.dumps(out, indent=1))

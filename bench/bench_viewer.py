@@ -51,8 +51,8 @@ import zstandard
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mvviz.app import ViewerApp, ViewerState  # noqa: E402
+from mvviz.geometry import GT_MESH, track_color  # noqa: E402
 from mvviz.images import FrameStore  # noqa: E402
-from mvviz.layers import GT_MESH, track_color  # noqa: E402
 from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.files import atomic_write  # noqa: E402

@@ -1,7 +1,7 @@
 """The viewer: one viser server, a :class:`ViewerState`, one ``make_*_panel`` per panel.
 
 The viewer reads a scene and its :class:`~pipeline.results.PipelineResults` and never
-reaches into a stage. A frame change computes :func:`~mvviz.layers.frame_geometry`
+reaches into a stage. A frame change computes :func:`~mvviz.geometry.frame_geometry`
 and assigns it to existing scene handles; renders run on one worker thread through a
 "latest wins" slot, so scrubbing draws only the newest requested frame.
 
@@ -32,16 +32,16 @@ import viser
 
 from mvviz.failure_panel import make_failure_panel
 from mvviz.filter_panel import make_filter_panel
-from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
-from mvviz.layers import (
+from mvviz.geometry import (
     FRUSTUM_WIDTHS,
     LayerToggles,
-    SceneLayers,
     Selection,
     ViewerData,
     frame_geometry,
     prepare,
 )
+from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
+from mvviz.layers import SceneLayers
 from mvviz.pipeline_panel import make_pipeline_panel
 from mvviz.workers import LatestWins
 from pipeline.body_model import BodyModel

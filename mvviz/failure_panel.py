@@ -35,7 +35,7 @@ from mvviz.failures import (
     notes_path,
     save_notes,
 )
-from mvviz.layers import MM, ViewerData
+from mvviz.geometry import MM, ViewerData
 from mvviz.workers import LatestWins
 from pipeline.files import SceneFormatError
 

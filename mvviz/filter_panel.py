@@ -40,7 +40,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
-from mvviz.layers import MM, OFFSET_FILTERED_M, ViewerData, bone_segments, track_color
+from mvviz.geometry import MM, OFFSET_FILTERED_M, ViewerData, bone_segments, track_color
 from mvviz.workers import LatestWins
 from pipeline import metrics
 from pipeline.config import PipelineConfig, load_config, save_config

@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mvviz.layers import FRUSTUM_WIDTHS, UNASSIGNED, LayerToggles, ViewerData, track_color
+from mvviz.geometry import FRUSTUM_WIDTHS, UNASSIGNED, LayerToggles, ViewerData, track_color
 from pipeline.files import save_npz_atomic
 from pipeline.scene import Scene
 

@@ -37,7 +37,7 @@ import viser
 from scipy.optimize import linear_sum_assignment
 from tqdm import tqdm
 
-from mvviz.layers import ViewerData
+from mvviz.geometry import ViewerData
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import PipelineConfig, save_config
 from pipeline.results import (
@@ -264,7 +264,7 @@ def rerun_sequence(
 
 def preview_data(data: ViewerData, results: PipelineResults) -> ViewerData:
     """``data`` showing ``results`` that keep its joint set, tracks and SMPL fits (a
-    :func:`patch_frame` preview): the per-results indices of :func:`~mvviz.layers.prepare`
+    :func:`patch_frame` preview): the per-results indices of :func:`~mvviz.geometry.prepare`
     are recomputed, the bodies reused (``prepare`` would skin every fit again)."""
     F = data.num_frames
     pf, pt = results.person_frame, results.person_track

@@ -15,7 +15,7 @@ import pytest
 
 from mvviz import pipeline_panel
 from mvviz.app import ViewerApp, ViewerState
-from mvviz.layers import frame_geometry, prepare
+from mvviz.geometry import frame_geometry, prepare
 from mvviz.pipeline_panel import (
     PipelinePanel,
     config_diff,

@@ -12,8 +12,7 @@ import pytest
 import torch
 
 from mvviz.app import PANEL_WIDTHS, LatestWins, ViewerApp, ViewerState
-from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
-from mvviz.layers import (
+from mvviz.geometry import (
     FRUSTUM_WIDTHS,
     MM,
     OUTLIER,
@@ -23,6 +22,7 @@ from mvviz.layers import (
     frame_geometry,
     track_color,
 )
+from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
 from pipeline.config import PipelineConfig
 from pipeline.results import run_pipeline
 from pipeline.scene import Detections
