@@ -79,8 +79,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.common import Q_discrete_white_noise
-from filterpy.kalman import KalmanFilter
 
 MODELS = ("constant_velocity", "random_walk")
 # Tuned on synthetic walks at 25 fps (0.5-1.5 m/s, 2 Hz limb swing, 15 mm noise):
@@ -439,6 +437,9 @@ def kalman_filter_filterpy(
     cv = params.model == "constant_velocity"
     dim_x = 6 if cv else 3
     I3 = np.eye(3)
+    # imported here: filterpy pulls scipy.stats (~0.4 s), which nothing else at start needs
+    from filterpy.common import Q_discrete_white_noise  # noqa: PLC0415
+    from filterpy.kalman import KalmanFilter  # noqa: PLC0415
 
     def new_filter() -> KalmanFilter:
         kf = KalmanFilter(dim_x=dim_x, dim_z=3)

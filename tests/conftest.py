@@ -1,4 +1,4 @@
-"""Shared test fixtures: paths to the repository, the shared data beside it, a tiny body model."""
+"""Shared test fixtures: paths to the repository and its real rigs, a tiny body model."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared"
-SHELF_CALIB = SHARED / "data" / "calibration" / "shelf_voxelpose.json"
-CAMPUS_CALIB = SHARED / "data" / "calibration" / "campus_voxelpose.json"
+# the real Shelf/Campus rigs, shipped byte-identical to ../shared/data/calibration
+RIGS = REPO / "sample_data" / "rigs"
+SHELF_CALIB = RIGS / "shelf_voxelpose.json"
+CAMPUS_CALIB = RIGS / "campus_voxelpose.json"
 
 
 def tiny_body_model_arrays(seed: int = 0) -> dict[str, np.ndarray]:
