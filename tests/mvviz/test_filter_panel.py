@@ -20,18 +20,13 @@ from mvviz.app import ViewerApp, ViewerState
 from mvviz.cli_run import resolve_config
 from mvviz.filter_panel import (
     B_ROOT,
-    PLAYHEAD_HEIGHT,
-    PLOT_HEIGHT,
-    PLOT_WIDTH,
-    TracePlot,
-    joint_trace,
     metrics_table,
-    plot_range,
     results_run,
     run_filter,
     score,
     with_filter,
 )
+from mvviz.trace_plot import PLAYHEAD_HEIGHT, PLOT_HEIGHT, PLOT_WIDTH
 from pipeline.config import load_config
 from pipeline.evaluate import evaluate
 from pipeline.kalman import KalmanParams, kalman_filter
@@ -212,33 +207,6 @@ def test_reset_b_to_a(app):
     assert fp.gui.control_gain.disabled
 
 
-def test_plot_image_size_and_frame_marker(viewer_state):
-    data = viewer_state.data
-    res = data.results
-    a = results_run(res)
-    b = run_filter(res.track_raw, dataclasses.replace(res.config.kalman, q=1.0))
-    plot = TracePlot()
-    plot.render(joint_trace(data, a, b, 0, 9), 0, data.num_frames)
-    img3, img12 = plot.image(3), plot.image(12)
-    assert img3.shape == (PLOT_HEIGHT, PLOT_WIDTH, 3) and img3.dtype == np.uint8
-    assert plot.size == (PLOT_WIDTH, PLOT_HEIGHT)
-    moved = np.abs(img3.astype(int) - img12).sum(-1) > 0
-    cols = np.flatnonzero(moved.any(0))
-    assert 0 < len(cols) <= 12  # only two thin vertical lines differ
-    assert (img3 != 255).any(-1).mean() > 0.05  # something is drawn
-    # no selection: a hint, same size
-    plot.render(joint_trace(data, a, b, None, 9), 0, data.num_frames)
-    assert plot.image(0).shape == img3.shape
-
-
-def test_plot_range():
-    assert plot_range(20, 5, None) == (0, 20)
-    assert plot_range(20, 5, 25) == (0, 20)
-    assert plot_range(250, 5, 50) == (0, 101)
-    assert plot_range(250, 120, 50) == (70, 171)
-    assert plot_range(250, 249, 50) == (149, 250)
-
-
 def test_panel_plot_follows_selection_and_frame(app):
     fp = app.filter_panel
     app.jump_to(frame=5, track=0, joint=3)
@@ -263,28 +231,6 @@ def test_panel_plot_follows_selection_and_frame(app):
     assert abs(cols5.mean() - x5) < 1.5 and abs(cols12.mean() - x12) < 1.5
     assert x12 - x5 > 10  # 7 frames apart on an axis ~ 500 px wide
     print(f"\nframe change incl. playhead: {(time.perf_counter() - t0) * 1e3:.0f} ms")
-
-
-def test_playhead_marks_the_frame_column(viewer_state):
-    data = viewer_state.data
-    a = results_run(data.results)
-    plot = TracePlot()
-    plot.render(joint_trace(data, a, a, 0, 9), 0, data.num_frames)
-    n = data.num_frames
-    for frame in (0, n // 2, n - 1):
-        strip = plot.playhead(frame)
-        dark = np.flatnonzero((strip[2:27] < 128).all(-1).any(0))
-        assert abs(dark.mean() - plot.frame_x(frame)) < 1.5, frame
-        assert dark.max() - dark.min() <= 34  # one triangle
-    # the playhead column lines up with the plot's own frame line
-    line = np.flatnonzero((plot.image(n // 2) != plot.image()).any(-1).any(0))
-    assert abs(line.mean() - plot.frame_x(n // 2)) < 1.5
-    # a window that does not contain the frame: no marker
-    plot.render(joint_trace(data, a, a, 0, 9), 0, n // 4)
-    assert not (plot.playhead(n - 1)[2:27] < 128).all(-1).any()
-
-
-# --------------------------------------------------------------------------- browser
 
 
 def plot_element(page):
