@@ -24,8 +24,10 @@ from mvviz.geometry import (
 )
 from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
 from pipeline.config import PipelineConfig
+from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.results import run_pipeline
 from pipeline.scene import Detections
+from tests.conftest import RIGS
 from tests.mvviz.conftest import NUM_FRAMES, free_port
 
 
@@ -192,6 +194,22 @@ def test_pixels_land_on_the_frustum_image_plane(viewer_scene):
     # viser's client puts the image plane at scale / cbrt(tan(fov/2)^2 * aspect / 3)
     t = np.tan(g.fov / 2)
     assert g.frustum_scale / np.cbrt(t * t * g.aspect / 3) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("rig", ["shelf_voxelpose.json", "campus_voxelpose.json"])
+def test_float16_image_plane_points_stay_within_a_pixel(rig):
+    """2D joints go to the browser as float16 camera-frame metres on the image plane:
+    the rounding must stay under a pixel for the real rigs (and a 1920 px, 90 deg one)."""
+    cams = list(read_voxelpose_calibration(RIGS / rig))
+    wide = dataclasses.replace(cams[0], K=np.array([[960.0, 0, 960], [0, 960, 540], [0, 0, 1]]))
+    wide = dataclasses.replace(wide, width=1920, height=1080)
+    for cam in cams + [wide]:
+        g = camera_geometry(cam)
+        u, v = np.meshgrid(np.linspace(0, cam.width - 1, 97), np.linspace(0, cam.height - 1, 61))
+        px = np.stack([u, v], -1).reshape(-1, 2)
+        plane = g.pixels_to_plane(px).astype(np.float16).astype(float)
+        back = (plane[:, :2] / g.half_size + 1.0) / 2.0 * g.image_size - 0.5
+        assert np.abs(back - px).max() < 1.0, cam.name
 
 
 # --------------------------------------------------------------------------- 2D
