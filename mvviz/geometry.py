@@ -275,16 +275,21 @@ def prepare(
 
 
 def detection_rays(
-    scene: Scene, results: PipelineResults, cameras: list[CameraGeometry]
+    scene: Scene,
+    results: PipelineResults,
+    cameras: list[CameraGeometry],
+    rows: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per detected joint, once for the sequence (a frame change then only indexes):
-    (N, J, 3) world unit rays through it, and (N, J, 3) float32 camera-frame metres on
-    its frustum's image plane. NaN where the 2D joint is not finite."""
-    kp = results.det_joints2d[..., :2]  # (N, J, 2) px
+    (n, J, 3) world unit rays through it, and (n, J, 3) float32 camera-frame metres on
+    its frustum's image plane, for detection ``rows`` (default: all N). NaN where the 2D
+    joint is not finite."""
+    rows = np.arange(len(results.det_joints2d)) if rows is None else np.asarray(rows)
+    kp = results.det_joints2d[rows, :, :2]  # (n, J, 2) px
     rays_ = np.full(kp.shape[:-1] + (3,), np.nan)
     plane = np.full(kp.shape[:-1] + (3,), np.nan, np.float32)
     finite = np.isfinite(kp).all(-1)
-    view = scene.detections.view
+    view = scene.detections.view[rows]
     for v, (cam, geo) in enumerate(zip(scene.rig, cameras, strict=True)):
         ok = finite & (view == v)[:, None]
         if ok.any():

@@ -37,7 +37,7 @@ import viser
 from scipy.optimize import linear_sum_assignment
 from tqdm import tqdm
 
-from mvviz.geometry import ViewerData
+from mvviz.geometry import ViewerData, detection_rays
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import PipelineConfig, save_config
 from pipeline.results import (
@@ -274,9 +274,21 @@ def preview_data(data: ViewerData, results: PipelineResults) -> ViewerData:
     track_person = np.full((results.num_tracks, F), -1)
     tracked = np.flatnonzero(pt >= 0)
     track_person[pt[tracked], pf[tracked]] = tracked
+    # rays and image-plane points again only for the detections whose 2D joints changed
+    # (another 2D source changes them all; a frame re-run with the same source, none)
+    old, new = data.results.det_joints2d[..., :2], results.det_joints2d[..., :2]
+    same = (old == new) | (np.isnan(old) & np.isnan(new))
+    changed = np.flatnonzero(~same.all((1, 2)))
+    det_rays, det_plane = data.det_rays, data.det_plane
+    if len(changed):
+        det_rays, det_plane = det_rays.copy(), det_plane.copy()
+        rays_, plane = detection_rays(data.scene, results, data.cameras, changed)
+        det_rays[changed], det_plane[changed] = rays_, plane
     return dataclasses.replace(
         data,
         results=results,
+        det_rays=det_rays,
+        det_plane=det_plane,
         people_per_frame=[order[bounds[i] : bounds[i + 1]] for i in range(F)],
         det_track=det_track,
         track_person=track_person,

@@ -155,6 +155,17 @@ def test_preview_data_equals_prepare(viewer_state):
     for x, y in zip(a.people_per_frame, b.people_per_frame, strict=True):
         np.testing.assert_array_equal(x, y)
     assert a.results is patched and a.min_confidence == b.min_confidence
+    np.testing.assert_array_equal(a.det_rays, b.det_rays)
+    assert a.det_plane is data.det_plane  # same 2D joints: nothing recomputed
+    # another 2D source (here: every joint moved by a few pixels) moves rays and points
+    moved = data.results.det_joints2d.copy()
+    moved[..., :2] += 3.0
+    fr = run_frame(data.scene, FRAME, cfg, moved)
+    patched = patch_frame(data.results, fr, cfg, moved)
+    a, b = preview_data(data, patched), prepare(data.scene, patched, None, bodies=data.bodies)
+    np.testing.assert_array_equal(a.det_rays, b.det_rays)
+    np.testing.assert_array_equal(a.det_plane, b.det_plane)
+    assert not np.array_equal(a.det_plane, data.det_plane, equal_nan=True)
 
 
 # --------------------------------------------------------------------------- the panel
