@@ -23,7 +23,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -32,6 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.common import write_json  # noqa: E402
 from pipeline.detect.blazepose import (  # noqa: E402
     BlazePose,
     InterpreterMissingError,
@@ -140,10 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         f"(CPU/wall {np.median([r['cpu_over_wall'] for r in rows]):.2f}, {args.threads} threads)"
     )
     if args.json:
-        args.json.write_text(
-            json.dumps({"threads": args.threads, "tiles": args.tiles, "videos": rows}, indent=1)
-            + "\n"
-        )
+        write_json(args.json, {"threads": args.threads, "tiles": args.tiles, "videos": rows})
     return 0
 
 

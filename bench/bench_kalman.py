@@ -15,7 +15,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -24,6 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.common import write_json  # noqa: E402
 from pipeline.kalman import KalmanParams, kalman_filter, kalman_filter_filterpy  # noqa: E402
 
 NUM_FRAMES, NUM_PEOPLE, NUM_JOINTS, FPS = 250, 4, 24, 25.0
@@ -90,7 +90,7 @@ def main() -> None:
             f"speed-up {loop / vec:6.1f}x   (max |diff| {max_diff:.1e} mm)"
         )
     if args.json:
-        args.json.write_text(json.dumps(results, indent=2))
+        write_json(args.json, results)
 
 
 if __name__ == "__main__":

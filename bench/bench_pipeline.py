@@ -17,7 +17,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -29,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_triangulate import anipose_group  # noqa: E402
 
+from bench.common import write_json  # noqa: E402
 from pipeline.associate import associate_frame  # noqa: E402
 from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
@@ -197,7 +197,7 @@ def main(argv: list[str] | None = None) -> dict:
         f"vectorised {vec_ms:.1f} ms, ratio {k['speed_ratio']:.0f}x"
     )
     if args.json:
-        args.json.write_text(json.dumps(out, indent=1))
+        write_json(args.json, out)
     return out
 
 

@@ -29,6 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.common import write_json  # noqa: E402
 from pipeline.cameras import Camera, distort_and_project, make_camera  # noqa: E402
 from pipeline.synth.render import (  # noqa: E402
     MeshInstance,
@@ -264,7 +265,7 @@ def main(argv: list[str] | None = None) -> dict:
         "at different pixels: fillConvexPoly also fills pixels its edges touch)"
     )
     if args.json:
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
+        write_json(args.json, result)
     if args.save_png:
         cv2.imwrite(str(args.save_png), cv2.cvtColor(render.image, cv2.COLOR_RGB2BGR))
     return result

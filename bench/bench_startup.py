@@ -21,9 +21,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -36,14 +34,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from pipeline.files import atomic_write  # noqa: E402
+from bench.common import free_port, write_json  # noqa: E402
 from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium  # noqa: E402
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def time_imports() -> float:
@@ -156,8 +148,7 @@ def main(argv: list[str] | None = None) -> dict:
             f"{out['bare_viser_page_s'] - out['bare_viser_url_s']:.2f} s for the bare server"
         )
     if args.json:
-        with atomic_write(args.json, "w") as fh:
-            fh.write(json.dumps(out, indent=1))
+        write_json(args.json, out)
     return out
 
 

@@ -28,7 +28,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -39,6 +38,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.common import write_json  # noqa: E402
 from pipeline.cameras import CameraRig  # noqa: E402
 from pipeline.importers.calibration import read_voxelpose_calibration  # noqa: E402
 from pipeline.triangulate import triangulate_people  # noqa: E402
@@ -234,7 +234,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"(wall clock on {os.cpu_count()} CPUs, load average {load:.1f} during the run)")
     results["load_average"] = load
     if args.json:
-        args.json.write_text(json.dumps(results, indent=1) + "\n")
+        write_json(args.json, results)
     return results
 
 

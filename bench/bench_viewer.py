@@ -33,9 +33,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
-import socket
 import sys
 import threading
 import time
@@ -50,23 +48,17 @@ import zstandard
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.common import free_port, write_json  # noqa: E402
 from mvviz.app import ViewerApp, ViewerState  # noqa: E402
 from mvviz.geometry import GT_MESH, track_color  # noqa: E402
 from mvviz.images import FrameStore  # noqa: E402
 from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
-from pipeline.files import atomic_write  # noqa: E402
 from pipeline.results import run_or_load  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 TARGET_MS, TARGET_KB = 20.0, 50.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 # --------------------------------------------------------------------------- bytes
@@ -407,8 +399,7 @@ def main(argv: list[str] | None = None) -> dict:
             f"{r['median_kb'] / skinned['median_kb']:.2f}x the bytes of the default"
         )
     if args.json:
-        with atomic_write(args.json, "w") as fh:
-            fh.write(json.dumps(out, indent=1))
+        write_json(args.json, out)
     return out
 
 

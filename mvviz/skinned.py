@@ -65,16 +65,11 @@ class BonePoser:
         if self.fast:
             self._impls = [b._impl for b in bones]
             self._queue = self._impls[0].mesh_impl.api._queue_scene_message if bones else None
-        self.messages_sent = 0
-
-    @property
-    def num_bones(self) -> int:
-        return len(self.mesh.bones)
 
     def pose(self, wxyz: np.ndarray, position: np.ndarray) -> int:
         """Set bone orientations ``wxyz`` (B, 4) and positions ``position`` (B, 3), in the
         mesh's frame. Returns the number of bone messages queued."""
-        B = self.num_bones
+        B = len(self.mesh.bones)
         q = np.round(np.asarray(wxyz, np.float64).reshape(B, 4), WXYZ_DECIMALS)
         p = np.round(np.asarray(position, np.float64).reshape(B, 3), POSITION_DECIMALS)
         if not (np.isfinite(q).all() and np.isfinite(p).all()):
@@ -91,9 +86,7 @@ class BonePoser:
                 bones[i].position = p[i]
         self._wxyz[moved_q] = q[moved_q]
         self._position[moved_p] = p[moved_p]
-        n = len(moved_q) + len(moved_p)
-        self.messages_sent += n
-        return n
+        return len(moved_q) + len(moved_p)
 
     def _send_fast(self, q, p, moved_q, moved_p) -> None:
         if self.mesh._impl.removed:

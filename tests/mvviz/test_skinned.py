@@ -2,22 +2,15 @@
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
 import pytest
 import viser
 import viser.transforms as vtf
 
 from mvviz.skinned import POSITION_DECIMALS, WXYZ_DECIMALS, BonePoser, fast_path_available
+from tests.mvviz.conftest import free_port
 
 B = 5
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
