@@ -122,9 +122,11 @@ BODY25 = JointSet(
     ),
 )  # fmt: skip
 
-# Halpe-26 (AlphaPose): COCO-17 first, then head, neck, hip and feet.
+# Halpe-26 (AlphaPose, also RTMPose's body7/halpe26 models): COCO-17 first, then the
+# top of the head, the neck, the hip centre and the feet. Halpe's "head" is the top of
+# the skull, not SMPL's head joint (inside the skull): it is named ``head_top`` here.
 HALPE26_NAMES = COCO17_NAMES + (
-    "head", "neck", "mid_hip", "left_big_toe", "right_big_toe", "left_small_toe",
+    "head_top", "neck", "mid_hip", "left_big_toe", "right_big_toe", "left_small_toe",
     "right_small_toe", "left_heel", "right_heel",
 )  # fmt: skip
 HALPE26 = JointSet(
@@ -134,13 +136,136 @@ HALPE26 = JointSet(
     + _bones(
         HALPE26_NAMES,
         [
-            ("head", "neck"), ("neck", "mid_hip"), ("left_ankle", "left_big_toe"),
+            ("head_top", "neck"), ("neck", "mid_hip"), ("left_ankle", "left_big_toe"),
             ("left_ankle", "left_small_toe"), ("left_ankle", "left_heel"),
             ("right_ankle", "right_big_toe"), ("right_ankle", "right_small_toe"),
             ("right_ankle", "right_heel"),
         ],
     ),
 )  # fmt: skip
+
+# OpenPose BODY_25B (the experimental model of openpose_train, Pose2Sim's default): same
+# count as BODY_25, another order: COCO-17 first, then the upper neck (the throat, well
+# above BODY_25's shoulder-level neck), the top of the head and the feet.
+BODY25B_NAMES = COCO17_NAMES + (
+    "upper_neck", "head_top", "left_big_toe", "left_small_toe", "left_heel",
+    "right_big_toe", "right_small_toe", "right_heel",
+)  # fmt: skip
+BODY25B = JointSet(
+    name="body25b",
+    names=BODY25B_NAMES,
+    bones=COCO17.bones
+    + _bones(
+        BODY25B_NAMES,
+        [
+            ("upper_neck", "head_top"), ("upper_neck", "left_shoulder"),
+            ("upper_neck", "right_shoulder"), ("left_ankle", "left_big_toe"),
+            ("left_big_toe", "left_small_toe"), ("left_ankle", "left_heel"),
+            ("right_ankle", "right_big_toe"), ("right_big_toe", "right_small_toe"),
+            ("right_ankle", "right_heel"),
+        ],
+    ),
+)  # fmt: skip
+
+# OpenPose's "COCO" model: the 17 COCO keypoints plus a neck (mid-shoulders), in
+# OpenPose's own order (POSE_COCO_BODY_PARTS in openpose/pose/poseParameters.cpp).
+OPENPOSE_COCO18_NAMES = (
+    "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder",
+    "left_elbow", "left_wrist", "right_hip", "right_knee", "right_ankle", "left_hip",
+    "left_knee", "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear",
+)  # fmt: skip
+OPENPOSE_COCO18 = JointSet(
+    name="coco18",
+    names=OPENPOSE_COCO18_NAMES,
+    bones=_bones(
+        OPENPOSE_COCO18_NAMES,
+        [
+            ("nose", "neck"), ("neck", "right_shoulder"), ("right_shoulder", "right_elbow"),
+            ("right_elbow", "right_wrist"), ("neck", "left_shoulder"),
+            ("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"), ("neck", "right_hip"),
+            ("right_hip", "right_knee"), ("right_knee", "right_ankle"), ("neck", "left_hip"),
+            ("left_hip", "left_knee"), ("left_knee", "left_ankle"), ("nose", "right_eye"),
+            ("right_eye", "right_ear"), ("nose", "left_eye"), ("left_eye", "left_ear"),
+        ],
+    ),
+)  # fmt: skip
+
+# Human3.6M's 17 joints (MMPose's ``h36m`` layout, the input and output of 2D-to-3D
+# lifters such as VideoPose3D and MotionBERT): the same count as COCO-17, other points.
+# Its "head" is the top of the head; its "neck" sits at the chin (MMPose: "neck_base /
+# nose"); "thorax" is the base of the neck.
+H36M17_NAMES = (
+    "mid_hip", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee",
+    "left_ankle", "spine", "thorax", "chin", "head_top", "left_shoulder", "left_elbow",
+    "left_wrist", "right_shoulder", "right_elbow", "right_wrist",
+)  # fmt: skip
+H36M17 = JointSet(
+    name="h36m17",
+    names=H36M17_NAMES,
+    bones=_bones(
+        H36M17_NAMES,
+        [
+            ("mid_hip", "right_hip"), ("right_hip", "right_knee"), ("right_knee", "right_ankle"),
+            ("mid_hip", "left_hip"), ("left_hip", "left_knee"), ("left_knee", "left_ankle"),
+            ("mid_hip", "spine"), ("spine", "thorax"), ("thorax", "chin"), ("chin", "head_top"),
+            ("thorax", "left_shoulder"), ("left_shoulder", "left_elbow"),
+            ("left_elbow", "left_wrist"), ("thorax", "right_shoulder"),
+            ("right_shoulder", "right_elbow"), ("right_elbow", "right_wrist"),
+        ],
+    ),
+)  # fmt: skip
+
+# COCO-WholeBody's body and feet (its keypoints 0-22): COCO-17 then the six foot points.
+# The body part of RTMPose / rtmlib / MMPose wholebody output, what the pipeline
+# triangulates of it by default (``coco_wholebody133`` keeps face and hands too).
+COCO23_NAMES = COCO17_NAMES + (
+    "left_big_toe", "left_small_toe", "left_heel", "right_big_toe", "right_small_toe",
+    "right_heel",
+)  # fmt: skip
+_FEET_BONES = [
+    ("left_ankle", "left_big_toe"), ("left_big_toe", "left_small_toe"),
+    ("left_ankle", "left_heel"), ("right_ankle", "right_big_toe"),
+    ("right_big_toe", "right_small_toe"), ("right_ankle", "right_heel"),
+]  # fmt: skip
+COCO23 = JointSet(
+    name="coco23", names=COCO23_NAMES, bones=COCO17.bones + _bones(COCO23_NAMES, _FEET_BONES)
+)
+
+# COCO-WholeBody-133 (Jin et al. 2020; the default of RTMPose / rtmlib / MMPose
+# wholebody models): body and feet (0-22), 68 face points (23-90, the 300-W / iBUG
+# order), 21 points per hand (91-111 left, 112-132 right: wrist, then thumb, index,
+# middle, ring, little, four points each from the palm out).
+_HAND_POINTS = ("wrist",) + tuple(
+    f"{finger}{k}" for finger in ("thumb", "index", "middle", "ring", "pinky") for k in range(1, 5)
+)
+COCO_WHOLEBODY133_NAMES = (
+    COCO23_NAMES
+    + tuple(f"face_{k}" for k in range(68))
+    + tuple(f"left_hand_{p}" for p in _HAND_POINTS)
+    + tuple(f"right_hand_{p}" for p in _HAND_POINTS)
+)
+
+
+def _hand_bones(side: str) -> list[tuple[str, str]]:
+    h = f"{side}_hand_"
+    out = [(f"{side}_wrist", h + "wrist")]
+    for finger in ("thumb", "index", "middle", "ring", "pinky"):
+        chain = [h + "wrist"] + [f"{h}{finger}{k}" for k in range(1, 5)]
+        out += list(zip(chain[:-1], chain[1:], strict=True))
+    return out
+
+
+COCO_WHOLEBODY133 = JointSet(
+    name="coco_wholebody133",
+    names=COCO_WHOLEBODY133_NAMES,
+    bones=COCO23.bones
+    + _bones(
+        COCO_WHOLEBODY133_NAMES,
+        [(f"face_{k}", f"face_{k + 1}") for k in range(16)]  # the jaw line
+        + _hand_bones("left")
+        + _hand_bones("right"),
+    ),
+)
 
 # BlazePose's 33 landmarks (Google MediaPipe's pose_landmark models), in the models'
 # order; "left" is the person's left, as in every set here.
@@ -180,8 +305,12 @@ BLAZEPOSE33 = JointSet(
 )  # fmt: skip
 
 JOINT_SETS: dict[str, JointSet] = {
-    js.name: js for js in (SMPL24, COCO17, BODY25, HALPE26, BLAZEPOSE33)
-}
+    js.name: js
+    for js in (
+        SMPL24, COCO17, BODY25, BODY25B, OPENPOSE_COCO18, H36M17, HALPE26, COCO23,
+        COCO_WHOLEBODY133, BLAZEPOSE33,
+    )
+}  # fmt: skip
 
 # COCO-17 joints that have an SMPL-24 counterpart (same anatomical joint, modulo the
 # usual offset of COCO hips, which sit a little higher and wider than SMPL's).
@@ -235,8 +364,16 @@ def get_joint_set(name: str) -> JointSet:
 
 
 def mapping_indices(src: JointSet, dst: JointSet) -> tuple[np.ndarray, np.ndarray]:
-    """Indices ``(src_idx, dst_idx)`` of the joints both sets name alike."""
-    pairs = [(src.index[n], i) for i, n in enumerate(dst.names) if n in src.index]
+    """Indices ``(src_idx, dst_idx)`` of the joints both sets name alike.
+
+    Between SMPL-24 and a keypoint set only the joints of :data:`COCO17_TO_SMPL24` map:
+    a keypoint set's ``neck`` (OpenPose: mid-shoulders) or ``head_top`` is not SMPL's
+    neck or head joint, so comparing them would measure a definition, not an error.
+    """
+    names = set(src.names) & set(dst.names)
+    if (src.name == SMPL24.name) != (dst.name == SMPL24.name):
+        names &= set(COCO17_TO_SMPL24)
+    pairs = [(src.index[n], i) for i, n in enumerate(dst.names) if n in names]
     if not pairs:
         return np.zeros(0, int), np.zeros(0, int)
     s, d = zip(*pairs, strict=True)

@@ -31,32 +31,16 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.files import SceneFormatError
-from pipeline.joint_sets import BODY25, COCO17, HALPE26, JointSet, convert_keypoints, get_joint_set
+from pipeline.joint_sets import (
+    BODY25,
+    COCO17,
+    HALPE26,
+    OPENPOSE_COCO18,
+    JointSet,
+    convert_keypoints,
+    get_joint_set,
+)
 from pipeline.scene import Detections, check_detections
-
-# OpenPose's "COCO" model: the 17 COCO keypoints plus a neck, in OpenPose's own order
-# (POSE_COCO_BODY_PARTS in openpose/pose/poseParameters.cpp).
-OPENPOSE_COCO18_NAMES = (
-    "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder",
-    "left_elbow", "left_wrist", "right_hip", "right_knee", "right_ankle", "left_hip",
-    "left_knee", "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear",
-)  # fmt: skip
-_COCO18_INDEX = {n: i for i, n in enumerate(OPENPOSE_COCO18_NAMES)}
-OPENPOSE_COCO18 = JointSet(
-    name="openpose_coco18",
-    names=OPENPOSE_COCO18_NAMES,
-    bones=tuple(
-        (_COCO18_INDEX[a], _COCO18_INDEX[b])
-        for a, b in [
-            ("nose", "neck"), ("neck", "right_shoulder"), ("right_shoulder", "right_elbow"),
-            ("right_elbow", "right_wrist"), ("neck", "left_shoulder"),
-            ("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"), ("neck", "right_hip"),
-            ("right_hip", "right_knee"), ("right_knee", "right_ankle"), ("neck", "left_hip"),
-            ("left_hip", "left_knee"), ("left_knee", "left_ankle"), ("nose", "right_eye"),
-            ("right_eye", "right_ear"), ("nose", "left_eye"), ("left_eye", "left_ear"),
-        ]
-    ),
-)  # fmt: skip
 
 # Layouts a file may be in, by name (for forcing one) and by keypoint count (to detect one).
 SOURCE_LAYOUTS: dict[str, JointSet] = {
