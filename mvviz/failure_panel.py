@@ -53,6 +53,7 @@ CRITERION_LABELS = {
     "id": "Identity: births, deaths, switches",
     "kalman": "Kalman Mahalanobis",
     "smpl": "SMPL residual, joint limits",
+    "labels": "Label check",
 }
 CRITERION_HELP = {
     "reprojection": "worst reprojection error of the used views, per person-frame",
@@ -63,6 +64,8 @@ CRITERION_HELP = {
     "kalman": "Mahalanobis distance of the measurement above 3, worst joint per person-frame",
     "smpl": "worst fit residual per person-frame (÷ 50 mm) and joint rotations outside "
     "their limits (÷ 10°)",
+    "labels": "keypoint labels that look wrong (left/right, joint order, one camera "
+    "mirrored), per scene, track or camera; measured ÷ threshold",
 }
 
 

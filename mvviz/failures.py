@@ -22,6 +22,8 @@ criterion                 one entry per                                        s
                           above the threshold: its worst joint
 ``smpl``                  (frame, track): worst SMPL fit residual; joint      severity
                           rotation outside its ``pose_limits.LIMITS`` box
+``labels``                finding of :mod:`pipeline.label_check` (scene,      measured /
+                          track or camera) at the first frame showing it      threshold
 ========================  ==================================================  ===========
 
 Scores rank entries within one criterion. ``association``: the affinity of a detection
@@ -29,6 +31,8 @@ to another person's detections (0.5..1), 1.0 for a track gap or a one-view perso
 mean joint confidence of an unassigned detection. ``id``: 3 for an ID switch, 1 to 2
 for a birth or death (shorter-lived tracks higher). ``smpl``: residual / 50 mm or
 degrees outside the limits / 10 deg, so 50 mm off counts like 10 deg too far.
+``labels``: how far the measure is past its threshold (2 = twice the allowed fraction;
+a ratio below its lower bound scores bound / ratio).
 
 Notes (:class:`Note`) are JSON beside the results: ``SCENE/.mvviz/notes.json``.
 Units: millimetres and pixels, as in the results.
@@ -49,10 +53,11 @@ from pipeline import metrics, pose_limits
 from pipeline.evaluate import _frames_of_gt, evaluate, ground_truth_slots, to_smpl_slots
 from pipeline.files import SceneFormatError, atomic_write
 from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
+from pipeline.label_check import check_results
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
 
-CRITERIA = ("reprojection", "mpjpe", "association", "id", "kalman", "smpl")
+CRITERIA = ("reprojection", "mpjpe", "association", "id", "kalman", "smpl", "labels")
 MAHALANOBIS_THRESHOLD = 3.0
 AFFINITY_THRESHOLD = 0.5  # a detection this close to another person's is "close to two"
 UNASSIGNED_CONFIDENCE = 0.3  # mean joint confidence of an unassigned detection worth a look
@@ -134,6 +139,8 @@ def find_failures(
         found = id_failures(scene, results)
     elif criterion == "kalman":
         found = kalman_failures(scene, results, threshold=mahalanobis_threshold)
+    elif criterion == "labels":
+        found = label_failures(scene, results)
     else:
         found = smpl_failures(scene, results)
     return rank(found, top)
@@ -458,6 +465,26 @@ def smpl_failures(
                     label(int(f), int(k), name, None, detail),
                 )
             )
+    return out
+
+
+def label_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
+    """One entry per finding of :func:`pipeline.label_check.check_results` (raw tracks,
+    and each camera's associated 2D against the triangulation), at the first frame that
+    shows it, naming its track (None for the scene) and camera; score = measured value /
+    threshold (threshold / value for a ratio below its lower bound)."""
+    cams = scene.rig.names
+    out = []
+    for f in check_results(results, scene.rig).findings:
+        frame = f.frames[0] if f.frames else 0
+        low = f.kind == "proportion" and f.value < f.threshold
+        score = f.threshold / f.value if low and f.value > 0 else f.value / f.threshold
+        named = f.track is not None or f.camera is not None  # label() names them
+        detail = f.message.split(": ", 1)[1] if named else f.message
+        detail += f" ({len(f.frames)} frames)"
+        view = None if f.camera is None else cams[f.camera]
+        text = label(frame, f.track, None, view, detail)
+        out.append(Failure("labels", float(score), frame, f.track, None, f.camera, text))
     return out
 
 

@@ -8,7 +8,8 @@ fit corrected by the VAE pose prior), when the results carry fits. Each row: MPJ
 subset, PCP (Shelf/Campus convention, limbs of SMPL-24), the acceleration error and
 jitter (mm/frame^2); and local plausibility per stage (joint-limit violations, bone
 length spread, foot and wrist jitter). Plus association precision/recall,
-ID switches and per-view, per-joint reprojection errors.
+ID switches and per-view, per-joint reprojection errors. Without ground truth too: the
+label check of :mod:`pipeline.label_check` (are the keypoint labels plausible?).
 
 Which ground truth: SMPL-24 sources are scored against ``gt.joints3d``; a COCO-17
 keypoint source against ``gt.keypoints3d`` (the truth in the detector's own joint
@@ -26,6 +27,7 @@ import numpy as np
 
 from pipeline import metrics, pose_limits
 from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
+from pipeline.label_check import LabelCheck, check_results
 from pipeline.results import PipelineResults
 from pipeline.scene import GroundTruth, Scene
 from pipeline.smpl_fit import plausibility
@@ -45,6 +47,7 @@ class Evaluation:
     gt_source: str
     plausibility: dict[str, dict[str, float]]  # per stage: limit violations, bone std, jitter
     smpl24: dict[str, dict[str, float]]  # SMPL fits scored on all 24 SMPL joints vs joints3d
+    labels: LabelCheck | None = None  # pipeline.label_check on the raw tracks (no GT needed)
 
     def to_json(self) -> dict:
         return {
@@ -73,6 +76,7 @@ class Evaluation:
                 k: {"mpjpe_mm": v["mpjpe"], "pck160": v["pck"], "pcp": v["pcp"]}
                 for k, v in self.smpl24.items()
             },
+            "labels": self.labels.to_json() if self.labels is not None else None,
         }
 
 
@@ -210,6 +214,7 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
         gt_source=gt_source,
         plausibility=plaus,
         smpl24=smpl24,
+        labels=check_results(results, scene.rig),
     )
 
 
@@ -288,4 +293,6 @@ def format_table(ev: Evaluation, *, view_names: list[str] | None = None) -> str:
         "reprojection error per view (px): "
         + "  ".join(f"{n}: {x:.2f}" for n, x in zip(names, ev.reprojection_view_mean, strict=True))
     )
+    if ev.labels is not None:
+        lines.append(f"labels: {ev.labels.summary()}")
     return "\n".join(lines)

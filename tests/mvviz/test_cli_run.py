@@ -9,6 +9,7 @@ import pytest
 from mvviz.cli import main
 from pipeline.body_model import load_body_model
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
+from tests.conftest import REPO
 from tests.pipeline.helpers import campus_rig
 
 
@@ -42,6 +43,23 @@ def test_eval_json_has_the_documented_keys(scene_dir, tmp_path, capsys):
     assert set(d["association"]) >= {"precision", "recall", "id_switches"}
     assert d["association"]["precision"] > 0.95
     assert d["other_source"]["source"] == "smpl"
+    # 15 frames: no track is long enough for the label check, which says so
+    assert "labels: OK (no track long enough to judge; 3 cameras;" in text
+    assert d["labels"]["ok"] is True and d["labels"]["findings"] == []
+
+
+def test_eval_without_ground_truth_prints_the_label_check(tmp_path, capsys):
+    """The real-video demo has no gt.npz: no pose rows, but the labels line and JSON."""
+    out = tmp_path / "eval.json"
+    demo = REPO / "sample_data" / "pose2sim_demo"
+    args = ["eval", str(demo), "--out", str(tmp_path / "r.npz"), "--json", str(out)]
+    assert main([*args, "--set", "fit_smpl=false", "--no-other-source"]) == 0
+    captured = capsys.readouterr()
+    assert "no gt.npz" in captured.err and "MPJPE" not in captured.out
+    assert "labels: OK (2 tracks, 4 cameras; checked left_right, facing," in captured.out
+    labels = json.loads(out.read_text())["labels"]
+    assert labels["ok"] is True and sorted(labels["tracks"]) == ["0", "1"]
+    assert 0 < labels["cameras"]["cam03"] < 0.1  # measured 0.066
 
 
 def test_bad_override_and_missing_scene_fail_cleanly(scene_dir, tmp_path, capsys):

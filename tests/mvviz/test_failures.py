@@ -251,6 +251,30 @@ def test_mpjpe_entries_agree_with_metrics(tiny):
         assert len(dst) == 12
 
 
+def test_label_check_names_the_mirrored_track_and_camera(tiny):
+    """A track with left/right swapped and a camera whose 2D is mirrored are listed with
+    the track / camera and a frame to jump to; the clean run lists nothing."""
+    scene, res = tiny
+    assert find_failures(scene, res, criterion="labels") == []
+    raw = res.track_raw.copy()
+    raw[1] = raw[1][:, COCO17.flip_index]
+    kp = res.det_joints2d.copy()
+    v = 2
+    rows = scene.detections.view == v
+    kp[rows] = kp[rows][:, COCO17.flip_index]
+    planted = dataclasses.replace(res, track_raw=raw, det_joints2d=kp)
+    found = find_failures(scene, planted, criterion="labels")
+    facing = [x for x in found if "face the other way" in x.text]
+    assert [(x.track, x.view, x.frame) for x in facing] == [(1, None, 0)]
+    assert facing[0].score == pytest.approx(1.0 / 0.3)  # every frame, threshold 30 %
+    assert facing[0].text.startswith("f 0 · track 1 · head/feet face the other way")
+    cam = [x for x in found if x.view is not None]
+    assert len(cam) == 1 and cam[0].track is None and cam[0].view == v
+    assert cam[0].text.startswith(f"f {cam[0].frame} · cam {scene.rig.names[v]} · 2D fits")
+    assert cam[0].score == pytest.approx(2.0)  # all its people mirrored, threshold 50 %
+    assert {x.track for x in found} <= {1, None}
+
+
 # --------------------------------------------------------------------------- notes
 
 
