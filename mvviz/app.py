@@ -232,6 +232,20 @@ def make_layers_panel(
                     on_change("layers")
 
             bind()
+        for ref in state.scene.references:  # one checkbox per reference track
+            cb = server.gui.add_checkbox(
+                f"Reference: {ref}", initial_value=ref not in state.layers.references_off
+            )
+            toggles[f"reference:{ref}"] = cb
+
+            def bind_ref(ref: str = ref, cb: viser.GuiCheckboxHandle = cb) -> None:
+                @cb.on_update
+                def _(_) -> None:
+                    off = state.layers.references_off - {ref}
+                    state.layers.references_off = off if cb.value else off | {ref}
+                    on_change("layers")
+
+            bind_ref()
         window = server.gui.add_slider(
             "Trail ± frames", min=0, max=100, step=1, initial_value=state.layers.trail_window
         )

@@ -17,6 +17,7 @@ def build_parser() -> argparse.ArgumentParser:
         cli_detect,
         cli_export,
         cli_prior,
+        cli_reference,
         cli_run,
         cli_synth,
         cli_view,
@@ -27,7 +28,16 @@ def build_parser() -> argparse.ArgumentParser:
         description="Multi-view, multi-person 3D pose and SMPL reconstruction, and its debugger.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in (cli_convert, cli_synth, cli_detect, cli_run, cli_export, cli_view, cli_prior):
+    for module in (
+        cli_convert,
+        cli_reference,
+        cli_synth,
+        cli_detect,
+        cli_run,
+        cli_export,
+        cli_view,
+        cli_prior,
+    ):
         module.register(sub)
     return parser
 

@@ -21,6 +21,7 @@ import functools
 import sys
 import warnings
 
+from pipeline.files import SceneFormatError
 from pipeline.importers import CALIBRATION_FORMATS, DETECTION_FORMATS, convert_scene
 from pipeline.joint_sets import JOINT_SETS
 from pipeline.scene import load_scene
@@ -95,6 +96,14 @@ def register(subparsers) -> None:
         "(EasyMocap without H_/W_, VoxelPose rigs other than Shelf and Campus)",
     )
     parser.add_argument(
+        "--reference",
+        action="append",
+        default=[],
+        metavar="NAME=FILE.trc",
+        help="attach another tool's 3D result (a Pose2Sim / OpenSim TRC: metres, Y up) as "
+        "reference track NAME, drawn beside ours in the viewer (repeatable)",
+    )
+    parser.add_argument(
         "--overwrite", action="store_true", help="replace SCENE_DIR if it exists and is not empty"
     )
     parser.add_argument(
@@ -137,4 +146,18 @@ def _convert(args: argparse.Namespace):
         name=args.name,
         image_size=tuple(args.image_size) if args.image_size else None,
         overwrite=args.overwrite,
+        references=parse_references(args.reference),
     )
+
+
+def parse_references(specs: list[str]) -> dict[str, str]:
+    """``["NAME=FILE", ...]`` -> ``{NAME: FILE}``; a bad or repeated NAME is a SceneFormatError."""
+    out: dict[str, str] = {}
+    for spec in specs:
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            raise SceneFormatError(spec, "--reference", "expected NAME=FILE.trc")
+        if name in out:
+            raise SceneFormatError(spec, "--reference", f"reference {name!r} given twice")
+        out[name] = path
+    return out

@@ -49,6 +49,9 @@ UNASSIGNED = np.array((150, 150, 150), np.uint8)  # detection in no cluster
 UNTRACKED = np.array((70, 70, 70), np.uint8)  # clustered person that no track kept
 OUTLIER = np.array((230, 20, 20), np.uint8)  # view rejected for a joint
 GT_SKELETON = np.array((40, 40, 40), np.uint8)
+# Another tool's result (scene.references): a warm mid grey, lighter than the ground
+# truth's near-black; an off-white would vanish on viser's white background.
+REFERENCE_SKELETON = np.array((150, 146, 132), np.uint8)
 GT_MESH = (205, 205, 200)
 
 
@@ -88,6 +91,7 @@ class LayerToggles:
     frustum_image_width: int = 128  # px of the video on the frustums (see FRUSTUM_WIDTHS)
     meshes: bool = False  # opaque bodies hide the skeletons inside them
     fit_meshes: bool = False
+    references_off: frozenset[str] = frozenset()  # reference tracks not drawn, by name
 
 
 @dataclass(frozen=True)
@@ -241,6 +245,9 @@ def prepare(
     pts = pts[np.isfinite(pts).all(1)]
     if len(pts) == 0 and gt_points is not None:
         pts = gt_points.reshape(-1, 3)
+    if len(pts) == 0 and scene.references:
+        pts = np.concatenate([r.joints.reshape(-1, 3) for r in scene.references.values()])
+        pts = pts[np.isfinite(pts).all(1)]
     if len(pts):  # the middle of where people go, and how far they spread
         lo, hi = np.percentile(pts * MM, 5, axis=0), np.percentile(pts * MM, 95, axis=0)
         center = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, np.median(pts[:, 2]) * MM])
@@ -358,6 +365,7 @@ class FrameGeometry:
     raw: dict[int, Skeleton] = field(default_factory=dict)
     filtered: dict[int, Skeleton] = field(default_factory=dict)
     gt: dict[int, Skeleton] = field(default_factory=dict)
+    references: dict[str, Skeleton] = field(default_factory=dict)  # by reference name
     trails: dict[int, Trail] = field(default_factory=dict)
     meshes: dict[int, BonePoses] = field(default_factory=dict)
     fit_meshes: dict[int, BonePoses] = field(default_factory=dict)
@@ -383,6 +391,19 @@ def _skeletons(points: np.ndarray, ids, js: JointSet, colors) -> dict[int, Skele
     for pid, pts, col in zip(ids, points, colors, strict=True):
         if np.isfinite(pts).any():
             out[int(pid)] = Skeleton(pts * MM, bone_segments(pts * MM, js.bones), col)
+    return out
+
+
+def reference_skeletons(
+    data: ViewerData, frame: int, off: frozenset[str] = frozenset()
+) -> dict[str, Skeleton]:
+    """Each reference track of the scene (but those in ``off``) at ``frame``: its joints
+    (J, 3) in metres and the scene joint set's bones, in :data:`REFERENCE_SKELETON`."""
+    js, out = data.scene.joint_set, {}
+    for name, ref in data.scene.references.items():
+        pts = ref.joints[frame] * MM  # (J, 3) m
+        if name not in off and np.isfinite(pts).any():
+            out[name] = Skeleton(pts, bone_segments(pts, js.bones), REFERENCE_SKELETON)
     return out
 
 
@@ -501,6 +522,7 @@ def frame_geometry(state: ViewerState, frame: int | None = None) -> FrameGeometr
         r = data.gt_rows_per_frame[f]
         pid = data.scene.gt.person_id[r]
         geom["gt"] = _skeletons(data.gt_points[r], pid, data.gt_joint_set, [GT_SKELETON] * len(r))
+    geom["references"] = reference_skeletons(data, f, lay.references_off)
     if lay.trails and lay.trail_window > 0 and 0 <= sel.joint < data.joint_set.num_joints:
         # the selected track's trail; every track's while none is selected
         geom["trails"] = trails(data, f, sel.joint, lay.trail_window, track=track)

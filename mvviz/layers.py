@@ -11,6 +11,7 @@ The scene tree is the layer system (hiding a parent hides its children)::
     /world/skeletons/raw/<track>        triangulated, before filtering (thin, pale)
     /world/skeletons/filtered/<track>   Kalman output (solid, clickable joints)
     /world/skeletons/gt/<person>        ground truth (neutral colour)
+    /world/skeletons/reference/<name>/{bones,joints}  another tool's result (grey)
     /world/trails/<track>/{raw,filtered}  selected joint over +-N frames
     /world/meshes/gt/<person>           ground-truth body, skinned in the browser
     /world/meshes/fit/<track>           fitted SMPL body (SMPL + VAE), skinned likewise
@@ -33,6 +34,7 @@ from mvviz.geometry import (
     GT_SKELETON,
     OFFSET_FILTERED_M,
     OUTLIER,
+    REFERENCE_SKELETON,
     UNASSIGNED,
     UNTRACKED,
     FrameGeometry,
@@ -126,6 +128,7 @@ class SceneLayers:
             "/world/skeletons/raw",
             "/world/skeletons/filtered",
             "/world/skeletons/gt",
+            "/world/skeletons/reference",
             "/world/trails",
             "/world/meshes",
             "/world/meshes/gt",
@@ -201,6 +204,13 @@ class SceneLayers:
             self.gt_ids = [int(p) for p in np.unique(data.scene.gt.person_id)]
         for pid in self.gt_ids:
             self._lines(f"/world/skeletons/gt/{pid}", GT_SKELETON, 0.012, "world")
+        for name in data.scene.references:
+            ref = group(f"/world/skeletons/reference/{name}")
+            self._lines(f"{ref.name}/bones", REFERENCE_SKELETON, 0.014, "world")
+            self.nodes[f"{ref.name}/joints"] = scene.add_point_cloud(
+                f"{ref.name}/joints", np.zeros((1, 3), np.float32), REFERENCE_SKELETON,
+                point_size=0.03, point_shape="circle", precision="float32", visible=False,
+            )  # fmt: skip
 
     def _ensure_meshes(self, kind: str) -> None:
         """Create the skinned meshes of ``kind`` ("gt" or "fit") the first time their
@@ -262,6 +272,8 @@ class SceneLayers:
         g["/world/skeletons/raw"].visible = lay.raw
         g["/world/skeletons/filtered"].visible = lay.filtered
         g["/world/skeletons/gt"].visible = lay.gt
+        for name in self.data.scene.references:
+            g[f"/world/skeletons/reference/{name}"].visible = name not in lay.references_off
         g["/world/trails"].visible = lay.trails
         g["/world/meshes"].visible = lay.meshes or lay.fit_meshes
         g["/world/meshes/gt"].visible = lay.meshes
@@ -332,6 +344,13 @@ class SceneLayers:
         for pid in self.gt_ids:
             s = geom.gt.get(pid)
             self._update(f"/world/skeletons/gt/{pid}", s.segments if s else _NO_SEG)
+        for name in data.scene.references:
+            s, base = geom.references.get(name), f"/world/skeletons/reference/{name}"
+            self._update(f"{base}/bones", s.segments if s else _NO_SEG)
+            pts = s.joints[np.isfinite(s.joints).all(1)] if s else np.zeros((0, 3))
+            if len(pts):
+                nodes[f"{base}/joints"].points = pts.astype(np.float32)
+            nodes[f"{base}/joints"].visible = len(pts) > 0
         for store, poses in ((self.meshes, geom.meshes), (self.fit_meshes, geom.fit_meshes)):
             for pid, mesh in store.items():
                 bp = poses.get(pid)

@@ -19,6 +19,14 @@ import numpy as np
 from pipeline.cameras import CameraRig, load_cameras, save_cameras
 from pipeline.files import SceneFormatError, atomic_directory, load_npz, save_npz_atomic
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
+from pipeline.references import (
+    ReferenceTrack,
+    check_joints,
+    check_name,
+    load_references,
+    reference_entry,
+    save_reference,
+)
 
 SMPL_FIELDS = ("smpl_pose", "smpl_betas", "cam_weak", "bbox")
 SMPL_FIELD_WIDTH = {"smpl_pose": 72, "smpl_betas": 10, "cam_weak": 3, "bbox": 4}
@@ -146,6 +154,8 @@ class Scene:
     videos: dict[str, Path] = field(default_factory=dict)
     image_dirs: dict[str, Path] = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+    # other tools' 3D results by name (pipeline/references.py), drawn beside ours
+    references: dict[str, ReferenceTrack] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------- checks
@@ -351,6 +361,13 @@ def load_scene(root: str | os.PathLike) -> Scene:
         if gt is not None:
             candidates.append(gt.frame.max(initial=-1) + 1)
         num_frames = int(max(candidates))
+    references = load_references(
+        root,
+        meta,
+        joint_set=joint_set.name,
+        num_frames=int(num_frames),
+        num_joints=joint_set.num_joints,
+    )
     videos, image_dirs = {}, {}
     if meta.get("videos"):
         for cam in rig.names:
@@ -374,6 +391,7 @@ def load_scene(root: str | os.PathLike) -> Scene:
         videos=videos,
         image_dirs=image_dirs,
         meta=meta,
+        references=references,
     )
 
 
@@ -390,10 +408,12 @@ def write_scene(
     videos: dict[str, Path] | None = None,
     extra_meta: dict | None = None,
     overwrite: bool = False,
+    references: dict[str, ReferenceTrack] | None = None,
 ) -> Path:
     """Write a complete scene directory atomically.
 
-    ``videos`` (camera name -> mp4 path) are copied into ``videos/<camera>.mp4``.
+    ``videos`` (camera name -> mp4 path) are copied into ``videos/<camera>.mp4``;
+    ``references`` (each (num_frames, J, 3) mm) into ``references/<name>.npz``.
 
     The data is validated on the way out with the same checks the reader applies.
     """
@@ -406,6 +426,12 @@ def write_scene(
     )
     if gt is not None:
         check_ground_truth(gt.arrays(), source=out_dir / "gt.npz")
+    for r in (references or {}).values():
+        check_name(r.name, out_dir / "scene.json")
+        check_joints(
+            r.joints, source=r.source or r.name, num_frames=num_frames,
+            num_joints=joint_set.num_joints,
+        )  # fmt: skip
     meta = {
         "name": name,
         "fps": float(fps),
@@ -426,6 +452,12 @@ def write_scene(
             for cam, src in videos.items():
                 shutil.copyfile(src, tmp / "videos" / f"{cam}.mp4")
         meta["videos"] = "videos" if (tmp / "videos").is_dir() else None
+        for r in (references or {}).values():
+            save_reference(tmp, r)
+        if references:
+            meta["references"] = {
+                r.name: reference_entry(r, joint_set.name) for r in references.values()
+            }
         meta.update(extra_meta or {})
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1) + "\n")
     return out_dir

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +38,9 @@ from pipeline.importers.detections import (
     resolve_joint_set,
 )
 from pipeline.importers.qualisys import read_qualisys_calibration, write_qualisys_calibration
+from pipeline.importers.trc import reference_from_trc
 from pipeline.joint_sets import JointSet
+from pipeline.references import fit_frames
 from pipeline.scene import Detections, write_scene
 
 __all__ = [
@@ -229,12 +231,15 @@ def convert_scene(
     name: str | None = None,
     image_size: tuple[int, int] | None = None,
     overwrite: bool = False,
+    references: Mapping[str, str | os.PathLike] | None = None,
 ) -> Path:
     """Read a calibration (and optionally detections) and write a native scene at ``out_dir``.
 
     Everything is read and checked before anything is written, and the scene is written
     atomically, so on any error ``out_dir`` is left as it was (absent if it was absent).
-    Without detections the scene gets zero detection rows and ``num_frames = 0``.
+    Without detections the scene gets zero detection rows and ``num_frames = 0`` (or the
+    longest reference's length). ``references`` (name -> Pose2Sim TRC file) are stored as
+    the scene's reference tracks (:mod:`pipeline.references`), in its joint set.
 
     Returns:
         ``out_dir`` as a Path.
@@ -275,8 +280,16 @@ def convert_scene(
             keypoints=np.zeros((0, js.num_joints, 3)),
         )
         num_frames = 0
+    refs = {n: reference_from_trc(p, n, js, fps=float(fps)) for n, p in (references or {}).items()}
+    if detections_format is None and refs:
+        num_frames = max(len(r.joints) for r in refs.values())
+    refs = {
+        n: replace(r, joints=fit_frames(r.joints, num_frames, source=references[n]))
+        for n, r in refs.items()
+    }
     return write_scene(
         out_dir,
+        references=refs,
         name=name if name is not None else out_dir.name,
         fps=float(fps),
         num_frames=num_frames,
