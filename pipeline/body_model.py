@@ -262,11 +262,39 @@ class _ChumpyStub:
         raise ValueError("chumpy object without an 'x' array")
 
 
-class _NoChumpyUnpickler(pickle.Unpickler):
+# The only globals a SMPL .pkl may name: numpy arrays and dtypes, scipy's sparse
+# matrices (J_regressor), Python 2's object reconstruction of those, and chumpy (replaced
+# by a stub). Anything else (os.system, builtins.eval, ...) would run code from a model
+# file: refused before it is looked up.
+_PICKLE_GLOBALS = {
+    ("numpy", "ndarray"), ("numpy", "dtype"),
+    ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
+    ("numpy.core.numeric", "_frombuffer"), ("numpy._core.numeric", "_frombuffer"),
+    ("copy_reg", "_reconstructor"), ("copyreg", "_reconstructor"),
+    ("__builtin__", "object"), ("builtins", "object"),
+    ("_codecs", "encode"),
+}  # fmt: skip
+_SPARSE = ("csc_matrix", "csr_matrix", "coo_matrix")
+_SPARSE_MODULES = (
+    "scipy.sparse", "scipy.sparse.csc", "scipy.sparse.csr", "scipy.sparse.coo",
+    "scipy.sparse._csc", "scipy.sparse._csr", "scipy.sparse._coo",
+)  # fmt: skip
+
+
+class _SafeModelUnpickler(pickle.Unpickler):
+    """Unpickles a SMPL model file without chumpy, and without running anything: only
+    the globals of :data:`_PICKLE_GLOBALS` (and scipy's sparse matrices) are found."""
+
     def find_class(self, module: str, name: str):
         if module.startswith("chumpy"):
             return _ChumpyStub
-        return super().find_class(module, name)
+        if (module, name) in _PICKLE_GLOBALS or (module in _SPARSE_MODULES and name in _SPARSE):
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(
+            f"the file names {module}.{name}, which a body model never needs (only numpy "
+            "arrays, scipy sparse matrices and chumpy objects are read; nothing is executed)"
+        )
 
 
 def _plain(value) -> np.ndarray:
@@ -288,7 +316,7 @@ def load_body_model_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if path.suffix == ".pkl":
         with open(path, "rb") as fh:
             try:
-                data = _NoChumpyUnpickler(fh, encoding="latin1").load()
+                data = _SafeModelUnpickler(fh, encoding="latin1").load()
             except Exception as exc:
                 raise SceneFormatError(path, None, f"not a readable SMPL pickle ({exc})") from exc
         if not isinstance(data, dict):

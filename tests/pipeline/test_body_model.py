@@ -109,6 +109,32 @@ def test_pkl_and_npz_loaders_agree(tmp_path, tiny_model_arrays):
     assert (ma(pose).vertices - mb(pose).vertices).abs().max() < 1e-6
 
 
+class _Evil:
+    """Pickles as a call of os.system: loading it naively runs a shell command."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        import os
+
+        return (os.system, (f"touch {self.marker}",))
+
+
+def test_a_model_pickle_cannot_run_code(tmp_path, tiny_model_arrays):
+    marker = tmp_path / "pwned"
+    for payload in (_Evil(marker), {"v_template": _Evil(marker)}):
+        path = tmp_path / "evil.pkl"
+        path.write_bytes(pickle.dumps(payload, protocol=2))
+        with pytest.raises(SceneFormatError, match=r"evil\.pkl.*(posix|os|nt)\.system"):
+            load_body_model_arrays(path)
+        assert not marker.exists()
+    # eval by name, protocol 0 text pickle
+    path.write_bytes(b"cbuiltins\neval\n(S'1+1'\ntR.")
+    with pytest.raises(SceneFormatError, match=r"builtins\.eval"):
+        load_body_model_arrays(path)
+
+
 def test_bad_model_file_names_the_field(tmp_path, tiny_model_arrays):
     d = dict(tiny_model_arrays)
     d["weights"] = d["weights"][:, :20]
