@@ -22,7 +22,12 @@ import sys
 import warnings
 
 from pipeline.files import SceneFormatError
-from pipeline.importers import CALIBRATION_FORMATS, DETECTION_FORMATS, convert_scene
+from pipeline.importers import (
+    CALIBRATION_FORMATS,
+    DETECTION_FORMATS,
+    SOURCE_LAYOUTS,
+    convert_scene,
+)
 from pipeline.joint_sets import JOINT_SETS
 from pipeline.scene import load_scene
 
@@ -35,8 +40,14 @@ detection formats (--detections DIR):
 
 Camera names come from the calibration; detection folders must be named like the
 cameras (a folder for an unknown camera is an error, a missing folder only a
-warning). The keypoint layout (BODY_25, OpenPose COCO-18, COCO-17, Halpe-26) is
-detected from the keypoint count and converted by joint name to --joint-set.
+warning). The keypoint layout (BODY_25, BODY_25B, OpenPose COCO-18, COCO-17,
+Human3.6M-17, Halpe-26, COCO-WholeBody-133, BlazePose-33, SMPL-24) is identified from
+the data: counts collide (25: BODY_25 / BODY_25B; 17: COCO / Human3.6M), so every
+candidate is scored on anatomy over all detections (vertical body order, mid-points,
+left/right pairs agreeing; left vs right from the people facing the camera), and a
+file whose evidence is weak is refused: name its layout with --layout. The decision and
+its evidence are printed and stored in scene.json. The scene keeps the layout's joints
+(COCO-WholeBody: body and feet, coco23) unless --joint-set converts them by name.
 Metres are converted to millimetres. Nothing is written unless everything reads
 cleanly; the exit code is 2 on bad input.
 """
@@ -79,9 +90,14 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--joint-set",
-        default="coco17",
+        default=None,
         choices=sorted(JOINT_SETS),
-        help="joint set of the scene's keypoints (default: %(default)s)",
+        help="joint set of the scene's keypoints (default: the detections' own layout)",
+    )
+    parser.add_argument(
+        "--layout",
+        choices=sorted(SOURCE_LAYOUTS),
+        help="the detection files' keypoint layout, instead of identifying it from the data",
     )
     parser.add_argument(
         "--fps", type=float, default=25.0, help="frame rate of the scene (default: %(default)s)"
@@ -125,7 +141,10 @@ def run(args: argparse.Namespace, *, parser: argparse.ArgumentParser) -> int:
                 print(f"mvviz convert: warning: {w.message}", file=sys.stderr)
     scene = load_scene(out)
     det = scene.detections
-    layout = scene.meta.get("imported_from", {}).get("detections", {}).get("layout")
+    imported = scene.meta.get("imported_from", {}).get("detections", {})
+    layout = imported.get("layout")
+    for line in (imported.get("layout_decision") or {}).get("evidence", []):
+        print(f"layout: {line}")
     print(
         f"wrote {out}: {len(scene.rig)} cameras ({', '.join(scene.rig.names)}), "
         f"{len(det)} detections in {scene.num_frames} frames"
@@ -142,6 +161,7 @@ def _convert(args: argparse.Namespace):
         detections_format=args.detections_format,
         detections_path=args.detections,
         joint_set=args.joint_set,
+        layout=args.layout,
         fps=args.fps,
         name=args.name,
         image_size=tuple(args.image_size) if args.image_size else None,

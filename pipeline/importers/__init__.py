@@ -30,16 +30,16 @@ from pipeline.importers.calibration import (
     write_voxelpose_calibration,
 )
 from pipeline.importers.detections import (
-    OPENPOSE_COCO18,
-    SOURCE_LAYOUTS,
     ImportedDetections,
     read_easymocap_annots,
+    read_mmpose_predictions,
     read_openpose_folders,
     resolve_joint_set,
 )
+from pipeline.importers.layouts import SOURCE_LAYOUTS, LayoutDecision, identify_layout
 from pipeline.importers.qualisys import read_qualisys_calibration, write_qualisys_calibration
 from pipeline.importers.trc import reference_from_trc
-from pipeline.joint_sets import JointSet
+from pipeline.joint_sets import OPENPOSE_COCO18, JointSet
 from pipeline.references import fit_frames
 from pipeline.scene import Detections, write_scene
 
@@ -51,6 +51,9 @@ __all__ = [
     "CalibrationFormat",
     "DetectionFormat",
     "ImportedDetections",
+    "LayoutDecision",
+    "identify_layout",
+    "read_mmpose_predictions",
     "convert_scene",
     "read_calibration",
     "read_detections",
@@ -86,11 +89,12 @@ class CalibrationFormat:
 
 @dataclass(frozen=True)
 class DetectionFormat:
-    """A detection format: ``read(root, camera_names, joint_set) -> ImportedDetections``."""
+    """A detection format and its reader."""
 
     name: str
     files: str
-    read: Callable[[Path, Sequence[str], str | JointSet], ImportedDetections]
+    read: Callable[..., ImportedDetections]
+    """``read(root, camera_names, joint_set, *, layout=None)``."""
 
 
 def _one_file(paths: list[Path], fmt: str, suffix: str | None = None) -> Path:
@@ -175,8 +179,14 @@ DETECTION_FORMATS: dict[str, DetectionFormat] = {
     for f in (
         DetectionFormat(
             "openpose",
-            "DIR/<camera>/*_<frame>_keypoints.json (BODY_25 or COCO-18)",
+            "DIR/<camera>/*_<frame>_keypoints.json (BODY_25, BODY_25B, COCO-18, ...)",
             read_openpose_folders,
+        ),
+        DetectionFormat(
+            "mmpose",
+            "DIR/<camera>/<frame>.json instance lists, or DIR/<camera>.json instance_info "
+            "(MMPose, RTMPose, rtmlib: COCO-17, Halpe-26, COCO-WholeBody-133, ...)",
+            read_mmpose_predictions,
         ),
         DetectionFormat(
             "easymocap",
@@ -212,11 +222,14 @@ def read_detections(
     detections_format: str,
     path: str | os.PathLike,
     camera_names: Sequence[str],
-    joint_set: str | JointSet = "coco17",
+    joint_set: str | JointSet | None = None,
+    *,
+    layout: str | None = None,
 ) -> ImportedDetections:
-    """Read detections in a registered format (see :data:`DETECTION_FORMATS`)."""
+    """Read detections in a registered format (see :data:`DETECTION_FORMATS`); None keeps
+    the files' layout, which is identified from the data unless ``layout`` names it."""
     fmt = _format(DETECTION_FORMATS, detections_format, path, "format")
-    return fmt.read(Path(path), camera_names, joint_set)
+    return fmt.read(Path(path), camera_names, joint_set, layout=layout)
 
 
 def convert_scene(
@@ -226,7 +239,8 @@ def convert_scene(
     out_dir: str | os.PathLike,
     detections_format: str | None = None,
     detections_path: str | os.PathLike | None = None,
-    joint_set: str = "coco17",
+    joint_set: str | None = None,
+    layout: str | None = None,
     fps: float = 25.0,
     name: str | None = None,
     image_size: tuple[int, int] | None = None,
@@ -240,6 +254,9 @@ def convert_scene(
     Without detections the scene gets zero detection rows and ``num_frames = 0`` (or the
     longest reference's length). ``references`` (name -> Pose2Sim TRC file) are stored as
     the scene's reference tracks (:mod:`pipeline.references`), in its joint set.
+    ``joint_set`` None keeps the detections' layout (identified from the data unless
+    ``layout`` names it; COCO-17 without detections); the decision and its evidence are
+    recorded in ``scene.json`` under ``imported_from.detections.layout_decision``.
 
     Returns:
         ``out_dir`` as a Path.
@@ -248,7 +265,7 @@ def convert_scene(
     meta_path = out_dir / "scene.json"
     if out_dir.exists() and not overwrite and (not out_dir.is_dir() or any(out_dir.iterdir())):
         raise FileExistsError(f"{out_dir} exists and is not empty (pass overwrite to replace it)")
-    js = resolve_joint_set(joint_set, meta_path)
+    js = None if joint_set is None else resolve_joint_set(joint_set, meta_path)
     if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not math.isfinite(fps):
         raise SceneFormatError(meta_path, "fps", f"expected a positive number, got {fps!r}")
     if fps <= 0:
@@ -265,15 +282,18 @@ def convert_scene(
         "calibration": {"format": calib_format, "paths": [str(p) for p in calib_paths]},
     }
     if detections_format is not None:
-        imported = read_detections(detections_format, detections_path, rig.names, js)
-        detections, num_frames = imported.detections, imported.num_frames
+        imported = read_detections(detections_format, detections_path, rig.names, js, layout=layout)
+        detections, num_frames, js = imported.detections, imported.num_frames, imported.joint_set
+        decision = imported.layout_decision
         source["detections"] = {
             "format": detections_format,
             "path": str(detections_path),
             "layout": imported.source_layout,
+            "layout_decision": None if decision is None else decision.to_json(),
             "missing_views": list(imported.missing_views),
         }
     else:
+        js = js if js is not None else resolve_joint_set("coco17", meta_path)
         detections = Detections(
             frame=np.zeros(0, np.int64),
             view=np.zeros(0, np.int64),

@@ -8,11 +8,16 @@ file per frame, the frame index being the trailing digits of the file name):
   (25 joints) or OpenPose's COCO (18 joints, neck at index 1: :data:`OPENPOSE_COCO18`).
 * **EasyMocap** ``annots/<cam>/000012.json`` holding ``{"annots": [{"personID": 0,
   "bbox": [x0, y0, x1, y1, c], "keypoints": [[x, y, c], ...]}, ...]}`` (usually BODY_25).
+* **MMPose** (RTMPose, rtmlib, MMPose's inferencer and demos): per frame a list of
+  ``{"keypoints": [[x, y], ...], "keypoint_scores": [...]}`` instances, or one
+  ``instance_info`` file per camera (:func:`read_mmpose_predictions`).
 
 Keypoints are image pixels; a joint with confidence 0 is missing and gets NaN x, y.
-The source layout is detected from the keypoint count (17 COCO, 18 OpenPose COCO,
-25 BODY_25, 26 Halpe) unless forced, and the result is re-ordered by joint name into
-the scene's joint set with :func:`~pipeline.joint_sets.convert_keypoints`.
+The layout (BODY_25, BODY_25B, OpenPose COCO-18, COCO-17, Human3.6M-17, Halpe-26,
+COCO-WholeBody-133, BlazePose-33, SMPL-24) is identified from the data unless forced
+(:mod:`pipeline.importers.layouts`: counts collide, so the anatomy decides), and the
+result is kept in that layout or re-ordered by joint name into the asked joint set with
+:func:`~pipeline.joint_sets.convert_keypoints`.
 
 Every problem raises :class:`~pipeline.files.SceneFormatError` naming the file and the
 field (``people[2].pose_keypoints_2d``, ``annots[0].keypoints``).
@@ -31,25 +36,24 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.files import SceneFormatError
+from pipeline.importers.layouts import (
+    CANDIDATES_BY_COUNT,
+    SOURCE_LAYOUTS,
+    LayoutDecision,
+    identify_layout,
+)
 from pipeline.joint_sets import (
-    BODY25,
     COCO17,
-    HALPE26,
-    OPENPOSE_COCO18,
     JointSet,
     convert_keypoints,
     get_joint_set,
 )
 from pipeline.scene import Detections, check_detections
 
-# Layouts a file may be in, by name (for forcing one) and by keypoint count (to detect one).
-SOURCE_LAYOUTS: dict[str, JointSet] = {
-    "body25": BODY25,
-    "coco18": OPENPOSE_COCO18,
-    "coco17": COCO17,
-    "halpe26": HALPE26,
-}
-_LAYOUT_BY_COUNT: dict[int, JointSet] = {js.num_joints: js for js in SOURCE_LAYOUTS.values()}
+# The joint set a scene keeps of a layout when none is asked for: the layout itself,
+# except COCO-WholeBody, whose 110 face and hand points are dropped (the body model and
+# the viewer use body and feet; ``joint_set="coco_wholebody133"`` keeps them).
+DEFAULT_SCENE_JOINT_SET: dict[str, str] = {"coco_wholebody133": "coco23"}
 
 # Confidences a little above 1 are float round-off in the writer; clip them.
 _CONFIDENCE_SLACK = 1e-4
@@ -70,6 +74,8 @@ class ImportedDetections:
         num_frames: 1 + the largest frame index of any file (0 if there were none); frames
             whose file lists nobody are valid and simply have no rows.
         missing_views: cameras that had no folder (they have no detections).
+        layout_decision: what was decided about the files' layout and on what evidence
+            (None if no file held a person).
     """
 
     detections: Detections
@@ -78,6 +84,7 @@ class ImportedDetections:
     source_layout: str | None
     num_frames: int
     missing_views: tuple[str, ...]
+    layout_decision: LayoutDecision | None = None
 
 
 def resolve_joint_set(joint_set: str | JointSet, source, field: str = "joint_set") -> JointSet:
@@ -94,7 +101,7 @@ def _resolve_layout(layout: str | None, source) -> JointSet | None:
     if layout is None:
         return None
     try:
-        return SOURCE_LAYOUTS[layout.lower()]
+        return SOURCE_LAYOUTS[str(layout).lower()]
     except KeyError:
         raise SceneFormatError(
             source, "layout", f"unknown layout {layout!r}; expected one of {sorted(SOURCE_LAYOUTS)}"
@@ -154,8 +161,19 @@ def _read_json(path: Path):
         raise SceneFormatError(path, None, f"not valid JSON ({exc})") from exc
 
 
-# A per-file parser: path -> [(field, (J, 3) keypoints)], one entry per person.
-FileParser = Callable[[Path], list[tuple[str, np.ndarray]]]
+# A per-file parser: path -> (frames the file covers, [(frame, field, (K, 3) keypoints)]
+# one entry per person). A file of a frame where nobody was seen covers that frame.
+FileParser = Callable[[Path], tuple[list[int], list[tuple[int, str, np.ndarray]]]]
+
+
+def _per_frame(people_of: Callable[[Path], list[tuple[str, np.ndarray]]]) -> FileParser:
+    """A parser for formats with one file per frame, numbered in the file name."""
+
+    def parse(path: Path) -> tuple[list[int], list[tuple[int, str, np.ndarray]]]:
+        f = frame_index(path)
+        return [f], [(f, field, kp) for field, kp in people_of(path)]
+
+    return parse
 
 
 def _openpose_people(path: Path) -> list[tuple[str, np.ndarray]]:
@@ -198,110 +216,258 @@ def _easymocap_people(path: Path) -> list[tuple[str, np.ndarray]]:
     return out
 
 
+# MMPose's keypoint scores are not probabilities: RTMPose's SimCC scores reach ~1.2,
+# heatmap maxima a little above 1. They are divided by this and clipped to [0, 1].
+MMPOSE_SCORE_SCALE = 1.0
+_MMPOSE_MAX_SCORE = 10.0
+
+
+def _mmpose_instance(person, path: Path, field: str) -> np.ndarray:
+    """One MMPose instance ``{"keypoints": [[x, y], ...], "keypoint_scores": [...]}``."""
+    if not isinstance(person, dict) or "keypoints" not in person:
+        raise SceneFormatError(path, field + ".keypoints", "missing")
+    try:
+        xy = np.asarray(person["keypoints"], dtype=float)
+        scores = np.asarray(person.get("keypoint_scores", np.ones(len(xy))), dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise SceneFormatError(path, field + ".keypoints", f"expected numbers ({exc})") from None
+    if xy.ndim != 2 or xy.shape[1] not in (2, 3):
+        raise SceneFormatError(
+            path, field + ".keypoints", f"expected [[x, y], ...] per keypoint, got shape {xy.shape}"
+        )
+    if scores.shape != (len(xy),):
+        raise SceneFormatError(
+            path,
+            field + ".keypoint_scores",
+            f"expected {len(xy)} scores (one per keypoint), got shape {scores.shape}",
+        )
+    bad = ~np.isfinite(scores) | (scores < 0) | (scores > _MMPOSE_MAX_SCORE)
+    if bad.any():
+        j = int(np.flatnonzero(bad)[0])
+        raise SceneFormatError(
+            path,
+            field + ".keypoint_scores",
+            f"score of keypoint {j} is {scores[j]!r}, "
+            f"expected a value in [0, {_MMPOSE_MAX_SCORE:g}]",
+        )
+    conf = np.clip(scores / MMPOSE_SCORE_SCALE, 0.0, 1.0)
+    kp = np.concatenate([xy[:, :2], conf[:, None]], 1)
+    return check_keypoints(kp, path, field + ".keypoints")
+
+
+def _mmpose_file(path: Path) -> tuple[list[int], list[tuple[int, str, np.ndarray]]]:
+    """An MMPose prediction file: either one frame (a list of instances, or a dict with
+    ``instances``; the frame number in the file name), or a whole video as written by
+    MMPose's demos with ``--save-predictions``: ``{"meta_info": ..., "instance_info":
+    [{"frame_id": k, "instances": [...]}, ...]}`` (frame k of the file is frame k of the
+    scene: write the first frame as 0, or renumber in one place for every camera)."""
+    data = _read_json(path)
+    if isinstance(data, dict) and "instance_info" in data:
+        info = data["instance_info"]
+        if not isinstance(info, list):
+            raise SceneFormatError(path, "instance_info", "expected a list of frames")
+        covered, people = [], []
+        for i, entry in enumerate(info):
+            field = f"instance_info[{i}]"
+            if not isinstance(entry, dict) or "frame_id" not in entry:
+                raise SceneFormatError(path, field + ".frame_id", "missing")
+            f = entry["frame_id"]
+            if isinstance(f, bool) or not isinstance(f, int) or f < 0:
+                raise SceneFormatError(
+                    path, field + ".frame_id", f"expected a frame number >= 0, got {f!r}"
+                )
+            instances = entry.get("instances", [])
+            if not isinstance(instances, list):
+                raise SceneFormatError(path, field + ".instances", "expected a list")
+            covered.append(f)
+            for k, person in enumerate(instances):
+                fk = f"{field}.instances[{k}]"
+                people.append((f, fk + ".keypoints", _mmpose_instance(person, path, fk)))
+        return covered, people
+    if isinstance(data, dict) and "instances" in data:
+        data = data["instances"]
+    if not isinstance(data, list):
+        raise SceneFormatError(
+            path, "instances", "expected a list of instances or an MMPose instance_info file"
+        )
+    f = frame_index(path)
+    return [f], [
+        (f, f"[{k}].keypoints", _mmpose_instance(person, path, f"[{k}]"))
+        for k, person in enumerate(data)
+    ]
+
+
+def camera_key(name: str) -> str:
+    """A camera name reduced for matching folder names to calibration names: lower case,
+    letters and numbers only, numbers without leading zeros (``cam_01``, ``Cam01`` and
+    ``cam1`` are one camera; Pose2Sim names its 2D folders ``cam_01`` while a Qualisys
+    calibration calls the camera ``cam01``)."""
+    parts = re.findall(r"[a-z]+|\d+", name.lower())
+    return "".join(str(int(p)) if p.isdigit() else p for p in parts)
+
+
+def _match_camera(entry: Path, stem: str, names: list[str]) -> str | None:
+    """The calibration camera ``stem`` names: itself, or the one camera whose
+    :func:`camera_key` is the same (None if none; an error if several)."""
+    if stem in names:
+        return stem
+    same = [n for n in names if camera_key(n) == camera_key(stem)]
+    if len(same) > 1:
+        raise SceneFormatError(
+            entry, "camera", f"{stem!r} matches several cameras of the calibration: {same}"
+        )
+    return same[0] if same else None
+
+
+def _camera_files(root: Path, names: list[str], single_file: bool) -> tuple[dict, tuple]:
+    """Per camera name, the JSON files to read (a folder's files, or ``root/<camera>.json``
+    where ``single_file`` formats allow one file per camera); and the missing cameras.
+    Folder names match camera names exactly or by :func:`camera_key` (a warning says so)."""
+    entries = sorted(p for p in root.iterdir() if not p.name.startswith("."))
+    files: dict[str, list[Path]] = {}
+    renamed = []
+    for entry in entries:
+        is_file = single_file and entry.is_file() and entry.suffix == ".json"
+        if not (entry.is_dir() or is_file):
+            continue
+        stem = entry.name if entry.is_dir() else entry.stem
+        cam = _match_camera(entry, stem, names)
+        if cam is None:
+            if is_file:
+                continue
+            raise SceneFormatError(
+                entry,
+                "camera",
+                f"folder {entry.name!r} is not a camera of the calibration {names}",
+            )
+        if cam in files:
+            raise SceneFormatError(entry, "camera", f"a second source for camera {cam!r}")
+        if cam != stem:
+            renamed.append(f"{entry.name} -> {cam}")
+        if entry.is_dir():
+            files[cam] = sorted(p for p in entry.glob("*.json") if not p.name.startswith("."))
+        else:
+            files[cam] = [entry]
+    if renamed:
+        warnings.warn(
+            f"{root}: camera folders matched to the calibration by name: {', '.join(renamed)}",
+            stacklevel=4,
+        )
+    if not files:
+        raise SceneFormatError(
+            root,
+            None,
+            f"no camera folders found (expected folders {names}"
+            + (" or files <camera>.json)" if single_file else ")"),
+        )
+    missing = tuple(n for n in names if n not in files)
+    return files, missing
+
+
 def _read_folders(
     root: str | os.PathLike,
     camera_names: Sequence[str],
-    joint_set: str | JointSet,
+    joint_set: str | JointSet | None,
     layout: str | None,
     parse: FileParser,
+    *,
+    single_file: bool = False,
 ) -> ImportedDetections:
     root = Path(root)
-    dst = resolve_joint_set(joint_set, root)
-    forced = _resolve_layout(layout, root)
+    dst = None if joint_set is None else resolve_joint_set(joint_set, root)
+    forced = _resolve_layout(layout, root)  # an unknown name fails before any file is read
     if not root.is_dir():
         raise SceneFormatError(root, None, "directory not found")
     names = [str(n) for n in camera_names]
-    folders = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
-    for folder in folders:
-        if folder.name not in names:
-            raise SceneFormatError(
-                folder,
-                "camera",
-                f"folder {folder.name!r} is not a camera of the calibration {names}",
-            )
-    present = {f.name for f in folders}
-    if not present:
-        raise SceneFormatError(root, None, f"no camera folders found (expected folders {names})")
-    missing = tuple(n for n in names if n not in present)
+    files, missing = _camera_files(root, names, single_file)
     if missing:
         warnings.warn(
             f"{root}: no folder for camera(s) {list(missing)}; they get no detections",
             stacklevel=3,
         )
 
-    src = forced
     frames, views, rows = [], [], []
+    first: tuple[Path, int] | None = None  # where the keypoint count was first seen
     num_frames = 0
     for v, name in enumerate(names):
-        if name not in present:
-            continue
         seen: dict[int, Path] = {}
-        files = (p for p in (root / name).glob("*.json") if not p.name.startswith("."))
-        for path in sorted(files):
-            f = frame_index(path)
-            if f in seen:
-                raise SceneFormatError(
-                    path, "file name", f"frame {f} is also read from {seen[f].name}"
-                )
-            seen[f] = path
-            num_frames = max(num_frames, f + 1)
-            for field, kp in parse(path):
-                if src is None:  # the first person fixes the layout of all files
-                    src = _LAYOUT_BY_COUNT.get(kp.shape[0])
-                    if src is None:
+        for path in files.get(name, []):
+            covered, people = parse(path)
+            for f in covered:
+                if f in seen:
+                    raise SceneFormatError(
+                        path, "file name", f"frame {f} is also read from {seen[f].name}"
+                    )
+                seen[f] = path
+                num_frames = max(num_frames, f + 1)
+            for f, field, kp in people:
+                if forced is not None and kp.shape[0] != forced.num_joints:
+                    raise SceneFormatError(
+                        path,
+                        field,
+                        f"expected {forced.num_joints} keypoints ({forced.name}, forced), "
+                        f"got {kp.shape[0]}",
+                    )
+                if first is None:
+                    first = (path, kp.shape[0])
+                    if kp.shape[0] not in CANDIDATES_BY_COUNT:
                         raise SceneFormatError(
                             path,
                             field,
                             f"cannot tell the layout of {kp.shape[0]} keypoints; known: "
                             + ", ".join(
-                                f"{k} ({js.num_joints})" for k, js in SOURCE_LAYOUTS.items()
+                                f"{js.name} ({js.num_joints})" for js in SOURCE_LAYOUTS.values()
                             )
-                            + "; force one with layout=...",
+                            + "; name one with --layout",
                         )
-                if kp.shape[0] != src.num_joints:
+                elif kp.shape[0] != first[1]:
                     raise SceneFormatError(
                         path,
                         field,
-                        f"expected {src.num_joints} keypoints ({_layout_name(src)}"
-                        f"{', forced' if forced else ', as in the first file'}), got {kp.shape[0]}",
+                        f"expected {first[1]} keypoints (as in {first[0].name}), "
+                        f"got {kp.shape[0]}: one layout per scene",
                     )
                 frames.append(f)
                 views.append(v)
                 rows.append(kp)
 
-    num_joints = dst.num_joints
+    decision = None
     if rows:
-        keypoints = convert_keypoints(np.stack(rows), src, dst)
+        raw = np.stack(rows)
+        decision = identify_layout(raw, source=root, field="keypoints", forced=layout)
+        src = SOURCE_LAYOUTS[decision.layout]
+        if dst is None:
+            dst = get_joint_set(DEFAULT_SCENE_JOINT_SET.get(src.name, src.name))
+        keypoints = convert_keypoints(raw, src, dst)
         frame, view = np.asarray(frames, np.int64), np.asarray(views, np.int64)
         order = np.lexsort((view, frame))
         frame, view, keypoints = frame[order], view[order], keypoints[order]
     else:
+        if dst is None:
+            dst = COCO17 if forced is None else forced
         frame = view = np.zeros(0, np.int64)
-        keypoints = np.zeros((0, num_joints, 3))
+        keypoints = np.zeros((0, dst.num_joints, 3))
     detections = check_detections(
         {"frame": frame, "view": view, "keypoints": keypoints},
         source=root,
-        num_joints=num_joints,
+        num_joints=dst.num_joints,
         num_views=len(names),
     )
     return ImportedDetections(
         detections=detections,
         view_names=tuple(names),
         joint_set=dst,
-        source_layout=None if src is None else _layout_name(src),
+        source_layout=None if decision is None else decision.layout,
         num_frames=num_frames,
         missing_views=missing,
+        layout_decision=decision,
     )
-
-
-def _layout_name(js: JointSet) -> str:
-    return next(k for k, v in SOURCE_LAYOUTS.items() if v is js)
 
 
 def read_openpose_folders(
     root: str | os.PathLike,
     camera_names: Sequence[str],
-    joint_set: str | JointSet = "coco17",
+    joint_set: str | JointSet | None = None,
     *,
     layout: str | None = None,
 ) -> ImportedDetections:
@@ -310,20 +476,36 @@ def read_openpose_folders(
     Args:
         root: directory holding ``<camera name>/*.json``.
         camera_names: the calibration's camera names, in rig order (``view`` indexes them).
-        joint_set: the joint set to convert to (the scene's; default COCO-17).
-        layout: force the files' layout (``"body25"``, ``"coco18"``, ...) instead of
-            detecting it from the keypoint count.
+        joint_set: the joint set to convert to (the scene's); None keeps the files'
+            layout (COCO-WholeBody-133: its body and feet, ``coco23``).
+        layout: force the files' layout (``"body25"``, ``"body25b"``, ...) instead of
+            identifying it from the data (:func:`~pipeline.importers.layouts.identify_layout`).
     """
-    return _read_folders(root, camera_names, joint_set, layout, _openpose_people)
+    return _read_folders(root, camera_names, joint_set, layout, _per_frame(_openpose_people))
 
 
 def read_easymocap_annots(
     root: str | os.PathLike,
     camera_names: Sequence[str],
-    joint_set: str | JointSet = "coco17",
+    joint_set: str | JointSet | None = None,
     *,
     layout: str | None = None,
 ) -> ImportedDetections:
     """Read EasyMocap ``annots/<camera>/<frame:06d>.json`` files; arguments as
     :func:`read_openpose_folders` (``root`` is the ``annots`` directory)."""
-    return _read_folders(root, camera_names, joint_set, layout, _easymocap_people)
+    return _read_folders(root, camera_names, joint_set, layout, _per_frame(_easymocap_people))
+
+
+def read_mmpose_predictions(
+    root: str | os.PathLike,
+    camera_names: Sequence[str],
+    joint_set: str | JointSet | None = None,
+    *,
+    layout: str | None = None,
+) -> ImportedDetections:
+    """Read MMPose / RTMPose / rtmlib predictions: ``root/<camera>/<frame>.json`` (a list
+    of ``{"keypoints", "keypoint_scores"}`` instances per frame, as MMPose's inferencer
+    writes with ``--pred-out-dir``), or one ``instance_info`` file per camera
+    (``root/<camera>.json`` or ``root/<camera>/<any>.json``, MMPose's demos with
+    ``--save-predictions``). Arguments as :func:`read_openpose_folders`."""
+    return _read_folders(root, camera_names, joint_set, layout, _mmpose_file, single_file=True)

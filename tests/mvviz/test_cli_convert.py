@@ -104,6 +104,10 @@ def test_convert_with_detections(tmp_path, shelf, capsys):
         str(root),
         "--fps",
         "30",
+        "--layout",
+        "body25",
+        "--joint-set",
+        "coco17",
         "-o",
         str(out),
     ]
@@ -207,6 +211,7 @@ def test_missing_camera_folder_is_a_warning(tmp_path, shelf, capsys):
     _openpose(root, "3", 2, [_body25(1)])
     out = tmp_path / "scene"
     argv = ["convert", "--from", "voxelpose", str(shelf), "--detections-from", "openpose"]
+    argv += ["--layout", "body25"]
     assert main([*argv, "--detections", str(root), "-o", str(out)]) == 0
     captured = capsys.readouterr()
     assert "warning:" in captured.err and "['0', '1', '2', '4']" in captured.err

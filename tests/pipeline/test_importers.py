@@ -513,7 +513,7 @@ def test_openpose_body25(tmp_path):
     write_openpose(root, "1", 0, [make_person(25, 4)])
     write_openpose(root, "1", 3, [make_person(25, 5)])
     with pytest.warns(UserWarning, match=r"camera\(s\) \['2'\]"):
-        imp = read_openpose_folders(root, ["0", "1", "2"])
+        imp = read_openpose_folders(root, ["0", "1", "2"], "coco17", layout="body25")
 
     det = imp.detections
     assert imp.source_layout == "body25" and imp.joint_set is COCO17
@@ -537,7 +537,7 @@ def test_openpose_body25(tmp_path):
 def test_openpose_coco18(tmp_path):
     root = tmp_path / "op"
     write_openpose(root, "a", 7, [make_person(18, 1)])
-    imp = read_openpose_folders(root, ["a"])
+    imp = read_openpose_folders(root, ["a"], "coco17", layout="coco18")
     assert imp.source_layout == "coco18" and imp.num_frames == 8
     person = make_person(18, 1)
     kp = imp.detections.keypoints[0]
@@ -549,7 +549,7 @@ def test_openpose_coco18(tmp_path):
     np.testing.assert_allclose(kp[12, 0], 1000.0 + 8)
 
     # Into BODY_25: the neck is kept, mid_hip and the feet are missing.
-    imp25 = read_openpose_folders(root, ["a"], "body25")
+    imp25 = read_openpose_folders(root, ["a"], "body25", layout="coco18")
     kp25 = imp25.detections.keypoints[0]
     np.testing.assert_allclose(kp25[BODY25.index["neck"]], person[1])
     assert kp25[BODY25.index["mid_hip"], 2] == 0 and kp25[BODY25.index["left_heel"], 2] == 0
@@ -584,7 +584,7 @@ def test_easymocap_annots(tmp_path):
     write_annots(root, "01", 0, [make_person(25, 1), make_person(25, 2)])
     write_annots(root, "01", 1, [])
     write_annots(root, "02", 1, [make_person(25, 3)], bare=True)  # old files: a bare list
-    imp = read_easymocap_annots(root, ["01", "02"], "coco17")
+    imp = read_easymocap_annots(root, ["01", "02"], "coco17", layout="body25")
     np.testing.assert_array_equal(imp.detections.frame, [0, 0, 1])
     np.testing.assert_array_equal(imp.detections.view, [0, 0, 1])
     assert imp.num_frames == 2 and imp.source_layout == "body25" and imp.missing_views == ()
@@ -606,7 +606,8 @@ def test_confidence_checks(tmp_path):
     p = make_person(25, 1)
     p[3, 2] = 1.00005  # float round-off above 1: clipped
     write_openpose(root, "a", 0, [p])
-    assert read_openpose_folders(root, ["a"], "body25").detections.keypoints[0, 3, 2] == 1.0
+    imp = read_openpose_folders(root, ["a"], "body25", layout="body25")
+    assert imp.detections.keypoints[0, 3, 2] == 1.0
     for bad, message in ((1.01, "1.01"), (-0.2, "-0.2"), (float("nan"), "NaN")):
         p[3, 2] = bad
         path = write_openpose(root, "a", 0, [make_person(25, 0), p])
@@ -802,6 +803,8 @@ def test_convert_scene_with_detections(tmp_path):
             out_dir=tmp_path / "scene",
             detections_format="openpose",
             detections_path=root,
+            layout="body25",
+            joint_set="coco17",
             fps=30,
             name="campus-op",
         )

@@ -1,0 +1,193 @@
+"""Peer benchmark: our 3D against Pose2Sim's on Pose2Sim's real balancing trial.
+
+Input: sample_data/pose2sim_balancing (4 Qualisys cameras, 100 frames at 60 fps, one
+subject balancing, bystanders in cameras 1-2), built by tools/make_pose2sim_balancing.py.
+Pose2Sim's own results of exactly the shipped OpenPose BODY_25B 2D are the scene's
+reference tracks: ``pose2sim`` (raw triangulation) and ``pose2sim_butterworth`` (its
+6 Hz Butterworth filter). There is no marker ground truth: the figures say how two
+tools agree on one input, and how well each explains the 2D.
+
+Reported, in one run:
+
+ 1. per keypoint, the median distance (mm, over the 100 frames) between our subject track
+    (the one nearest Pose2Sim's result) and Pose2Sim's: our raw vs its raw, our Kalman
+    forward and RTS vs its raw and Butterworth;
+ 2. per camera, the reprojection error (px, median and mean over the subject's keypoints
+    with confidence >= 0.3, Pose2Sim's likelihood threshold) of each result onto the same
+    2D: the detections our association gave the subject in that camera;
+ 3. with ``--detect`` (needs the ``[video]`` extra): the same from ``mvviz detect``
+    (BlazePose) on the trial's real videos instead of the shipped OpenPose 2D, on the
+    keypoints both layouts share, and the detector's run time.
+
+Pose2Sim itself is not run here: ``pip install pose2sim`` pulls OpenSim, onnxruntime,
+openvino, PySide6 and opencv-contrib-python (which replaces our opencv-python-headless),
+so it cannot be an optional extra of this package; its result of the same input, from its
+own repository, is the peer instead.
+
+Usage:
+    python bench/bench_peer_pose2sim.py [--detect] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.common import write_json  # noqa: E402
+from pipeline.body_model import load_body_model  # noqa: E402
+from pipeline.compare import (  # noqa: E402
+    closest_track,
+    per_joint_median_mm,
+    reprojection_errors,
+    track_observations,
+)
+from pipeline.config import PipelineConfig  # noqa: E402
+from pipeline.joint_sets import mapping_indices  # noqa: E402
+from pipeline.results import PipelineResults, run_pipeline  # noqa: E402
+from pipeline.scene import Scene, load_scene  # noqa: E402
+
+TRIAL = Path(__file__).resolve().parents[1] / "sample_data" / "pose2sim_balancing"
+
+
+def subject(scene: Scene, results: PipelineResults, ref: np.ndarray):
+    """(track, its median distance to ``ref``, the 2D it was triangulated from)."""
+    track, dist = closest_track(results.track_raw, ref)
+    obs = track_observations(
+        results.det_joints2d,
+        scene.detections.view,
+        results.det_person,
+        results.person_frame,
+        results.person_track,
+        track,
+        num_frames=scene.num_frames,
+        num_views=len(scene.rig),
+    )
+    return track, dist, obs
+
+
+def in_joint_set(points: np.ndarray, src, dst) -> np.ndarray:
+    """(F, src.J, 3) -> (F, dst.J, 3) by joint name, NaN where ``src`` lacks a joint."""
+    s, d = mapping_indices(src, dst)
+    out = np.full(points.shape[:-2] + (dst.num_joints, 3), np.nan)
+    out[..., d, :] = points[..., s, :]
+    return out
+
+
+def compare(scene: Scene, results: PipelineResults, refs: dict[str, np.ndarray]) -> dict:
+    raw_ref = refs["pose2sim"]
+    track, dist, obs = subject(scene, results, raw_ref)
+    ours = {
+        "ours raw": results.track_raw[track],
+        "ours kalman": results.track_forward[track],
+        "ours rts": results.track_smoothed[track],
+    }
+    pairs = [
+        ("ours raw", "pose2sim"),
+        ("ours kalman", "pose2sim"),
+        ("ours rts", "pose2sim_butterworth"),
+        ("ours raw", "pose2sim_butterworth"),
+    ]
+    per_joint = {f"{a} vs {b}": per_joint_median_mm(ours[a], refs[b]) for a, b in pairs}
+    reproj = {}
+    for name, pts in {**ours, **refs}.items():
+        e = reprojection_errors(scene.rig, pts, obs.keypoints)
+        reproj[name] = {
+            cam.name: (float(np.nanmedian(e[:, v])), float(np.nanmean(e[:, v])))
+            for v, cam in enumerate(scene.rig)
+        }
+    names = scene.joint_set.names
+    return {
+        "track": track,
+        "frames": int(np.isfinite(results.track_raw[track, :, :, 0]).any(1).sum()),
+        "median_mm": dist,
+        "per_joint_mm": {
+            k: {n: float(v[j]) for j, n in enumerate(names) if np.isfinite(v[j])}
+            for k, v in per_joint.items()
+        },
+        "reprojection_px": reproj,
+    }
+
+
+def print_report(title: str, fig: dict) -> None:
+    print(
+        f"\n== {title}: subject = track {fig['track']} ({fig['frames']} frames), "
+        f"median {fig['median_mm']:.1f} mm from Pose2Sim's raw result"
+    )
+    cols = list(fig["per_joint_mm"])
+    w = max(len(c) for c in cols) + 3
+    names = list(next(iter(fig["per_joint_mm"].values())))
+    print(f"{'keypoint (mm)':<18}" + "".join(f"{c:>{w}}" for c in cols))
+    for n in names:
+        print(
+            f"{n:<18}" + "".join(f"{fig['per_joint_mm'][c].get(n, np.nan):>{w}.1f}" for c in cols)
+        )
+    print(
+        f"{'median':<18}"
+        + "".join(f"{np.median(list(fig['per_joint_mm'][c].values())):>{w}.1f}" for c in cols)
+    )
+    cams = list(next(iter(fig["reprojection_px"].values())))
+    print(f"\n{'reprojection px (median / mean)':<34}" + "".join(f"{c:>16}" for c in cams))
+    for name, per_cam in fig["reprojection_px"].items():
+        print(
+            f"{name:<34}" + "".join(f"{per_cam[c][0]:>9.1f} /{per_cam[c][1]:>5.1f}" for c in cams)
+        )
+
+
+def run_detect(scene: Scene) -> tuple[Scene, float]:
+    """``mvviz detect`` (BlazePose) on the trial's real videos, in a scratch scene."""
+    from pipeline.detect.video import detect_scene  # the [video] extra
+
+    tmp = Path(tempfile.mkdtemp(prefix="peer_detect_"))
+    shutil.copyfile(scene.root / "cameras.json", tmp / "cameras.json")
+    t0 = time.perf_counter()
+    detect_scene(tmp, [scene.root / "videos"], progress=True)
+    seconds = time.perf_counter() - t0
+    return load_scene(tmp), seconds
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--detect", action="store_true", help="also run mvviz detect on the videos")
+    ap.add_argument("--json", type=Path, help="write the figures here")
+    args = ap.parse_args()
+
+    warnings.simplefilter("ignore")
+    scene = load_scene(TRIAL)
+    model = load_body_model()
+    config = PipelineConfig(fit_smpl=False)
+    refs = {n: r.joints for n, r in scene.references.items()}
+    t0 = time.perf_counter()
+    results = run_pipeline(scene, config, model, progress=False)
+    seconds = time.perf_counter() - t0
+    figures = {"openpose_2d": compare(scene, results, refs)}
+    figures["openpose_2d"]["pipeline_s"] = seconds
+    print_report(
+        f"shipped OpenPose BODY_25B 2D ({seconds:.2f} s, stages 1-5)", figures["openpose_2d"]
+    )
+
+    if args.detect:
+        det_scene, det_s = run_detect(scene)
+        det_results = run_pipeline(det_scene, config, model, progress=False)
+        det_refs = {
+            n: in_joint_set(r, scene.joint_set, det_scene.joint_set) for n, r in refs.items()
+        }
+        fig = compare(det_scene, det_results, det_refs)
+        fig["detect_s"] = det_s
+        figures["blazepose_2d"] = fig
+        print_report(f"mvviz detect (BlazePose) on the real videos ({det_s:.0f} s)", fig)
+    if args.json:
+        write_json(args.json, figures)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
