@@ -217,3 +217,34 @@ def test_missing_camera_folder_is_a_warning(tmp_path, shelf, capsys):
     assert "warning:" in captured.err and "['0', '1', '2', '4']" in captured.err
     assert "1 detections in 3 frames" in captured.out
     np.testing.assert_array_equal(load_scene(out).detections.view, [3])
+
+
+def test_layout_identified_printed_or_refused_and_nothing_written(tmp_path, shelf, capsys):
+    from pipeline.joint_sets import BODY25B
+    from tests.pipeline.layout_data import layout_detections, write_openpose_tree
+
+    dets = layout_detections(BODY25B, frames=slice(0, 100, 10))
+    write_openpose_tree(tmp_path / "op", dets, ["0", "1", "2", "3", "4"])
+    argv = ["convert", "--from", "voxelpose", str(shelf), "--detections-from", "openpose"]
+    out = tmp_path / "scene"
+    assert main([*argv, "--detections", str(tmp_path / "op"), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "layout: layout body25b taken from the data" in printed
+    assert "(body25b -> body25b)" in printed and load_scene(out).joint_set is BODY25B
+
+    # People lying down (images turned by 90 degrees): refused, exit 2, nothing written.
+    lying = {k: [p[:, [1, 0, 2]] for p in v] for k, v in dets.items()}
+    write_openpose_tree(tmp_path / "lying", lying, ["0", "1", "2", "3", "4"])
+    out2 = tmp_path / "scene2"
+    assert main([*argv, "--detections", str(tmp_path / "lying"), "-o", str(out2)]) == 2
+    err = capsys.readouterr().err
+    assert "lying" in err and "25-keypoint" in err and "--layout" in err
+    assert "Traceback" not in err and not out2.exists()
+    # --layout names it.
+    assert (
+        main(
+            [*argv, "--detections", str(tmp_path / "lying"), "--layout", "body25b", "-o", str(out2)]
+        )
+        == 0
+    )
+    assert "forced by --layout" in capsys.readouterr().out
