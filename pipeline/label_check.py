@@ -126,6 +126,8 @@ class LabelCheckParams:
         min_separation_px: a left/right pair whose reprojections are closer than this
             cannot tell the labels apart and is not compared.
         min_confidence: 2D joints below this confidence are not compared.
+        min_views: joints triangulated from fewer views are not judged by the track
+            checks of :func:`check_results`.
     """
 
     min_frames: int = 20
@@ -142,6 +144,7 @@ class LabelCheckParams:
     camera_min_people: int = 20
     min_separation_px: float = 10.0
     min_confidence: float = 0.3
+    min_views: int = 3
 
 
 @dataclass(frozen=True)
@@ -825,9 +828,21 @@ def check_results(
     params: LabelCheckParams = LabelCheckParams(),
 ) -> LabelCheck:
     """:func:`check_labels` on a run: its raw tracks, and its cameras' associated 2D
-    against the per-frame triangulation."""
+    against the per-frame triangulation.
+
+    A joint triangulated from fewer than ``params.min_views`` views is left out of the
+    track checks: with two views nothing is redundant (no outlier can be dropped), so
+    lengths and hinges of such joints measure the triangulation, not the labels (a
+    bystander that two of the balancing trial's cameras see at their edge has forearms
+    38% apart)."""
+    joints = results.track_raw
+    if params.min_views > 2 and results.person_used.size:
+        views = np.zeros(joints.shape[:3], int)  # (K, F, J)
+        q = np.flatnonzero(results.person_track >= 0)
+        views[results.person_track[q], results.person_frame[q]] = results.person_used[q].sum(-1)
+        joints = np.where((views >= params.min_views)[..., None], joints, np.nan)
     return check_labels(
-        results.track_raw,
+        joints,
         results.joint_set,
         cameras=cameras,
         views=view_observations(results),
