@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from pipeline.files import SceneFormatError, atomic_write
+from pipeline.schema import check_numbers
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,12 +222,13 @@ def make_camera(
 ) -> Camera:
     """Build a :class:`Camera`, checking every field; errors name ``source`` and the field."""
 
-    def arr(value, key: str, shape: tuple[int, ...]) -> np.ndarray:
+    def arr(value, key: str, shape: tuple[int, ...], also=()) -> np.ndarray:
+        check_numbers(value, source, f"{field}.{key}")
         try:
             a = np.asarray(value, dtype=float)
         except (TypeError, ValueError) as exc:
             raise SceneFormatError(source, f"{field}.{key}", f"not numeric ({exc})") from exc
-        if a.shape != shape:
+        if a.shape != shape and a.shape not in also:
             raise SceneFormatError(
                 source, f"{field}.{key}", f"expected shape {shape}, got {a.shape}"
             )
@@ -249,6 +251,7 @@ def make_camera(
         raise SceneFormatError(
             source, f"{field}.K", "expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0"
         )
+    check_numbers(dist, source, f"{field}.dist")
     try:
         d = np.asarray(dist, dtype=float).ravel()
     except (TypeError, ValueError) as exc:
@@ -269,7 +272,7 @@ def make_camera(
             f"expected a rotation matrix (R R^T = I, det +1); |R R^T - I| = {ortho_err:.2g}, "
             f"det = {np.linalg.det(R):.4f}",
         )
-    t = arr(np.asarray(t, dtype=float).ravel(), "t", (3,))
+    t = arr(t, "t", (3,), also=((3, 1), (1, 3))).ravel()
     return Camera(name=name, width=int(width), height=int(height), K=K, dist=d, R=R, t=t)
 
 

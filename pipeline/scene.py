@@ -18,7 +18,7 @@ import numpy as np
 
 from pipeline.cameras import CameraRig, load_cameras, save_cameras
 from pipeline.files import SceneFormatError, atomic_directory, load_npz, save_npz_atomic
-from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
+from pipeline.joint_sets import JOINT_SETS, SMPL24, JointSet, get_joint_set
 from pipeline.references import (
     ReferenceTrack,
     check_joints,
@@ -27,11 +27,30 @@ from pipeline.references import (
     reference_entry,
     save_reference,
 )
+from pipeline.schema import Int, Number, Str, check_object
 
 SMPL_FIELDS = ("smpl_pose", "smpl_betas", "cam_weak", "bbox")
 SMPL_FIELD_WIDTH = {"smpl_pose": 72, "smpl_betas": 10, "cam_weak": 3, "bbox": 4}
 # Monocular 3D joints instead of (or beside) SMPL parameters: they share cam_weak/bbox.
 MONO_FIELDS = ("mono_joints3d", "cam_weak", "bbox")
+
+MAX_FRAMES = 1_000_000
+"""Frames per scene at most (4.6 hours at 60 fps): memory follows the frame count."""
+
+SCENE_JSON = {
+    "name": Str(optional=True),
+    "fps": Number(gt=0, optional=True, default=25.0, doc="frames per second"),
+    "units": Str(choices=("mm",), optional=True, default="mm"),
+    "joint_set": Str(choices=tuple(JOINT_SETS)),
+    "num_frames": Int(min=0, max=MAX_FRAMES, optional=True),
+    "cameras": Str(optional=True, default="cameras.json", doc="path in the scene"),
+    "detections": Str(optional=True, default="detections.npz", doc="path in the scene"),
+    "gt": Str(optional=True, doc="path in the scene"),
+    "videos": Str(optional=True, doc="folder in the scene"),
+    "images": Str(optional=True, doc="folder in the scene"),
+}
+"""The declared fields of scene.json (pipeline/schema.py); others are kept and ignored.
+``references`` is checked by :func:`~pipeline.references.load_references`."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -292,10 +311,26 @@ def check_ground_truth(arrays: dict[str, np.ndarray], *, source) -> GroundTruth:
         opt["keypoints3d"] = _check_array(
             source, "keypoints3d", np.asarray(arrays["keypoints3d"]), ndim_shape=(m, None, 3)
         )
+    if (frame < 0).any():
+        raise SceneFormatError(source, "frame", "expected non-negative frame indices")
+    if (pid < 0).any():
+        raise SceneFormatError(
+            source, "person_id", f"expected person ids >= 0, got {int(pid.min())}"
+        )
     pairs = frame * (pid.max(initial=0) + 1) + pid
     if np.unique(pairs).size != m:
         raise SceneFormatError(source, "person_id", "a person appears twice in one frame")
     return GroundTruth(frame=frame, person_id=pid, joints3d=j3, **opt)
+
+
+def _check_frames_in_scene(path: Path, frames: np.ndarray, num_frames: int) -> None:
+    if frames.size and frames.max() >= num_frames:
+        raise SceneFormatError(
+            path,
+            "frame",
+            f"expected frames in [0, {num_frames}) (num_frames in scene.json), "
+            f"got {int((frames >= num_frames).sum())} rows up to frame {int(frames.max())}",
+        )
 
 
 # --------------------------------------------------------------------------- load / write
@@ -313,19 +348,12 @@ def load_scene(root: str | os.PathLike) -> Scene:
         raise SceneFormatError(meta_path, None, f"not valid JSON ({exc})") from exc
     if not isinstance(meta, dict):
         raise SceneFormatError(meta_path, None, "expected a JSON object")
-    units = meta.get("units", "mm")
-    if units != "mm":
-        raise SceneFormatError(meta_path, "units", f"expected 'mm', got {units!r}")
-    try:
-        joint_set = get_joint_set(str(meta.get("joint_set", "")))
-    except ValueError as exc:
-        raise SceneFormatError(meta_path, "joint_set", str(exc)) from None
-    fps = meta.get("fps", 25.0)
-    if not isinstance(fps, (int, float)) or fps <= 0:
-        raise SceneFormatError(meta_path, "fps", f"expected a positive number, got {fps!r}")
+    spec = check_object(meta, SCENE_JSON, meta_path)
+    joint_set = get_joint_set(spec["joint_set"])
+    fps = spec["fps"]
 
-    rig = load_cameras(root / meta.get("cameras", "cameras.json"))
-    det_path = root / meta.get("detections", "detections.npz")
+    rig = load_cameras(root / spec["cameras"])
+    det_path = root / spec["detections"]
     det_arrays = load_npz(det_path)
     if "view_names" in det_arrays:
         # Detections may name their views; map them onto the rig's order.
@@ -344,8 +372,8 @@ def load_scene(root: str | os.PathLike) -> Scene:
         det_arrays, source=det_path, num_joints=joint_set.num_joints, num_views=len(rig)
     )
     gt = None
-    if meta.get("gt"):
-        gt_path = root / meta["gt"]
+    if spec["gt"]:
+        gt_path = root / spec["gt"]
         gt = check_ground_truth(load_npz(gt_path), source=gt_path)
         if gt.keypoints3d is not None and gt.keypoints3d.shape[1] != joint_set.num_joints:
             raise SceneFormatError(
@@ -355,12 +383,20 @@ def load_scene(root: str | os.PathLike) -> Scene:
                 f"got {gt.keypoints3d.shape[1]}",
             )
 
-    num_frames = meta.get("num_frames")
+    num_frames = spec["num_frames"]
     if num_frames is None:
         candidates = [detections.frame.max(initial=-1) + 1]
         if gt is not None:
             candidates.append(gt.frame.max(initial=-1) + 1)
         num_frames = int(max(candidates))
+        if num_frames > MAX_FRAMES:
+            raise SceneFormatError(
+                det_path, "frame", f"expected frames below {MAX_FRAMES}, got {num_frames - 1}"
+            )
+    # Every row is inside the scene: a row past num_frames is an error, never dropped.
+    _check_frames_in_scene(det_path, detections.frame, num_frames)
+    if gt is not None:
+        _check_frames_in_scene(gt_path, gt.frame, num_frames)
     references = load_references(
         root,
         meta,
@@ -369,20 +405,20 @@ def load_scene(root: str | os.PathLike) -> Scene:
         num_joints=joint_set.num_joints,
     )
     videos, image_dirs = {}, {}
-    if meta.get("videos"):
+    if spec["videos"]:
         for cam in rig.names:
-            p = root / meta["videos"] / f"{cam}.mp4"
+            p = root / spec["videos"] / f"{cam}.mp4"
             if p.is_file():
                 videos[cam] = p
-    if meta.get("images"):
+    if spec["images"]:
         for cam in rig.names:
-            p = root / meta["images"] / cam
+            p = root / spec["images"] / cam
             if p.is_dir():
                 image_dirs[cam] = p
     return Scene(
         root=root,
-        name=str(meta.get("name", root.name)),
-        fps=float(fps),
+        name=spec["name"] or root.name,
+        fps=fps,
         num_frames=int(num_frames),
         joint_set=joint_set,
         rig=rig,

@@ -20,7 +20,14 @@ result is kept in that layout or re-ordered by joint name into the asked joint s
 :func:`~pipeline.joint_sets.convert_keypoints`.
 
 Every problem raises :class:`~pipeline.files.SceneFormatError` naming the file and the
-field (``people[2].pose_keypoints_2d``, ``annots[0].keypoints``).
+field (``people[2].pose_keypoints_2d``, ``annots[0].keypoints``). Keypoint values must be
+JSON numbers (a string or ``true`` is an error, not 1.0).
+
+Frame numbers (file names, MMPose ``frame_id``) are scene frames as they are: frame k of
+every camera is the same instant, and videos stay aligned. They are bounded by what was
+read: a frame number above ``10 x (frames read) + 10000`` (:func:`frame_limit`) is
+refused, so a stray ``999999999999`` in a file name is an error, not a 7 TiB scene;
+renumber such files from 0.
 """
 
 from __future__ import annotations
@@ -49,6 +56,7 @@ from pipeline.joint_sets import (
     get_joint_set,
 )
 from pipeline.scene import Detections, check_detections
+from pipeline.schema import check_numbers
 
 # The joint set a scene keeps of a layout when none is asked for: the layout itself,
 # except COCO-WholeBody, whose 110 face and hand points are dropped (the body model and
@@ -58,6 +66,12 @@ DEFAULT_SCENE_JOINT_SET: dict[str, str] = {"coco_wholebody133": "coco23"}
 # Confidences a little above 1 are float round-off in the writer; clip them.
 _CONFIDENCE_SLACK = 1e-4
 _TRAILING_DIGITS = re.compile(r"(\d+)\D*$")
+
+
+def frame_limit(frames_read: int) -> int:
+    """The largest frame number accepted when ``frames_read`` frames were read (see the
+    module docstring): a leading offset of up to 10000 frames, or gaps up to 10x."""
+    return 10 * frames_read + 10_000
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,6 +137,7 @@ def check_keypoints(value, path, field: str) -> np.ndarray:
     Confidence must be finite and in [0, 1] (values up to 1.0001 are clipped to 1);
     x, y must be finite where the confidence is > 0; x, y become NaN where it is 0.
     """
+    check_numbers(value, path, field)
     try:
         kp = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -226,6 +241,8 @@ def _mmpose_instance(person, path: Path, field: str) -> np.ndarray:
     """One MMPose instance ``{"keypoints": [[x, y], ...], "keypoint_scores": [...]}``."""
     if not isinstance(person, dict) or "keypoints" not in person:
         raise SceneFormatError(path, field + ".keypoints", "missing")
+    check_numbers(person["keypoints"], path, field + ".keypoints")
+    check_numbers(person.get("keypoint_scores", []), path, field + ".keypoint_scores")
     try:
         xy = np.asarray(person["keypoints"], dtype=float)
         scores = np.asarray(person.get("keypoint_scores", np.ones(len(xy))), dtype=float)
@@ -388,7 +405,8 @@ def _read_folders(
 
     frames, views, rows = [], [], []
     first: tuple[Path, int] | None = None  # where the keypoint count was first seen
-    num_frames = 0
+    num_frames, frames_read = 0, 0
+    last: Path | None = None  # the file of the largest frame number
     for v, name in enumerate(names):
         seen: dict[int, Path] = {}
         for path in files.get(name, []):
@@ -399,7 +417,9 @@ def _read_folders(
                         path, "file name", f"frame {f} is also read from {seen[f].name}"
                     )
                 seen[f] = path
-                num_frames = max(num_frames, f + 1)
+                if f + 1 > num_frames:
+                    num_frames, last = f + 1, path
+            frames_read += len(covered)
             for f, field, kp in people:
                 if forced is not None and kp.shape[0] != forced.num_joints:
                     raise SceneFormatError(
@@ -431,6 +451,13 @@ def _read_folders(
                 views.append(v)
                 rows.append(kp)
 
+    if num_frames - 1 > frame_limit(frames_read):
+        raise SceneFormatError(
+            last,
+            "frame number",
+            f"expected frame numbers up to {frame_limit(frames_read)} for {frames_read} frames "
+            f"read, got {num_frames - 1}: renumber the files from 0",
+        )
     decision = None
     if rows:
         raw = np.stack(rows)
