@@ -9,6 +9,7 @@ from pathlib import Path
 
 from pipeline.detect.blazepose import InterpreterMissingError
 from pipeline.detect.video import DetectSettings, detect_scene
+from pipeline.video_crop import parse_video_crops
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -61,6 +62,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="re-encode SCENE/videos/ at this scale (default 1: copy when possible)",
     )
+    p.add_argument(
+        "--video-crop",
+        action="append",
+        default=[],
+        metavar="CAM=L,T,R,B",
+        help="camera CAM's video is its calibrated image with L, T, R, B calibrated pixels "
+        "cut from the left, top, right and bottom (then maybe scaled). Without it a video a "
+        "few pixels off the calibration (at most 16 px or 1 %% on one dimension) is taken as "
+        "an encoder's crop or padding at the right/bottom edge, with a warning (repeatable)",
+    )
     p.add_argument("--threads", type=int, default=None, help="interpreter threads")
     p.add_argument("--overwrite", action="store_true", help="replace an existing detections.npz")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -78,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     )
     t0 = time.perf_counter()
     try:
+        crops = parse_video_crops(args.video_crop)
         report = detect_scene(
             args.scene,
             args.videos,
@@ -85,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
             overwrite=args.overwrite,
             video_scale=args.video_scale,
             progress=not args.no_progress,
+            video_crops=crops,
         )
     except (InterpreterMissingError, ValueError) as exc:
         print(f"mvviz detect: error: {exc}", file=sys.stderr)

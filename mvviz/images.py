@@ -11,7 +11,11 @@ The frustums' small images (:data:`THUMBNAIL_WIDTH` px) are decoded for every fr
 once the videos are in (~0.6 ms a frame, in the background), within a memory budget
 (:data:`THUMBNAIL_BUDGET_BYTES`): a frame change then shows them without decoding.
 
-Pixels: OpenCV convention, (u, v) = (column, row); arrays are RGB uint8.
+Pixels: OpenCV convention, (u, v) = (column, row); arrays are RGB uint8. Every stored
+frame is a uniform scale of its camera's calibrated image: a video an encoder cropped or
+padded by a few pixels, or one whose crop ``scene.json`` records (``video_crop``), is
+placed on the calibrated image first (:mod:`pipeline.video_crop`), so the overlays (in
+calibrated pixels) and the frustums (the calibrated aspect) line up with it.
 """
 
 from __future__ import annotations
@@ -30,8 +34,9 @@ import numpy as np
 from mvviz.geometry import FRUSTUM_WIDTHS, UNASSIGNED, LayerToggles, ViewerData, track_color
 from pipeline.files import save_npz_atomic
 from pipeline.scene import Scene
+from pipeline.video_crop import CalibratedFrames
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3  # 3: frames placed on the calibrated image
 THUMBNAIL_WIDTH = FRUSTUM_WIDTHS[0]  # the frustums' default width, px
 THUMBNAIL_BUDGET_BYTES = 256 * 2**20  # 5 cameras x ~7,000 frames at 128 x 96 px
 
@@ -66,6 +71,15 @@ class FrameStore:
         self.cache_dir = cache_dir
         self.jpeg_quality = jpeg_quality
         self.sources: dict[str, _Source] = {}
+        stated = scene.meta.get("video_crop")
+        self._stated: dict = stated if isinstance(stated, dict) else {}
+        self._placers = {
+            c.name: CalibratedFrames(
+                c.name, (c.width, c.height), crop=self._stated.get(c.name),
+                note=lambda text: print(f"mvviz view: {text}"),
+            )
+            for c in scene.rig
+        }  # fmt: skip
         for cam in scene.rig.names:
             if cam in scene.videos:
                 self.sources[cam] = _Source("video", scene.videos[cam])
@@ -109,7 +123,7 @@ class FrameStore:
                 try:
                     frames = self._load_cache(cam)
                     if frames is None:
-                        frames = self._decode_video(self.sources[cam].path)
+                        frames = self._decode_video(self.sources[cam].path, cam)
                         self._save_cache(cam, frames)
                 except Exception as exc:  # a broken video must not take the viewer down
                     print(f"mvviz view: cannot decode video of camera {cam}: {exc}")
@@ -141,7 +155,7 @@ class FrameStore:
                     arr[f] = img
                     self._small_ready[(cam, width)][f] = True
 
-    def _decode_video(self, path: Path) -> list[bytes | None]:
+    def _decode_video(self, path: Path, cam: str) -> list[bytes | None]:
         cap = cv2.VideoCapture(str(path))
         if not cap.isOpened():
             raise OSError(f"cannot open {path}")
@@ -152,11 +166,17 @@ class FrameStore:
                 ok, bgr = cap.read()
                 if not ok:
                     break
+                bgr = self._to_calibrated(cam, bgr)
                 ok, buf = cv2.imencode(".jpg", self._resize(bgr), params)
                 out.append(buf.tobytes() if ok else None)
         finally:
             cap.release()
         return out
+
+    def _to_calibrated(self, cam: str, img: np.ndarray) -> np.ndarray:
+        """``img`` (h, w, 3) on ``cam``'s calibrated image (see the module docstring); as
+        it is, with a message, when its size fits no rule."""
+        return self._placers[cam](img)
 
     def _resize(self, img: np.ndarray) -> np.ndarray:
         h, w = img.shape[:2]
@@ -170,7 +190,13 @@ class FrameStore:
 
     def _stamp(self, cam: str) -> np.ndarray:
         st = self.sources[cam].path.stat()
-        return np.array([CACHE_VERSION, st.st_size, st.st_mtime_ns, self.jpeg_quality], np.int64)
+        crop = self._stated.get(cam) or [0, 0, 0, 0]
+        try:  # a stated crop changes the frames
+            crop = [round(float(c) * 1000) for c in crop][:4]
+        except (TypeError, ValueError):
+            crop = []
+        stamp = [CACHE_VERSION, st.st_size, st.st_mtime_ns, self.jpeg_quality, *crop]
+        return np.array(stamp, np.int64)
 
     def _load_cache(self, cam: str) -> list[bytes | None] | None:
         path = self._cache_path(cam)
@@ -219,7 +245,7 @@ class FrameStore:
             bgr = cv2.imread(str(src.path / f"{frame:06d}.jpg"), cv2.IMREAD_COLOR)
             if bgr is None:
                 return None
-            bgr = self._resize(bgr)
+            bgr = self._resize(self._to_calibrated(cam, bgr))
         else:
             if jpegs is None or frame >= len(jpegs) or jpegs[frame] is None:
                 return None

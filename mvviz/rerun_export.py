@@ -53,6 +53,7 @@ from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
+from pipeline.video_crop import CalibratedFrames
 
 APP_ID = "mvviz"
 MM_TO_M = 1e-3
@@ -241,14 +242,19 @@ def scaled_intrinsics(cam: Camera, width: int) -> tuple[np.ndarray, int, int, fl
 
 class FrameSource:
     """Frames of one camera (BGR uint8) from its video or image folder; reading in
-    increasing frame order is cheapest (a video is decoded forward, seeking on jumps)."""
+    increasing frame order is cheapest (a video is decoded forward, seeking on jumps).
+    ``place`` puts each frame on the calibrated image, as the viewer shows it."""
 
-    def __init__(self, video: Path | None = None, image_dir: Path | None = None) -> None:
-        self.video, self.image_dir = video, image_dir
+    def __init__(self, video=None, image_dir=None, place: CalibratedFrames | None = None) -> None:
+        self.video, self.image_dir, self._place = video, image_dir, place
         self._cap = cv2.VideoCapture(str(video)) if video is not None else None
         self._next = 0
 
     def read(self, frame: int) -> np.ndarray | None:
+        img = self._read(frame)
+        return img if img is None or self._place is None else self._place(img)
+
+    def _read(self, frame: int) -> np.ndarray | None:
         if self._cap is not None:
             if frame < self._next or frame - self._next > 50:
                 self._cap.set(cv2.CAP_PROP_POS_FRAMES, frame)
@@ -526,10 +532,14 @@ def export_rrd(
         widths = {c.name: (min(image_width, c.width) if images else c.width) for c in scene.rig}
         cam_size = _log_cameras(rec, scene, widths)
         if images:
+            crops = scene.meta.get("video_crop") or {}  # what each video does not show
             for cam in scene.rig:
                 if cam.name in scene.videos or cam.name in scene.image_dirs:
+                    size, crop = (cam.width, cam.height), crops.get(cam.name)
                     sources[cam.name] = FrameSource(
-                        scene.videos.get(cam.name), scene.image_dirs.get(cam.name)
+                        scene.videos.get(cam.name),
+                        scene.image_dirs.get(cam.name),
+                        CalibratedFrames(cam.name, size, crop=crop),
                     )
         faces = keep = None
         has_smpl = gt is not None and all(

@@ -10,8 +10,11 @@ Resumable: each camera's rows are cached in ``SCENE/.mvviz/detect/<camera>.npz``
 video; a rerun skips the frames done. ``detections.npz`` and ``scene.json`` are written
 only at the end, atomically.
 
-Pixels: OpenCV convention; keypoints are stored in the calibration's pixels (a video
-that is a uniformly scaled copy of the calibrated image size is scaled back).
+Pixels: OpenCV convention; keypoints are stored in the calibration's pixels: a video
+that is a uniformly scaled copy of the calibrated image is scaled back, one that an
+encoder cropped or padded by a few pixels at the right/bottom edge, or whose crop the
+user states (``--video-crop``), is mapped by :mod:`pipeline.video_crop`; the crop is
+recorded in ``scene.json`` (``video_crop``) for the viewer.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from pipeline.files import SceneFormatError, atomic_write, load_npz, save_npz_at
 from pipeline.joint_sets import BLAZEPOSE33, COCO17, convert_keypoints
 from pipeline.restore import fit_weak_perspective
 from pipeline.scene import check_detections
+from pipeline.video_crop import VideoCrop, resolve_video_crop
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm")
 CACHE_EVERY = 50
@@ -154,14 +158,22 @@ def match_videos(camera_names: list[str], paths: list[Path]) -> VideoMatch:
 
 def image_scale(video: VideoInfo, width: int, height: int) -> float:
     """Factor from video pixels to calibration pixels; a ValueError unless the video is the
-    calibrated image uniformly scaled (to within a pixel)."""
-    s = width / video.width
-    if abs(video.height * s - height) > max(1.0, s):
-        raise ValueError(
-            f"video {video.path.name} is {video.width}x{video.height}, the calibration "
-            f"{width}x{height}: not a uniform scale (rotated or cropped?)"
-        )
-    return s
+    calibrated image uniformly scaled (to within a pixel). :func:`video_crop` also takes
+    encoders' crops and stated ones."""
+    size = (video.width, video.height)
+    return resolve_video_crop(
+        video.path.stem, size, (width, height), max_px=0, max_fraction=0
+    ).scale
+
+
+def video_crop(camera: str, video: VideoInfo, width: int, height: int, crop=None) -> VideoCrop:
+    """How ``camera``'s video maps onto its calibrated ``width`` x ``height`` pixels
+    (:func:`pipeline.video_crop.resolve_video_crop`; ``crop`` = the user's LEFT, TOP,
+    RIGHT, BOTTOM); the VideoSizeError (a ValueError) also names the video file."""
+    try:
+        return resolve_video_crop(camera, (video.width, video.height), (width, height), crop=crop)
+    except ValueError as exc:
+        raise type(exc)(f"{video.path.name}: {exc}") from None
 
 
 # --------------------------------------------------------------------------- detection
@@ -350,8 +362,11 @@ def detect_camera(
     )
 
 
-def detection_columns(poses: CameraPoses, view: int, scale: float) -> dict[str, np.ndarray]:
-    """One camera's rows as ``detections.npz`` columns, in calibration pixels.
+def detection_columns(
+    poses: CameraPoses, view: int, scale: float, *, offset: tuple[float, float] = (0.0, 0.0)
+) -> dict[str, np.ndarray]:
+    """One camera's rows as ``detections.npz`` columns, in calibration pixels: video pixel
+    ``uv`` is ``scale * uv + offset`` (a :class:`~pipeline.video_crop.VideoCrop`).
 
     ``keypoints`` are COCO-17; ``blazepose_keypoints`` / ``blazepose_world`` keep all 33
     landmarks; ``mono_joints3d`` (SMPL-24, metres, camera axes) with ``cam_weak`` fitted
@@ -359,9 +374,10 @@ def detection_columns(poses: CameraPoses, view: int, scale: float) -> dict[str, 
     their confidence) in ``bbox``, the ROI's axis-aligned square.
     """
     kp33 = poses.keypoints.copy()
-    kp33[..., :2] *= scale
+    kp33[..., :2] = kp33[..., :2] * scale + np.asarray(offset, float)
     rois = Rois.from_array(poses.rois)
-    rois = Rois(centre=rois.centre * scale, size=rois.size * scale, angle=rois.angle)
+    centre = rois.centre * scale + np.asarray(offset, float)
+    rois = Rois(centre=centre, size=rois.size * scale, angle=rois.angle)
     bbox = square_bbox(rois)
     if len(poses.frame):
         cam = fit_weak_perspective(poses.world, kp33[..., :2], bbox, kp33[..., 2])
@@ -451,12 +467,15 @@ def detect_scene(
     progress: bool = True,
     log: Callable[[str], None] = print,
     detector: BlazePose | None = None,
+    video_crops: dict[str, tuple[float, float, float, float]] | None = None,
 ) -> DetectReport:
     """Detect people in every camera's video and write the scene's detections.
 
     ``scene_dir`` needs ``cameras.json`` (or the file ``scene.json`` names); ``scene.json``
     is created or updated (joint_set coco17, fps, num_frames, videos), ``detections.npz``
     written, ``videos/<camera>.mp4`` copied or re-encoded; all atomically, at the end.
+    ``video_crops`` (camera -> LEFT, TOP, RIGHT, BOTTOM calibrated px) states how a video
+    was cut from the calibrated image (see :mod:`pipeline.video_crop`).
     """
     scene_dir = Path(scene_dir)
     meta = _read_meta(scene_dir)
@@ -481,16 +500,21 @@ def detect_scene(
     if match.missing_cameras:
         log(f"cameras without a video (no detections in those views): {match.missing_cameras}")
     infos = {c: probe_video(p) for c, p in match.videos.items()}
-    scales = {
-        c: image_scale(v, rig[rig.index_of(c)].width, rig[rig.index_of(c)].height)
+    video_crops = dict(video_crops or {})
+    unknown = sorted(set(video_crops) - set(rig.names))
+    if unknown:
+        raise ValueError(f"--video-crop names cameras not in the calibration: {unknown}")
+    crops = {
+        c: video_crop(
+            c, v, rig[rig.index_of(c)].width, rig[rig.index_of(c)].height, video_crops.get(c)
+        )
         for c, v in infos.items()
     }
-    for c, s in scales.items():
-        if abs(s - 1) > 1e-6:
-            log(
-                f"video {infos[c].path.name} is scaled {1 / s:.3g}x the calibration; "
-                "keypoints scaled back"
-            )
+    for c, vc in crops.items():
+        if vc.rule == "scale":
+            log(f"video {infos[c].path.name}: {vc.describe()}")
+        elif vc.rule != "exact":
+            log(f"warning: video {infos[c].path.name}: {vc.describe()}")
     counts = {c: v.num_frames for c, v in infos.items()}
     common = min(counts.values())
     if len(set(counts.values())) > 1:
@@ -531,7 +555,10 @@ def detect_scene(
         short = num_frames - len(poses.done)
         if short:
             log(f"  {cam}: the video ended {short} frames early; those frames have no detections")
-        columns.append(detection_columns(poses, rig.index_of(cam), scales[cam]))
+        vc = crops[cam]
+        columns.append(
+            detection_columns(poses, rig.index_of(cam), vc.scale, offset=tuple(vc.offset))
+        )
         rows_per[cam] = len(poses.frame)
         with_people[cam] = int(np.unique(poses.frame).size)
     arrays = {k: np.concatenate([c[k] for c in columns]) for k in columns[0]}
@@ -570,8 +597,13 @@ def detect_scene(
             "tiles": settings.tiles,
             "source_videos": {c: str(v.path) for c, v in infos.items()},
             "video_frames": counts,
+            "video_mapping": {c: vc.describe() for c, vc in crops.items() if vc.rule != "exact"},
         },
     )
+    cropped = {c: list(vc.crop) for c, vc in crops.items() if any(vc.crop)}
+    meta.pop("video_crop", None)
+    if cropped:  # calibrated px each video does not show: the viewer places frames by it
+        meta["video_crop"] = cropped
     with atomic_write(scene_dir / "scene.json", "w") as fh:
         fh.write(json.dumps(meta, indent=1) + "\n")
     return DetectReport(
