@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from mvviz.cli import add_debug_option, run_command
 from mvviz.cli_view import add_view_options, run
 
 
@@ -26,7 +27,8 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     add_view_options(parser, scene_optional=True)
-    return run(parser.parse_args(argv))
+    add_debug_option(parser)
+    return run_command("app.py", run, parser.parse_args(argv))
 
 
 if __name__ == "__main__":

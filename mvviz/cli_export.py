@@ -16,11 +16,9 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from mvviz.cli_run import resolve_config
+from mvviz.cli_run import prepare
 from mvviz.rerun_export import DEFAULT_PLOT_JOINTS, count_entities, export_rrd
-from pipeline.body_model import load_body_model
 from pipeline.results import run_or_load
-from pipeline.scene import load_scene
 
 
 def parse_frames(spec: str) -> slice:
@@ -74,9 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    scene = load_scene(args.scene)
-    config = resolve_config(args)
-    model = load_body_model(args.smpl_model)
+    scene, config, model = prepare(args)
     results, cached = run_or_load(scene, config, model)
     print(f"{'reused cached' if cached else 'computed'} results: {results.num_tracks} tracks")
     t0 = time.perf_counter()

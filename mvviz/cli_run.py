@@ -9,12 +9,13 @@ import sys
 import time
 from pathlib import Path
 
-from pipeline.body_model import load_body_model
+from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import PipelineConfig, load_config
 from pipeline.evaluate import evaluate, format_table
 from pipeline.files import atomic_write
+from pipeline.pose_prior import load_prior
 from pipeline.results import default_results_path, run_or_load
-from pipeline.scene import load_scene
+from pipeline.scene import Scene, load_scene
 
 
 def add_pipeline_options(p: argparse.ArgumentParser) -> None:
@@ -40,16 +41,23 @@ def resolve_config(args: argparse.Namespace) -> PipelineConfig:
     if path is None and (args.scene / "mvviz_config.json").is_file():
         path = args.scene / "mvviz_config.json"
     config = load_config(path) if path else PipelineConfig()
-    try:
-        return config.with_overrides(args.set)
-    except ValueError as exc:
-        raise SystemExit(f"mvviz: error: {exc}") from None
+    return config.with_overrides(args.set)
+
+
+def prepare(args: argparse.Namespace) -> tuple[Scene, PipelineConfig, BodyModel]:
+    """Scene, config and body model, every input checked before any stage runs (the
+    config against the scene's cameras, the pose prior checkpoint if the fit uses it)."""
+    scene = load_scene(args.scene)
+    config = resolve_config(args)
+    config.check_cameras(scene.rig.names, source=str(args.config or "--set"))
+    model = load_body_model(args.smpl_model)
+    if config.fit_smpl and config.use_pose_prior:
+        load_prior(config.pose_prior or None)
+    return scene, config, model
 
 
 def load_and_run(args: argparse.Namespace, *, progress: bool = True):
-    scene = load_scene(args.scene)
-    config = resolve_config(args)
-    model = load_body_model(args.smpl_model)
+    scene, config, model = prepare(args)
     t0 = time.perf_counter()
     results, cached = run_or_load(
         scene, config, model, out=args.out, progress=progress, force=args.force

@@ -8,9 +8,7 @@ from pathlib import Path
 
 from mvviz.app import ViewerApp, ViewerState
 from mvviz.images import FrameStore
-from pipeline.body_model import load_body_model
 from pipeline.results import run_or_load
-from pipeline.scene import load_scene
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SCENE = REPO_ROOT / "sample_data" / "shelf_synth"
@@ -57,12 +55,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
     """Load, run or load results, start the server; returns the running app."""
-    from mvviz.cli_run import resolve_config  # noqa: PLC0415  (shares --config/--set)
+    from mvviz.cli_run import prepare  # noqa: PLC0415  (shares --config/--set)
 
     t0 = time.perf_counter()
-    scene = load_scene(args.scene)
-    config = resolve_config(args)
-    model = load_body_model(args.smpl_model)
+    scene, config, model = prepare(args)
     print(f"scene {scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames")
     results, cached = run_or_load(
         scene, config, model, out=args.out, progress=progress, force=args.force
@@ -72,6 +68,8 @@ def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
     state = ViewerState.create(scene, results, model)
     app = ViewerApp(state, host=args.host, port=args.port, frames=frames, model=model)
     app.wait_idle(30)
+    if app.server.get_port() != args.port:  # viser moves to the next free port
+        print(f"port {args.port} is taken: serving on port {app.server.get_port()} instead")
     print(f"ready in {time.perf_counter() - t0:.1f} s: {app.url}")
     if frames.sources and not frames.ready:
         print("(decoding videos in the background; frames appear as they are ready)")

@@ -12,6 +12,7 @@ Shapes use B for batch, V vertices, J = 24 joints.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import pickle
 import sys
@@ -117,6 +118,12 @@ class BodyModel(torch.nn.Module):
         super().__init__()
         a = _check_model_arrays(arrays, source)
         self.source = source
+        # What the model is, not where it lives: results cached with one install are
+        # reused by another (pipeline/results.py's cache key).
+        h = hashlib.sha256()
+        for k in sorted(k for k in a if a[k] is not None):
+            h.update(k.encode() + str(a[k].shape).encode() + np.ascontiguousarray(a[k]).tobytes())
+        self.fingerprint = h.hexdigest()
         self.num_vertices = a["v_template"].shape[0]
         self.num_betas = a["shapedirs"].shape[-1]
         parents = a["kintree_table"][0].astype(np.int64)

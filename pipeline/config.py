@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -14,6 +15,7 @@ from typing import Any
 from pipeline.associate import AssociationParams
 from pipeline.files import SceneFormatError, atomic_write
 from pipeline.kalman import KalmanParams
+from pipeline.schema import Anything, Bool, Int, Number, Spec, Str, StrList
 from pipeline.smpl_fit import FitParams
 from pipeline.track import TrackingParams
 
@@ -66,31 +68,109 @@ class PipelineConfig:
         return _build(cls, data, source, "")
 
     def with_overrides(self, assignments: list[str]) -> PipelineConfig:
-        """Apply ``section.field=value`` strings (value parsed as JSON, else a string)."""
+        """Apply ``section.field=value`` strings, each value parsed by the field's declared
+        type (:func:`parse_override`); a bad one is a SceneFormatError naming ``--set``."""
         data = self.to_dict()
         for a in assignments:
-            if "=" not in a:
-                raise ValueError(f"override {a!r}: expected section.field=value")
-            key, raw = a.split("=", 1)
-            try:
-                value = json.loads(raw)
-            except json.JSONDecodeError:
-                value = raw
-            node = data
+            key, sep, raw = a.partition("=")
+            if not sep:
+                raise SceneFormatError("--set", a, "expected SECTION.FIELD=VALUE")
+            node, cls = data, PipelineConfig
             parts = key.strip().split(".")
             for p in parts[:-1]:
                 if p not in node or not isinstance(node[p], dict):
-                    raise ValueError(f"override {a!r}: no section {p!r}")
-                node = node[p]
+                    raise SceneFormatError("--set", key, f"no section {p!r}")
+                node, cls = node[p], type(getattr(cls(), p))
             if parts[-1] not in node:
-                raise ValueError(f"override {a!r}: no field {parts[-1]!r}; fields: {sorted(node)}")
-            node[parts[-1]] = value
+                raise SceneFormatError("--set", key, f"no such field; fields: {sorted(node)}")
+            node[parts[-1]] = parse_override(raw, field_spec(cls, parts[-1], key))
         return PipelineConfig.from_dict(data, source="--set")
+
+    def check_cameras(self, camera_names: list[str], *, source: str = "config") -> None:
+        """``disabled_views`` names cameras of the scene (checked before any stage runs)."""
+        unknown = sorted(set(self.disabled_views) - set(camera_names))
+        if unknown:
+            raise SceneFormatError(
+                source,
+                "disabled_views",
+                f"expected camera names of the scene {camera_names}, got unknown {unknown}",
+            )
+
+
+# Ranges beyond "finite and >= 0" (the rule for every other number of the config).
+RANGES: dict[str, Spec] = {
+    "source": Str(choices=SOURCES),
+    "triangulation.min_views": Int(min=2, doc="a point needs two rays"),
+    "triangulation.min_confidence": Number(ge=0, le=1),
+    "triangulation.outlier_threshold_px": Number(gt=0),
+    "association.min_views": Int(min=1),
+    "association.min_confidence": Number(ge=0, le=1),
+    "association.max_distance_mm": Number(gt=0),
+    "kalman.control_gain": Number(),
+}
+
+
+def field_spec(cls, name: str, dotted: str) -> Spec:
+    """The declared type of field ``name`` of the params dataclass ``cls`` as a
+    :mod:`pipeline.schema` spec (``dotted`` is its ``section.field`` name)."""
+    hint = typing.get_type_hints(cls)[name]
+    args = typing.get_args(hint)
+    optional = type(None) in args
+    if optional:
+        hint = next(a for a in args if a is not type(None))
+    if dotted in RANGES:
+        return dataclasses.replace(RANGES[dotted], optional=optional)
+    if hint is bool:
+        return Bool(optional=optional)
+    if hint is int:
+        return Int(min=0, optional=optional)
+    if hint is float:
+        return Number(ge=0, optional=optional)
+    if hint is str:
+        return Str(optional=optional) if name != "pose_prior" else _AnyStr(optional=optional)
+    if typing.get_origin(hint) is tuple:
+        return StrList(optional=optional)
+    return Anything()
+
+
+@dataclasses.dataclass(frozen=True)
+class _AnyStr(Str):
+    """A string that may be empty (``pose_prior = ""``: the shipped checkpoint)."""
+
+    def accepts(self, value):
+        return isinstance(value, str)
+
+
+def parse_override(raw: str, spec: Spec):
+    """The text of ``--set FIELD=TEXT`` as the field's type: ``true``/``false`` for a bool,
+    a JSON number, ``null`` for an optional field, a string as written (JSON quotes
+    optional), a list of names as a JSON list or comma-separated (``cam0,cam1``; empty =
+    none). Checked by the spec afterwards."""
+    text = raw.strip()
+    if text == "null" and spec.optional:
+        return None
+    if isinstance(spec, StrList):
+        if text.startswith("["):
+            return _json_or_text(text)
+        text = _json_or_text(text) if text.startswith('"') else text
+        return [n.strip() for n in str(text).split(",") if n.strip()]
+    if isinstance(spec, Str):
+        return _json_or_text(text) if text.startswith('"') else text
+    return _json_or_text(text)
+
+
+def _json_or_text(text: str):
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
 
 
 def _build(cls, data: dict, source: str, prefix: str):
     if not isinstance(data, dict):
-        raise SceneFormatError(source, prefix or None, f"expected an object, got {data!r}")
+        raise SceneFormatError(
+            source, prefix.rstrip(".") or None, f"expected an object, got {data!r}"
+        )
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields))
     if unknown:
@@ -99,19 +179,12 @@ def _build(cls, data: dict, source: str, prefix: str):
         )
     kwargs = {}
     for name, value in data.items():
-        default = getattr(cls(), name) if name not in ("disabled_views",) else ()
-        if value is None:
-            kwargs[name] = None  # e.g. kalman.q = null: the model's own default
-        elif dataclasses.is_dataclass(default):
+        default = getattr(cls(), name)
+        if dataclasses.is_dataclass(default):
             kwargs[name] = _build(type(default), value, source, f"{prefix}{name}.")
-        elif isinstance(default, tuple):
-            kwargs[name] = tuple(value)
-        elif isinstance(default, bool) or default is None:
-            kwargs[name] = value
-        elif isinstance(default, (int, float)) and not isinstance(value, (int, float)):
-            raise SceneFormatError(source, prefix + name, f"expected a number, got {value!r}")
         else:
-            kwargs[name] = type(default)(value) if isinstance(default, (int, float)) else value
+            spec = field_spec(cls, name, prefix + name)
+            kwargs[name] = spec.check(value, source, prefix + name)
     try:
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
