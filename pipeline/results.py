@@ -172,8 +172,8 @@ def scene_fingerprint(scene: Scene) -> str:
 def cache_key(scene: Scene, config: PipelineConfig, model: BodyModel) -> str:
     h = hashlib.sha256()
     h.update(scene_fingerprint(scene).encode())
-    h.update(config.to_json().encode())
-    h.update(str(model.source).encode())
+    h.update(dataclasses.replace(config, pose_prior="").to_json().encode())  # its content below
+    h.update(model.fingerprint.encode())  # the model's content, not its path
     if config.fit_smpl and config.use_pose_prior:
         prior = resolve_prior_path(config.pose_prior or None)
         if prior.is_file():
