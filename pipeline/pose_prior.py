@@ -24,7 +24,9 @@ perturbations that cover what the library never moves (collars, wrists, ankles o
 axis, toes, limb twists), sampled inside :data:`pipeline.pose_limits.LIMITS`; any
 AMASS-style ``.npz`` with a ``poses`` array of (N, 156) (SMPL-H) or (N, 72) (SMPL) can be
 added or used instead (the first 72 columns are read; only joints 1-21 are used, which
-the two layouts share).
+the two layouts share), and so can a BVH motion capture clip (``.bvh``: our body model
+fitted to its joints at 30 fps by :func:`pipeline.mocap.bvh_training_poses`). The
+checkpoint's ``info["sources"]`` lists every source (frames, activity, licence).
 
 Checkpoints: ``torch.save`` of ``{"state_dict", "config", "info"}`` (tensors, numbers,
 strings only), read back with ``torch.load(weights_only=True)``.
@@ -43,7 +45,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from pipeline import pose_limits
+from pipeline import mocap, pose_limits
 from pipeline.smpl_kinematics import (
     matrix_to_rot6d,
     matrix_to_rotvec,
@@ -174,8 +176,11 @@ def _as_poses(poses: np.ndarray) -> np.ndarray:
 
 
 def load_pose_data(path: str | os.PathLike) -> np.ndarray:
-    """Poses (N, 72) from an AMASS-style ``.npz`` (its ``poses`` array, first 72 columns)."""
+    """Poses (N, 72) from an AMASS-style ``.npz`` (its ``poses`` array, first 72 columns)
+    or a ``.bvh`` clip (the default body model fitted to it at 30 fps)."""
     path = Path(path)
+    if path.suffix.lower() == ".bvh":
+        return mocap.bvh_training_poses(path)[0]
     with np.load(path, allow_pickle=False) as z:
         if "poses" not in z.files:
             raise ValueError(f"{path}: no 'poses' array (keys: {z.files})")
@@ -248,6 +253,7 @@ def train_prior(
     progress: bool = True,
     num_threads: int = 1,
     data_name: str | None = None,
+    sources: Sequence[dict] | None = None,
 ) -> PosePrior:
     """Train the VAE (Adam, cosine learning-rate decay) on CPU.
 
@@ -256,6 +262,8 @@ def train_prior(
             them; None = :func:`default_training_poses`.
         holdout: fraction of poses kept out of training to report held-out losses.
         data_name: description of the data for the training record (default: derived).
+        sources: one record per data source (file, frames, activity, licence, ...),
+            stored as ``info["sources"]``.
     Returns:
         The prior; ``info`` holds the data description, final train / held-out losses
         (reconstruction, KL) and the wall time.
@@ -334,6 +342,8 @@ def train_prior(
         "seconds": time.perf_counter() - t0,
         "torch": str(torch.__version__),
     }
+    if sources is not None:
+        info["sources"] = [dict(s) for s in sources]
     return PosePrior(net=net, config=config, info=info)
 
 
