@@ -3,12 +3,22 @@
 Every output the project writes goes through :func:`atomic_write` or
 :func:`atomic_directory`, so an interrupted or failed write never leaves a
 half-written file or scene behind.
+
+Temporary names carry the writer's process id: ``.NAME.<pid>.<random>.tmp`` beside
+``NAME``. A process killed mid-write (SIGKILL runs no cleanup) leaves one behind; the
+next write of ``NAME`` (and :func:`recover`, which :func:`~pipeline.scene.load_scene`
+calls) removes those of dead processes. Replacing a directory takes two renames
+(``NAME -> .NAME.old-<pid>``, then ``.NAME.new-<pid> -> NAME``); a kill between them
+is completed by :func:`recover`: the complete new directory is put in place (the old
+one is restored only if the new one is gone), so afterwards either the old or the new
+directory is at ``NAME``, whole.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -33,12 +43,64 @@ class SceneFormatError(ValueError):
         super().__init__(f"{where}: {message}")
 
 
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's live process
+    return True
+
+
+def _remove(p: Path) -> None:
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+
+
+def recover(path: str | os.PathLike) -> None:
+    """Finish what dead writers of ``path`` left: remove their temporary files and
+    complete (or roll back) an interrupted directory replacement (see the module
+    docstring). Leftovers of live processes are not touched."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        return
+    pattern = re.compile(r"^\." + re.escape(path.name) + r"\.(?:(\d+)\..*\.tmp|(old|new)-(\d+))$")
+    stale: dict[str, list[Path]] = {"tmp": [], "old": [], "new": []}
+    for entry in path.parent.iterdir():
+        m = pattern.match(entry.name)
+        if m is None:
+            continue
+        pid = int(m.group(1) or m.group(3))
+        if not _alive(pid):
+            stale[m.group(2) or "tmp"].append(entry)
+    for p in stale["tmp"]:
+        _remove(p)
+    for p in stale["new"]:  # complete: only ever renamed from a finished temporary
+        if not path.exists():
+            os.replace(p, path)
+        else:
+            _remove(p)  # the kill came before the old one moved away: the old one stays
+    for p in stale["old"]:
+        if not path.exists():
+            os.replace(p, path)  # no new one to complete with: roll back
+        else:
+            _remove(p)
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator:
     """Open a temporary file beside ``path``; it replaces ``path`` only if the block succeeds."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    recover(path)
+    prefix = f".{path.name}.{os.getpid()}."
+    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, mode) as fh:
             yield fh
@@ -66,21 +128,28 @@ def atomic_directory(path: str | os.PathLike, *, overwrite: bool = False) -> Ite
     replaced as a whole after the new one is complete.
     """
     path = Path(path)
+    recover(path)
     if path.exists() and any(path.iterdir()) and not overwrite:
         raise FileExistsError(f"{path} exists and is not empty (pass overwrite to replace it)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    prefix = f".{path.name}.{os.getpid()}."
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=path.parent))
+    old = path.with_name(f".{path.name}.old-{os.getpid()}")
     try:
         yield tmp
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700
         if path.exists():
-            old = path.with_name(f".{path.name}.old-{os.getpid()}")
+            new = path.with_name(f".{path.name}.new-{os.getpid()}")
+            os.replace(tmp, new)  # complete, under a name recover() knows
+            tmp = new
             os.replace(path, old)
-            os.replace(tmp, path)
+            os.replace(new, path)
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
     except BaseException:
+        if old.exists() and not path.exists():
+            os.replace(old, path)  # failed between the renames: put the old one back
         shutil.rmtree(tmp, ignore_errors=True)
         raise
 

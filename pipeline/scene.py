@@ -17,7 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.cameras import CameraRig, load_cameras, save_cameras
-from pipeline.files import SceneFormatError, atomic_directory, load_npz, save_npz_atomic
+from pipeline.files import (
+    SceneFormatError,
+    atomic_directory,
+    load_npz,
+    recover,
+    save_npz_atomic,
+)
 from pipeline.joint_sets import JOINT_SETS, SMPL24, JointSet, get_joint_set
 from pipeline.references import (
     ReferenceTrack,
@@ -339,6 +345,7 @@ def _check_frames_in_scene(path: Path, frames: np.ndarray, num_frames: int) -> N
 def load_scene(root: str | os.PathLike) -> Scene:
     """Load and validate a scene directory."""
     root = Path(root)
+    recover(root)  # a replacement of this scene interrupted by a kill is completed first
     meta_path = root / "scene.json"
     if not meta_path.is_file():
         raise SceneFormatError(meta_path, None, "file not found (is this a scene directory?)")
