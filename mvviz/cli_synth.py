@@ -10,6 +10,7 @@ from pathlib import Path
 from pipeline.body_model import load_body_model
 from pipeline.cameras import load_cameras
 from pipeline.importers.calibration import read_voxelpose_calibration
+from pipeline.smpl_kinematics import SUPPORTED_JOINT_SETS
 from pipeline.synth.detectors import DetectorNoise
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 
@@ -48,6 +49,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=250)
     p.add_argument("--fps", type=float, default=25.0)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--joint-set",
+        default="coco17",
+        choices=SUPPORTED_JOINT_SETS,
+        help="layout of the ground-truth keypoints and simulated 2D detections, read off the "
+        "mesh by pipeline/body_keypoints.py (default: coco17)",
+    )
     p.add_argument("--video-scale", type=float, default=1.0, help="scale of the written videos")
     p.add_argument("--no-video", action="store_true", help="skip writing videos (still renders)")
     p.add_argument("--smpl-model", default=None, help="body model file (.npz/.pkl)")
@@ -83,11 +91,13 @@ def run(args: argparse.Namespace) -> int:
         render_video=not args.no_video,
         video_scale=args.video_scale,
         noise=noise,
+        joint_set=args.joint_set,
     )
     t0 = time.perf_counter()
     out = write_synth_scene(args.out_dir, rig, model, config, overwrite=args.overwrite)
     print(
-        f"wrote {out} ({args.people} people, {args.frames} frames, {len(rig)} cameras) "
+        f"wrote {out} ({args.people} people, {args.frames} frames, {len(rig)} cameras, "
+        f"{args.joint_set}) "
         f"in {time.perf_counter() - t0:.1f} s"
     )
     return 0

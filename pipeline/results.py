@@ -32,9 +32,12 @@ from pipeline.run import (
 )
 from pipeline.scene import Scene
 from pipeline.smpl_fit import SmplFit, fit_sequence
+from pipeline.smpl_kinematics import SUPPORTED_JOINT_SETS
 
 RESULTS_VERSION = 2
-FIT_JOINT_SETS = ("coco17", "smpl24")
+FIT_JOINT_SETS = SUPPORTED_JOINT_SETS
+"""Joint sets whose tracks get SMPL bodies: every set the body-model table
+(:mod:`pipeline.body_keypoints`) ties all limbs of."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,8 +1,10 @@
 """SMPL fit to tracked 3D joints by gradient descent, and its correction by a pose prior.
 
 Input: tracks of 3D joints ``(num_tracks, num_frames, num_joints, 3)`` in world
-millimetres (z up), NaN where a joint or a whole person-frame is missing, in the
-COCO-17 (keypoint triangulation) or SMPL-24 joint set. Output: per track a body shape,
+millimetres (z up), NaN where a joint or a whole person-frame is missing, in any joint
+set the body model is tied to (:mod:`pipeline.body_keypoints`: COCO-17, BODY_25,
+BODY_25B, Halpe-26, COCO-23/WholeBody, BlazePose-33, ..., SMPL-24); keypoints the table
+marks "not fitted" (face contour, fingers) are ignored. Output: per track a body shape,
 and per frame a pose and a translation (:class:`SmplFit`). Internally everything is in
 metres, the body model's unit, so that the switch of the Smooth L1 loss at
 ``|x| = beta`` means something: ``beta = 0.05 m`` by default (residuals below 5 cm are
@@ -15,17 +17,20 @@ rotation carries it into the z-up world.
 What the model predicts for each target set:
 
 * SMPL-24 targets: the posed joints (forward kinematics of the shaped rest joints).
-* COCO-17 targets: ``coco_regressor @ vertices``. The regressor reads 4,465 of the open
-  model's 13,348 vertices; rather than skinning those, the fit uses that the regressor
-  and linear blend skinning are both linear, so for keypoint ``k``::
+* Other targets: ``vertex_weights @ vertices + joint_weights @ joints`` from the table of
+  :mod:`pipeline.body_keypoints` (COCO-17: the ``coco_regressor``, which reads 4,465 of
+  the open model's 13,348 vertices; feet, head top, hands: landmark vertices; mid-hip,
+  OpenPose's neck: means). Rather than skinning those vertices, the fit uses that the
+  regressor and linear blend skinning are both linear, so for keypoint ``k``::
 
       kp_k = sum_j G_j (D0_kj + Dbeta_kj @ betas [+ E_kj @ posefeat]) + sum_j A_kj p_j + s_k t
 
   with ``G_j, p_j`` the global rotation and position of joint ``j``, ``A = R W`` the
   regressor-blended skinning weights (17, 24), ``D = R W (v_shaped) - A * rest_joints``
   precomputed once per model (:class:`KeypointBuffers`). That is exactly the regressor
-  applied to the full LBS mesh (a test checks it to 1e-6 m) at the cost of 17 x 24
-  "virtual vertices".
+  applied to the full LBS mesh (a test checks it to 1e-6 m) at the cost of T x 24
+  "virtual vertices". A joint row of the table adds a one-hot to ``A`` (``D = 0``, row
+  sum 1), so any mix of vertex rows and joint rows takes the same path.
 
 Optimisation (all person-frames of all tracks in one batch, Adam):
 
@@ -33,21 +38,24 @@ Optimisation (all person-frames of all tracks in one batch, Adam):
   starts from, so no frame waits for its predecessor): betas per track from the median
   bone lengths of its targets (rest joints are linear in betas: a few Gauss-Newton
   steps of ridge least squares, :func:`initial_betas`); root rotation by weighted
-  Kabsch of the rest body's torso points (shoulders and hips, plus pelvis, spine3 and
-  neck for SMPL-24 targets) onto the targets, translation following from it
-  (:func:`initial_alignment`; a frame without three torso points copies the nearest
-  frame of its track); limbs by analytic hinge IK (:func:`analytic_pose`: the upper joint
-  points the bone and the knee/elbow axis at the limb plane, the hinge bends about its
-  flexion axis; SMPL-24 targets also swing spine, neck, collars, ankles and wrists).
+  Kabsch of the rest body's torso points (targets anchored at pelvis, hips, spine3,
+  neck or shoulders, :func:`pipeline.body_keypoints.torso_points`: shoulders and hips
+  for COCO-17, plus pelvis, spine3 and neck for SMPL-24) onto the targets, translation
+  following from it (:func:`initial_alignment`; a frame without three torso points
+  copies the nearest frame of its track); limbs by analytic hinge IK
+  (:func:`analytic_pose`: the upper joint points the bone and the knee/elbow axis at the
+  limb plane, the hinge bends about its flexion axis; where targets are anchored at
+  both ends, as for SMPL-24, spine, neck, collars, ankles and wrists also swing).
 * Phase 1, step I (``iters``): optimised: all 24 joint rotations per frame in the 6D
   representation of Zhou et al. 2019 (root included), translation per frame, betas
   per track (shared by all its frames). Loss = weighted Smooth L1 data term (NaN target
   = weight 0) + ``w_smooth`` * squared second differences of the 24 model joints over
   consecutive frames of a track + ``w_betas`` * |betas|^2 + ``w_pose`` * |R - I|^2 over
   all non-root joints + ``w_free`` * |R - I|^2 over the joints the target set does not
-  constrain (COCO-17: spine, neck, head, collars, wrists, hands, ankles, feet; SMPL-24:
-  head, hands, feet, whose rotations move no joint). Learning rates decay by a cosine
-  schedule to 5% (:class:`FitParams`).
+  constrain (the rule of :func:`pipeline.body_keypoints.free_joints`; COCO-17: spine,
+  neck, head, collars, wrists, hands, ankles, feet; SMPL-24: head, hands, feet, whose
+  rotations move no joint; layouts with feet or hand points also pin ankles or wrists).
+  Learning rates decay by a cosine schedule to 5% (:class:`FitParams`).
 * Joint correction with the VAE prior (Eq. 11; only with ``prior``), starting from step I:
 
   - Phase 2a, encode: ``z = mean of q(z | body pose of step I)`` per frame.
@@ -113,7 +121,7 @@ class FitParams:
     w_pose: float = 2e-5
     """|R - I|_F^2 of every non-root joint."""
     w_free: float = 2e-4
-    """|R - I|_F^2 of the joints the target set leaves free (``smpl_kinematics.FREE_JOINTS``)."""
+    """|R - I|_F^2 of the joints the target set leaves free (``body_keypoints.free_joints``)."""
     iters_latent: int = 60
     iters_refine: int = 60
     w_latent: float = 1e-4
@@ -136,12 +144,13 @@ class SmplFit:
     track is absent. Millimetres, world (z up).
 
     Attributes:
-        joint_set: the target joint set (``coco17`` or ``smpl24``).
+        joint_set: the target joint set (any of ``smpl_kinematics.SUPPORTED_JOINT_SETS``).
         pose_rotvecs: (K, F, 24, 3) local axis-angle, root in the world frame.
         betas: (K, 10) shape, shared over a track's frames.
         transl: (K, F, 3) mm; the body is ``1000 * model(pose, betas) + transl``.
         joints: (K, F, 24, 3) SMPL-24 joints, mm.
-        keypoints: (K, F, T, 3) the model's prediction of the targets, mm.
+        keypoints: (K, F, T, 3) the model's prediction of the targets, mm (NaN for
+            targets the body model cannot give).
         residual: (K, F, T) |keypoints - target| mm, NaN where the target is.
         seconds: wall time of the fit (the phases that produced it).
         stage: ``"smpl"`` (step I) or ``"smpl_vae"`` (corrected with the prior).
@@ -211,9 +220,15 @@ class _Problem:
     track_rows: torch.Tensor  # (N,) = track, as a tensor for gathering betas
 
 
-def _pack(tracks_mm: np.ndarray, weights: np.ndarray | None) -> _Problem:
+def _pack(
+    tracks_mm: np.ndarray, weights: np.ndarray | None, fitted: np.ndarray | None = None
+) -> _Problem:
+    """Pack the observed person-frames; targets the model cannot give (``fitted`` False,
+    (T,)) count as missing."""
     K, F, T, _ = tracks_mm.shape
     finite = np.isfinite(tracks_mm).all(-1)  # (K, F, T)
+    if fitted is not None:
+        finite &= np.asarray(fitted, bool)
     w = finite.astype(float) if weights is None else np.where(finite, weights, 0.0)
     present = (w > 0).any(-1)
     track, frame = np.nonzero(present)
@@ -326,6 +341,9 @@ def initial_betas(prob: _Problem, buf: KeypointBuffers, *, ridge: float = 1e-3) 
     bones = np.asarray(js.bones)
     a, b = bones[:, 0], bones[:, 1]
     d0, dX = x0[a] - x0[b], X[a] - X[b]  # (nbones, 3), (nbones, 3, B)
+    # Bones between points the model puts (nearly) together, e.g. WholeBody's body and
+    # hand wrists, carry no length: leave them out (they would divide by zero).
+    long = np.linalg.norm(d0, axis=-1) > 0.01
     tgt = prob.target.double().numpy()
     ok = (prob.weight.numpy() > 0)[:, a] & (prob.weight.numpy() > 0)[:, b]
     length = np.where(ok, np.linalg.norm(tgt[:, a] - tgt[:, b], axis=-1), np.nan)
@@ -333,7 +351,7 @@ def initial_betas(prob: _Problem, buf: KeypointBuffers, *, ridge: float = 1e-3) 
     for k in np.unique(prob.track):
         rows = prob.track == k
         col = length[rows]
-        has = np.isfinite(col).sum(0) > 0
+        has = (np.isfinite(col).sum(0) > 0) & long
         if not has.any():
             continue
         L = np.nanmedian(col[:, has], axis=0)
@@ -399,11 +417,11 @@ def analytic_pose(
     the limb's plane, the hinge then bends about its flexion axis (so knees and elbows
     start bent the anatomical way). The plane's normal (length = sine of the bend) is
     blended with the parent's axis (weight ``bend_blend``): a nearly straight limb, whose
-    plane is noise, keeps the parent's twist. SMPL-24 targets also swing spine, neck,
-    collars, ankles and wrists towards their child. Missing targets leave a joint at rest.
+    plane is noise, keeps the parent's twist. Spine, neck, collars, ankles and wrists
+    swing towards their child where targets are anchored at both (SMPL-24 targets).
+    Missing targets leave a joint at rest.
     """
     N = len(prob.track)
-    js = get_joint_set(buf.joint_set)
     with torch.no_grad():
         eye = torch.eye(3).repeat(1, NUM_JOINTS, 1, 1)
         rest_t, _ = predict_targets(eye, torch.zeros(1, buf.J_shapedirs.shape[-1]),
@@ -416,13 +434,14 @@ def analytic_pose(
     glob[:, 0] = local[:, 0] = root
     parents = buf.parents
     limbs = {_J[p]: (p, h, e, np.asarray(a)) for p, h, e, a in LIMBS}
-    swings = dict(SWING_CHILD) if js.name == SMPL24.name else {}
+    swings = dict(SWING_CHILD)
+    at = buf.anchors  # SMPL-24 joint -> the target anchored there
     for j in range(1, NUM_JOINTS):
         G_par = glob[:, parents[j]]
         name = SMPL24.names[j]
-        if j in limbs:
+        if j in limbs and all(n in at for n in limbs[j][:3]):
             p, h, e, axis = limbs[j]
-            ip, ih, ie = js.index[p], js.index[h], js.index[e]
+            ip, ih, ie = at[p], at[h], at[e]
             u_r, f_r = rest_t[ih] - rest_t[ip], rest_t[ie] - rest_t[ih]
             u_w, f_w = tgt[:, ih] - tgt[:, ip], tgt[:, ie] - tgt[:, ih]
             has_u = ok[:, ip] & ok[:, ih]
@@ -442,8 +461,8 @@ def analytic_pose(
             phi = np.arctan2(np.cross(f_r0, f_loc) @ axis, f_loc @ f_r0)
             hinge = rotvec_to_matrix(axis[None] * phi[:, None])
             local[has_f, _J[h]] = hinge[has_f]
-        elif name in swings and js.index.get(swings[name]) is not None:
-            i0, i1 = js.index[name], js.index[swings[name]]
+        elif name in swings and name in at and swings[name] in at:
+            i0, i1 = at[name], at[swings[name]]
             has = ok[:, i0] & ok[:, i1]
             d_r = np.einsum("nab,b->na", G_par, rest_t[i1] - rest_t[i0])
             sw = _min_rotation(d_r, tgt[:, i1] - tgt[:, i0])  # world swing
@@ -527,11 +546,13 @@ def _make_fit(prob, buf, model, rotmats, betas, transl, *, seconds, stage) -> Sm
     with torch.no_grad():
         kp, joints = predict_targets(rotmats, betas[prob.track_rows], transl, buf)
     err = (kp - prob.target).norm(dim=-1).double().numpy()
+    kp_mm = MM_PER_M * kp.double().numpy()
+    kp_mm[:, ~buf.fitted] = np.nan  # keypoints the body model cannot give
     rows = {
         "pose_rotvecs": matrix_to_rotvec(rotmats.double().numpy()),
         "transl": MM_PER_M * transl.double().numpy(),
         "joints": MM_PER_M * joints.double().numpy(),
-        "keypoints": MM_PER_M * kp.double().numpy(),
+        "keypoints": kp_mm,
         "residual": np.where(prob.weight.numpy() > 0, MM_PER_M * err, np.nan),
     }
     out = {}
@@ -582,7 +603,7 @@ def fit_sequence(
 
     Args:
         tracks_mm: (num_tracks, num_frames, num_joints, 3) world mm, NaN = missing.
-        joint_set: ``"coco17"`` or ``"smpl24"``, the set of ``tracks_mm``.
+        joint_set: the set of ``tracks_mm``, one of ``smpl_kinematics.SUPPORTED_JOINT_SETS``.
         model: the body model.
         prior: a trained :class:`~pipeline.pose_prior.PosePrior`; with it the
             corrected fit (phases 2a-2c) is returned too.
@@ -606,7 +627,7 @@ def _fit(
     weights: np.ndarray | None,
     progress: bool,
 ) -> tuple[SmplFit, SmplFit | None]:
-    prob = _pack(x, None if weights is None else np.asarray(weights, float))
+    prob = _pack(x, None if weights is None else np.asarray(weights, float), buf.fitted)
     N = len(prob.track)
     nb = buf.J_shapedirs.shape[-1]
     t0 = time.perf_counter()

@@ -1,8 +1,9 @@
 """What the SMPL fit predicts for a target joint set, and the rotation representations.
 
 :class:`KeypointBuffers` holds, per body model and target joint set, everything the fit
-needs precomputed once (for COCO-17: the regressor folded into the skinning weights,
-see the docstring of :mod:`pipeline.smpl_fit`); :func:`predict_targets` and
+needs precomputed once: the layout's keypoints (:mod:`pipeline.body_keypoints`, a mix
+of vertex-regressor rows and SMPL-joint rows) folded into the skinning weights, see the
+docstring of :mod:`pipeline.smpl_fit`; :func:`predict_targets` and
 :func:`forward_kinematics` are the batched forward pass of the fit; the 6D rotation
 representation (Zhou et al. 2019) is what the fit and the pose prior optimise.
 Units: metres (the body model's).
@@ -16,29 +17,22 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
+from pipeline.body_keypoints import (
+    FITTABLE_JOINT_SETS,
+    free_joints,
+    keypoint_regressor,
+    lever_arms,
+    torso_points,
+)
 from pipeline.body_model import BodyModel
-from pipeline.joint_sets import COCO17, SMPL24, get_joint_set
+from pipeline.joint_sets import SMPL24, get_joint_set
 
 NUM_JOINTS = SMPL24.num_joints
-SUPPORTED_JOINT_SETS = (COCO17.name, SMPL24.name)
+SUPPORTED_JOINT_SETS = FITTABLE_JOINT_SETS
+"""Every joint set whose table anchors all limbs (``body_keypoints.FITTABLE_JOINT_SETS``).
+Joints the set leaves free and its torso points follow from the table by the rules of
+``body_keypoints.free_joints`` and ``body_keypoints.torso_points``."""
 _J = SMPL24.index
-
-# Joints whose rotation the targets leave (nearly) free: pulled towards rest by w_free.
-FREE_JOINTS: dict[str, tuple[str, ...]] = {
-    COCO17.name: (
-        "spine1", "spine2", "spine3", "neck", "head", "left_collar", "right_collar",
-        "left_wrist", "right_wrist", "left_hand", "right_hand", "left_ankle", "right_ankle",
-        "left_foot", "right_foot",
-    ),
-    SMPL24.name: ("head", "left_hand", "right_hand", "left_foot", "right_foot"),
-}  # fmt: skip
-# Torso points for the closed-form root alignment (phase 0).
-TORSO_JOINTS: dict[str, tuple[str, ...]] = {
-    COCO17.name: ("left_shoulder", "right_shoulder", "left_hip", "right_hip"),
-    SMPL24.name: (
-        "pelvis", "left_hip", "right_hip", "spine3", "neck", "left_shoulder", "right_shoulder",
-    ),
-}  # fmt: skip
 
 
 # --------------------------------------------------------------------------- rotations
@@ -87,7 +81,9 @@ def rotvec_to_matrix(rotvecs: np.ndarray) -> np.ndarray:
 class KeypointBuffers:
     """What the fit needs of a body model for one target joint set, precomputed once.
 
-    Shapes: J = 24 joints, T target joints, B betas. Metres.
+    Shapes: J = 24 joints, T target joints, B betas. Metres. A target row is a vertex
+    regressor row R (folded into the skinning: ``A = R W``, ``D = R W v - A J``), a joint
+    row (``A`` one-hot, ``D = 0``, row sum 1), a mix of both, or zero (not fitted).
     """
 
     joint_set: str
@@ -97,13 +93,15 @@ class KeypointBuffers:
     level_order: torch.Tensor  # (J,) position of each joint in the level-concatenated order
     J_template: torch.Tensor  # (J, 3)
     J_shapedirs: torch.Tensor  # (J, 3, B)
-    A: torch.Tensor | None  # (T, J) regressor-blended skinning weights (COCO targets)
+    A: torch.Tensor | None  # (T, J) blended skinning weights; None: targets = the 24 joints
     D0: torch.Tensor | None  # (T, J, 3)
     Dbeta: torch.Tensor | None  # (T, J, 3, B)
     E: torch.Tensor | None  # (T, J, 3, 207) pose blend shapes, licensed SMPL only
     rowsum: torch.Tensor | None  # (T,) regressor row sums (1 for a proper regressor)
-    free_weight: torch.Tensor  # (J,) 1 for joints of FREE_JOINTS
-    torso: np.ndarray  # indices into the target set
+    free_weight: torch.Tensor  # (J,) 1 for the joints of body_keypoints.free_joints
+    torso: np.ndarray  # indices into the target set (body_keypoints.torso_points)
+    fitted: np.ndarray  # (T,) bool: targets the model gives (others get weight 0)
+    anchors: dict[str, int]  # SMPL-24 joint -> target anchored there (analytic init)
 
     @property
     def num_targets(self) -> int:
@@ -111,6 +109,28 @@ class KeypointBuffers:
 
 
 _BUFFER_CACHE: dict[tuple[int, str], KeypointBuffers] = {}
+
+
+def _fold_regressor(model: BodyModel, Rv: torch.Tensor, Rj: torch.Tensor):
+    """Vertex rows ``Rv`` (T, V) and joint rows ``Rj`` (T, J) -> A, D0, Dbeta, E, rowsum."""
+    # Only the vertices the regressor reads matter (4,465 of the open model's for COCO-17).
+    used = torch.nonzero(Rv.abs().sum(0) > 0)[:, 0]
+    Rk = Rv[:, used].double()  # (T, V')
+    W = model.weights[used].double()  # (V', J)
+    RW = Rk[:, :, None] * W[None]  # (T, V', J): each keypoint's skinning blend
+    A_v = RW.sum(1)
+    B0 = torch.einsum("tvj,vc->tjc", RW, model.v_template[used].double())
+    Bb = torch.einsum("tvj,vcb->tjcb", RW, model.shapedirs[used].double())
+    D0 = B0 - A_v[..., None] * model.J_template.double()[None]
+    Dbeta = Bb - A_v[..., None, None] * model.J_shapedirs.double()[None]
+    E = None
+    if model.has_posedirs:
+        pd = model.posedirs.double().T.reshape(model.num_vertices, 3, -1)[used]
+        E = torch.einsum("tvj,vcp->tjcp", RW, pd).float()
+    # A joint row adds its one-hot to A (p_j moves the keypoint) and nothing to D.
+    A = A_v + Rj.double()
+    rowsum = (Rk.sum(1) + Rj.double().sum(1)).float()
+    return A.float(), D0.float(), Dbeta.float(), E, rowsum
 
 
 def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
@@ -133,28 +153,18 @@ def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
             level_parents.append(torch.zeros(0, dtype=torch.long))
     order = np.concatenate(levels)
     level_order = torch.as_tensor(np.argsort(order), dtype=torch.long)
+    reg = keypoint_regressor(model, js.name)
     with torch.no_grad():
         A = D0 = Dbeta = E = rowsum = None
-        if js.name == COCO17.name:
-            if model.coco_regressor is None:
-                raise ValueError(f"body model {model.source} has no coco_regressor")
-            # Only the vertices the regressor reads matter (4,465 of the open model's).
-            used = torch.nonzero(model.coco_regressor.abs().sum(0) > 0)[:, 0]
-            Rk = model.coco_regressor[:, used].double()  # (T, V')
-            W = model.weights[used].double()  # (V', J)
-            RW = Rk[:, :, None] * W[None]  # (T, V', J): each keypoint's skinning blend
-            A = RW.sum(1)
-            B0 = torch.einsum("tvj,vc->tjc", RW, model.v_template[used].double())
-            Bb = torch.einsum("tvj,vcb->tjcb", RW, model.shapedirs[used].double())
-            D0 = B0 - A[..., None] * model.J_template.double()[None]
-            Dbeta = Bb - A[..., None, None] * model.J_shapedirs.double()[None]
-            if model.has_posedirs:
-                pd = model.posedirs.double().T.reshape(model.num_vertices, 3, -1)[used]
-                E = torch.einsum("tvj,vcp->tjcp", RW, pd).float()
-            rowsum = Rk.sum(1).float()
-            A, D0, Dbeta = A.float(), D0.float(), Dbeta.float()
+        if not reg.is_joints:
+            A, D0, Dbeta, E, rowsum = _fold_regressor(model, reg.vertex_weights, reg.joint_weights)
+        J0 = model.J_template.double().numpy()
+        if A is None:  # the targets are the joints: A = I, D = 0
+            lever = lever_arms(np.eye(NUM_JOINTS), np.zeros((NUM_JOINTS,) * 2 + (3,)), J0, parents)
+        else:
+            lever = lever_arms(A.double().numpy(), D0.double().numpy(), J0, parents)
     free = torch.zeros(NUM_JOINTS)
-    free[[_J[n] for n in FREE_JOINTS[js.name]]] = 1.0
+    free[[_J[n] for n in free_joints(lever, reg)]] = 1.0
     buf = KeypointBuffers(
         joint_set=js.name,
         parents=np.asarray(parents),
@@ -169,7 +179,9 @@ def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
         E=E,
         rowsum=rowsum,
         free_weight=free,
-        torso=np.array([js.index[n] for n in TORSO_JOINTS[js.name]]),
+        torso=torso_points(reg),
+        fitted=reg.fitted.copy(),
+        anchors=reg.anchors,
     )
     _BUFFER_CACHE[key] = buf
     return buf

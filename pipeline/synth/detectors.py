@@ -1,9 +1,13 @@
 """Simulated per-view detectors for synthetic scenes, with a documented noise model.
 
-(a) A 2D COCO-17 keypoint detector (:func:`simulate_keypoints`): pixel noise that grows
-    as confidence falls, confidence that drops with occlusion (self-occlusion decided by
-    the z-buffer, occlusion by another person by the z-buffer's mesh index), joints
-    missed when occluded, occasional left/right swaps, people dropped at image borders.
+(a) A 2D keypoint detector (:func:`simulate_keypoints`; COCO-17 by default, any layout
+    of :mod:`pipeline.body_keypoints`): pixel noise that grows as confidence falls, the
+    same for every keypoint of every layout, confidence that drops with occlusion
+    (self-occlusion decided by the z-buffer, occlusion by another person by the
+    z-buffer's mesh index), joints missed when occluded, occasional left/right swaps
+    (a swapped ankle takes its heel and toes along, a swapped wrist its hand points),
+    people dropped at image borders. Keypoints the layout defines but the body model
+    cannot give (``defined`` False) are never reported.
     False positives come from :func:`ghost_people` in the scene generator.
 (b) A monocular SMPL regressor in the MVSPIN role (:func:`simulate_regressor`): a noisy
     SMPL pose and shape per detection, root orientation in the camera frame, and a
@@ -25,7 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.body_model import BodyModel, axis_angle_to_matrix, rigid_chain
 from pipeline.cameras import Camera
-from pipeline.joint_sets import COCO17, SMPL24
+from pipeline.joint_sets import _HAND_POINTS, COCO17, SMPL24, JointSet
 from pipeline.restore import fit_weak_perspective
 
 
@@ -69,6 +73,26 @@ SWAP_GROUPS = (
     ("left_ankle", "right_ankle"),
     ("left_knee", "right_knee"),
 )
+# Points that go with a swapped joint (same side), where the layout has them.
+SWAP_FOLLOWERS: dict[str, tuple[str, ...]] = {
+    "ankle": ("big_toe", "small_toe", "heel", "foot_index"),
+    "wrist": ("pinky", "index", "thumb") + tuple(f"hand_{p}" for p in _HAND_POINTS),
+}
+
+
+def swap_indices(joint_set: JointSet, left: str, right: str) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of ``left`` and ``right`` and of the points that follow them
+    (:data:`SWAP_FOLLOWERS`), paired left to right, for one left/right confusion."""
+    pairs = [(left, right)]
+    part = left.removeprefix("left_")
+    pairs += [(f"left_{x}", f"right_{x}") for x in SWAP_FOLLOWERS.get(part, ())]
+    pairs = [(a, b) for a, b in pairs if a in joint_set.index and b in joint_set.index]
+    return (
+        np.array([joint_set.index[a] for a, _ in pairs]),
+        np.array([joint_set.index[b] for _, b in pairs]),
+    )
+
+
 _LIMBS = tuple(
     (SMPL24.index[a], SMPL24.index[b])
     for a, b in (
@@ -107,17 +131,23 @@ def simulate_keypoints(
     self_occluded: np.ndarray,
     other_occluded: np.ndarray,
     noise: DetectorNoise,
+    *,
+    joint_set: JointSet = COCO17,
+    defined: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Noisy COCO-17 detections of the people one camera sees.
+    """Noisy detections of the people one camera sees, in ``joint_set`` (K keypoints).
 
     Args:
-        true_2d: (P, 17, 2) true keypoint pixels (distortion included).
-        self_occluded, other_occluded: (P, 17) bool.
+        true_2d: (P, K, 2) true keypoint pixels (distortion included).
+        self_occluded, other_occluded: (P, K) bool.
+        defined: (K,) bool, the keypoints the body model gives (default all); the
+            border and occlusion fractions that drop a person count only these.
     Returns:
-        keypoints (P, 17, 3) x, y, confidence (0 and NaN x, y where missed) and
+        keypoints (P, K, 3) x, y, confidence (0 and NaN x, y where missed) and
         detected (P,) bool: people the detector reports at all.
     """
-    P = true_2d.shape[0]
+    P, K = true_2d.shape[:2]
+    defined = np.ones(K, bool) if defined is None else np.asarray(defined, bool)
     inside = (
         np.isfinite(true_2d).all(-1)
         & (true_2d[..., 0] >= 0)
@@ -125,8 +155,8 @@ def simulate_keypoints(
         & (true_2d[..., 1] >= 0)
         & (true_2d[..., 1] < camera.height)
     )
-    detected = (1 - inside.mean(1) <= noise.border_drop_fraction) & (
-        (other_occluded & inside).mean(1) <= noise.occluded_drop_fraction
+    detected = (1 - inside[:, defined].mean(1) <= noise.border_drop_fraction) & (
+        (other_occluded & inside)[:, defined].mean(1) <= noise.occluded_drop_fraction
     )
     conf = occlusion_confidence(rng, self_occluded, other_occluded, noise)
     heights = np.array(
@@ -140,9 +170,8 @@ def simulate_keypoints(
     kp = np.concatenate([xy, conf[..., None]], -1)
     for p in range(P):  # occasional left/right confusion of one limb pair
         if rng.uniform() < noise.swap_prob:
-            a, b = SWAP_GROUPS[rng.integers(len(SWAP_GROUPS))]
-            ia, ib = COCO17.index[a], COCO17.index[b]
-            kp[p, [ia, ib]] = kp[p, [ib, ia]]
+            ia, ib = swap_indices(joint_set, *SWAP_GROUPS[rng.integers(len(SWAP_GROUPS))])
+            kp[p, np.r_[ia, ib]] = kp[p, np.r_[ib, ia]]
     return kp, detected
 
 

@@ -17,9 +17,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from pipeline.body_keypoints import KeypointRegressor, keypoint_regressor, layout_keypoints
 from pipeline.body_model import BodyModel
 from pipeline.cameras import CameraRig
-from pipeline.joint_sets import COCO17, SMPL24
+from pipeline.joint_sets import SMPL24, get_joint_set
 from pipeline.scene import SMPL_FIELDS, Detections, GroundTruth, write_scene
 from pipeline.synth.detectors import DetectorNoise, simulate_keypoints, simulate_regressor
 from pipeline.synth.motion import (
@@ -58,18 +59,24 @@ class SynthConfig:
     noise: DetectorNoise = field(default_factory=DetectorNoise)
     min_views: int = 3
     """Waypoints lie where at least this many cameras see a whole standing person."""
+    joint_set: str = "coco17"
+    """Layout of the ground-truth keypoints and the simulated 2D detections, read off the
+    mesh by the table of :mod:`pipeline.body_keypoints` (keypoints it cannot give are
+    NaN in the truth and never detected)."""
 
 
 @dataclass(frozen=True, eq=False)
 class SynthPeople:
     """Ground-truth bodies. pose (P, F, 24, 3) world root; betas (P, 10); transl (P, F, 3) mm;
-    joints (P, F, 24, 3) mm; keypoints (P, F, 17, 3) COCO-17 read off the mesh, mm."""
+    joints (P, F, 24, 3) mm; keypoints (P, F, T, 3) in ``joint_set`` (default COCO-17)
+    read off the mesh, mm, NaN where the body model cannot give them."""
 
     pose: np.ndarray
     betas: np.ndarray
     transl: np.ndarray
     joints: np.ndarray
     keypoints: np.ndarray
+    joint_set: str = "coco17"
 
 
 def visible_floor_area(
@@ -104,14 +111,16 @@ def visible_floor_area(
 
 
 def bodies_from_motion(
-    motions: list[PersonMotion], model: BodyModel, *, chunk: int = 64
+    motions: list[PersonMotion], model: BodyModel, *, chunk: int = 64, joint_set: str = "coco17"
 ) -> SynthPeople:
-    """Turn planned motions into world poses with feet on the floor (z = 0)."""
+    """Turn planned motions into world poses with feet on the floor (z = 0); keypoints in
+    ``joint_set``."""
+    reg = keypoint_regressor(model, joint_set)
     P, F = len(motions), len(motions[0].heading)
     pose = np.zeros((P, F, 24, 3))
     transl = np.zeros((P, F, 3))
     joints = np.zeros((P, F, 24, 3))
-    keypoints = np.zeros((P, F, COCO17.num_joints, 3))
+    keypoints = np.zeros((P, F, len(reg.fitted), 3))
     for p, m in enumerate(motions):
         local = pose_from_params(m.params)
         local[:, 0] = root_to_world(m.heading, local[:, 0])
@@ -121,7 +130,7 @@ def bodies_from_motion(
             sl = slice(s, s + chunk)
             with torch.no_grad():
                 out = model(torch.as_tensor(local[sl], dtype=torch.float32), betas[sl])
-                coco = model.coco_keypoints(out.vertices).numpy() * 1000
+                coco = layout_keypoints(reg, out.vertices, out.joints).numpy() * 1000
             v = out.vertices.numpy() * 1000
             j = out.joints.numpy() * 1000
             # Lowest vertex on the floor; pelvis over the planned floor position.
@@ -137,13 +146,20 @@ def bodies_from_motion(
         transl=transl,
         joints=joints,
         keypoints=keypoints,
+        joint_set=reg.joint_set,
     )
 
 
 def _ghosts(
-    rng: np.random.Generator, cam, area: np.ndarray, library: np.ndarray, model: BodyModel, n: int
+    rng: np.random.Generator,
+    cam,
+    area: np.ndarray,
+    library: np.ndarray,
+    model: BodyModel,
+    n: int,
+    reg: KeypointRegressor,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``n`` phantom people for one view: (n, 17, 2) keypoints, (n, 24, 2) SMPL joints, poses."""
+    """``n`` phantom people for one view: (n, T, 2) keypoints, (n, 24, 2) SMPL joints, poses."""
     pose = library[rng.integers(len(library), size=n)].reshape(n, 24, 3).copy()
     pose[:, 0] = root_to_world(rng.uniform(-np.pi, np.pi, n), np.zeros((n, 3)))
     betas = rng.normal(0, 1, (n, 10))
@@ -152,7 +168,7 @@ def _ghosts(
     v = out.vertices.numpy() * 1000
     spot = area[rng.integers(len(area), size=n)]
     shift = np.column_stack([spot - out.joints.numpy()[:, 0, :2] * 1000, -v[..., 2].min(1)])
-    coco = model.coco_keypoints(out.vertices).numpy() * 1000 + shift[:, None]
+    coco = layout_keypoints(reg, out.vertices, out.joints).numpy() * 1000 + shift[:, None]
     smpl = out.joints.numpy() * 1000 + shift[:, None]
     return cam.project(coco), cam.project(smpl), (pose, betas)
 
@@ -170,7 +186,10 @@ def synthesize(
     noise = config.noise
     area = visible_floor_area(rig, min_views=config.min_views)
     motions = plan_people(rng, area, config.num_people, config.num_frames, config.fps)
-    people = bodies_from_motion(motions, model)
+    people = bodies_from_motion(motions, model, joint_set=config.joint_set)
+    kreg = keypoint_regressor(model, config.joint_set)
+    js = get_joint_set(config.joint_set)
+    defined = kreg.fitted  # keypoints the body model gives; the others are never detected
     library = sample_pose_library(200, seed=config.seed)
     faces = model.faces.numpy()
     backgrounds = [render_background(cam) for cam in rig]
@@ -198,7 +217,7 @@ def synthesize(
     for f in tqdm(frames, desc="synth frames", disable=not progress, unit="frame"):
         with torch.no_grad():
             out = model(torch.as_tensor(people.pose[:, f], dtype=torch.float32), betas_t)
-            coco_m = model.coco_keypoints(out.vertices)
+            coco_m = layout_keypoints(kreg, out.vertices, out.joints)
         verts = out.vertices.numpy() * 1000 + people.transl[:, f, None]
         coco = coco_m.numpy() * 1000 + people.transl[:, f, None]
         meshes = [
@@ -215,15 +234,19 @@ def synthesize(
                 if size != (cam.width, cam.height):
                     img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
                 w.write(cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-            pts = coco.reshape(-1, 3)
-            ids = np.repeat(np.arange(P), COCO17.num_joints)
-            vis = visible_mask(
+            pts = coco[:, defined].reshape(-1, 3)
+            ids = np.repeat(np.arange(P), int(defined.sum()))
+            vis = np.zeros((P, js.num_joints), bool)
+            other = np.zeros((P, js.num_joints), bool)
+            vis[:, defined] = visible_mask(
                 render, cam, pts, ids, tolerance_mm=noise.self_occlusion_tolerance_mm
-            )
-            other = occluded_by_other(render, cam, pts, ids).reshape(P, -1)
-            self_occ = (~vis).reshape(P, -1) & ~other
+            ).reshape(P, -1)
+            other[:, defined] = occluded_by_other(render, cam, pts, ids).reshape(P, -1)
+            self_occ = ~vis & ~other
             true_2d = cam.project(coco)
-            kp, detected = simulate_keypoints(rng, cam, true_2d, self_occ, other, noise)
+            kp, detected = simulate_keypoints(
+                rng, cam, true_2d, self_occ, other, noise, joint_set=js, defined=defined
+            )
             order = rng.permutation(np.flatnonzero(detected))  # detector order is arbitrary
             n_ghost = rng.poisson(noise.false_positives_per_view)
             if order.size:
@@ -233,7 +256,9 @@ def synthesize(
                 )
                 _append(rows, f, v, kp[order], order, reg)
             if n_ghost:
-                g_coco, g_smpl, (g_pose, g_betas) = _ghosts(rng, cam, area, library, model, n_ghost)
+                g_coco, g_smpl, (g_pose, g_betas) = _ghosts(
+                    rng, cam, area, library, model, n_ghost, kreg
+                )
                 in_img = (
                     (g_coco[..., 0] >= 0) & (g_coco[..., 0] < cam.width)
                     & (g_coco[..., 1] >= 0) & (g_coco[..., 1] < cam.height)
@@ -252,6 +277,7 @@ def synthesize(
                         | (g_kp[..., 1] >= cam.height)
                     )
                     g_kp[off] = (np.nan, np.nan, 0.0)
+                    g_kp[:, ~defined] = (np.nan, np.nan, 0.0)
                     reg = simulate_regressor(
                         rng, cam, g_pose[inside], g_betas[inside], g_smpl, model, noise
                     )
@@ -264,7 +290,7 @@ def synthesize(
     detections = Detections(
         frame=arrays["frame"] if n else np.zeros(0, int),
         view=arrays["view"] if n else np.zeros(0, int),
-        keypoints=arrays["keypoints"] if n else np.zeros((0, COCO17.num_joints, 3)),
+        keypoints=arrays["keypoints"] if n else np.zeros((0, js.num_joints, 3)),
         gt_person_id=arrays["gt_person_id"] if n else np.zeros(0, int),
         smpl_pose=arrays["smpl_pose"] if n else np.zeros((0, 72)),
         smpl_betas=arrays["smpl_betas"] if n else np.zeros((0, 10)),
@@ -295,7 +321,7 @@ def ground_truth(people: SynthPeople) -> GroundTruth:
         smpl_pose=people.pose.reshape(P * F, 72),
         smpl_betas=np.repeat(people.betas, F, axis=0),
         transl=people.transl.reshape(P * F, 3),
-        keypoints3d=people.keypoints.reshape(P * F, COCO17.num_joints, 3),
+        keypoints3d=people.keypoints.reshape(P * F, people.keypoints.shape[2], 3),
     )
 
 
@@ -324,7 +350,7 @@ def write_synth_scene(
             name=name or out_dir.name,
             fps=config.fps,
             num_frames=config.num_frames,
-            joint_set=COCO17,
+            joint_set=get_joint_set(config.joint_set),
             rig=rig,
             detections=detections,
             gt=ground_truth(people),

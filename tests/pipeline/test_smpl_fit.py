@@ -151,8 +151,12 @@ def test_missing_joints_and_absent_frames(model, gt):
 def test_bad_input_raises(model):
     with pytest.raises(ValueError, match="expected tracks"):
         fit_sequence(np.zeros((1, 5, 24, 3)), "coco17", model, progress=False)
-    with pytest.raises(ValueError, match="must be one of"):
-        fit_sequence(np.zeros((1, 5, 25, 3)), "body25", model, progress=False)
+    with pytest.raises(ValueError, match="unknown joint set"):
+        fit_sequence(np.zeros((1, 5, 25, 3)), "body_25x", model, progress=False)
+    with pytest.raises(ValueError, match="has no coco_regressor"):  # BODY_25 reads COCO rows
+        fit_sequence(
+            np.zeros((1, 5, 25, 3)), "body25", BodyModel(tiny_body_model_arrays()), progress=False
+        )
     with pytest.raises(ValueError, match="weights"):
         fit_sequence(
             np.zeros((1, 5, 17, 3)), "coco17", model, weights=np.ones((1, 5)), progress=False
