@@ -7,6 +7,7 @@ import dataclasses
 import time
 from pathlib import Path
 
+from mvviz.cli_synth_mocap import add_motion_options, run_motion
 from pipeline.body_model import load_body_model
 from pipeline.cameras import load_cameras
 from pipeline.importers.calibration import read_voxelpose_calibration
@@ -49,6 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=250)
     p.add_argument("--fps", type=float, default=25.0)
     p.add_argument("--seed", type=int, default=0)
+    add_motion_options(p)
     p.add_argument(
         "--joint-set",
         default="coco17",
@@ -83,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
     noise = DetectorNoise(
         **{f.name: getattr(args, f"noise_{f.name}") for f in dataclasses.fields(DetectorNoise)}
     )
+    if args.motion:
+        return run_motion(args, rig, model, noise)
     config = SynthConfig(
         num_people=args.people,
         num_frames=args.frames,
