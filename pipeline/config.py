@@ -140,6 +140,9 @@ class _AnyStr(Str):
     def accepts(self, value):
         return isinstance(value, str)
 
+    def bad_values(self):
+        return [v for v in super().bad_values() if v != ""]
+
 
 def parse_override(raw: str, spec: Spec):
     """The text of ``--set FIELD=TEXT`` as the field's type: ``true``/``false`` for a bool,

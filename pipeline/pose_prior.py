@@ -46,6 +46,7 @@ import torch
 from tqdm import tqdm
 
 from pipeline import mocap, pose_limits
+from pipeline.files import SceneFormatError
 from pipeline.smpl_kinematics import (
     matrix_to_rot6d,
     matrix_to_rotvec,
@@ -378,14 +379,26 @@ def load_prior(path: str | os.PathLike | None = None) -> PosePrior:
     """Read a checkpoint written by :func:`save_prior` (default: the shipped one)."""
     path = resolve_prior_path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"pose prior checkpoint not found: {path}")
-    ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        raise SceneFormatError(path, None, "pose prior checkpoint not found")
+    try:  # weights_only: tensors and plain containers; a pickled object is refused, never run
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # UnpicklingError, a zip/format error, a truncated file, ...
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise SceneFormatError(path, None, f"not a readable checkpoint ({why[:200]})") from None
     if not isinstance(ckpt, dict) or ckpt.get("version") != CHECKPOINT_VERSION:
-        raise ValueError(f"{path}: not a pose prior checkpoint (version {CHECKPOINT_VERSION})")
+        raise SceneFormatError(
+            path, "version", f"not a pose prior checkpoint (version {CHECKPOINT_VERSION})"
+        )
     if list(ckpt.get("body_joints", [])) != list(BODY_JOINTS):
-        raise ValueError(f"{path}: trained on joints {ckpt.get('body_joints')}")
-    config = PriorConfig(**ckpt["config"])
-    net = PoseVAE(config.hidden, config.latent)
-    net.load_state_dict(ckpt["state_dict"])
+        raise SceneFormatError(
+            path, "body_joints", f"trained on joints {ckpt.get('body_joints')}, not {BODY_JOINTS}"
+        )
+    try:
+        config = PriorConfig(**ckpt["config"])
+        net = PoseVAE(config.hidden, config.latent)
+        net.load_state_dict(ckpt["state_dict"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise SceneFormatError(path, "config/state_dict", f"does not fit: {why[:200]}") from None
     net.eval()
     return PosePrior(net=net, config=config, info=dict(ckpt.get("info", {})))

@@ -195,7 +195,8 @@ def _check_array(
     if a.ndim != len(ndim_shape) or any(
         s is not None and s != d for s, d in zip(ndim_shape, a.shape, strict=True)
     ):
-        want = "(" + ", ".join("N" if s is None else str(s) for s in ndim_shape) + ")"
+        want = "(" + ", ".join("N" if s is None else str(s) for s in ndim_shape)
+        want += ",)" if len(ndim_shape) == 1 else ")"
         raise SceneFormatError(source, name, f"expected shape {want}, got {a.shape}")
     if kind == "i":
         if a.dtype.kind == "f":

@@ -40,6 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.cameras import Camera, CameraRig, make_camera
 from pipeline.files import SceneFormatError, atomic_write
+from pipeline.schema import check_numbers
 
 MM_PER_M = 1000.0
 
@@ -81,6 +82,7 @@ def _array(value, path, field: str) -> np.ndarray:
     """``value`` as a finite float array, or a SceneFormatError naming ``field``."""
     if value is None:
         raise SceneFormatError(path, field, "missing")
+    check_numbers(value, path, field)  # "1" and true are not numbers
     try:
         a = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
