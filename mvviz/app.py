@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 import viser
 
+from mvviz.export_panel import make_export_panel
 from mvviz.failure_panel import make_failure_panel
 from mvviz.filter_panel import make_filter_panel
 from mvviz.geometry import (
@@ -391,6 +392,7 @@ class ViewerApp:
         self.filter_panel = make_filter_panel(self)
         self.failure_panel = make_failure_panel(self)
         self.pipeline_panel = make_pipeline_panel(self, model=self.model)
+        self.export_panel = make_export_panel(self)
         self._image_pool = ThreadPoolExecutor(1, thread_name_prefix="mvviz-images")
         self.last_image_cpu_ms = 0.0  # CPU time of the last frame's image job
         self._stats_shown_t = -np.inf

@@ -21,6 +21,7 @@ def build_parser() -> argparse.ArgumentParser:
         cli_convert,
         cli_detect,
         cli_export,
+        cli_export_formats,
         cli_prior,
         cli_reference,
         cli_run,
@@ -40,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
         cli_detect,
         cli_run,
         cli_export,
+        cli_export_formats,
         cli_view,
         cli_prior,
     ):

@@ -571,6 +571,13 @@ class PipelinePanel:
             self._export_thread.start()
             return self._export_thread
 
+    def complete_results(self) -> PipelineResults:
+        """The newest complete results (every stage), once a re-run in progress lands
+        (blocks until then): what the exports write, never a preview."""
+        with self._cv:
+            self._cv.wait_for(lambda: self._job is None and not self._running)
+            return self.base
+
     def wait_idle(self, timeout: float = 60.0) -> bool:
         """Block until no re-run, preview or export runs (for tests and scripts)."""
         end = time.monotonic() + timeout

@@ -1,0 +1,192 @@
+"""The "Export" panel: the run in the formats other tools read, as ``mvviz export``.
+
+Format (trc, c3d, bvh, smpl-npz, glb), stage (the run's stages that format can hold;
+"last" = the run's last, as the command's default), track (all or one id), one file
+per track for trc/c3d, and the path; "Export" writes on a background thread through
+:func:`pipeline.exports.export_results`, from the newest complete results (a re-run of
+the Pipeline panel in progress is waited for), and the status line lists the files
+written and the writers' notes (held poses, gaps). The choices follow the results:
+after a re-run the stage and track lists are rebuilt.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import viser
+
+from pipeline.exports import EXTENSIONS, FORMATS, ExportedFile, export_results, stages_for
+from pipeline.results import PipelineResults
+
+if TYPE_CHECKING:
+    from mvviz.app import ViewerApp
+
+LAST = "last"
+ALL = "all"
+
+
+@dataclass
+class ExportGui:
+    folder: viser.GuiFolderHandle
+    format: viser.GuiDropdownHandle
+    stage: viser.GuiDropdownHandle
+    track: viser.GuiDropdownHandle
+    per_track: viser.GuiCheckboxHandle
+    path: viser.GuiTextHandle
+    export: viser.GuiButtonHandle
+    status: viser.GuiMarkdownHandle
+
+
+def stage_options(results: PipelineResults, fmt: str) -> tuple[str, ...]:
+    return (LAST, *stages_for(results, fmt))
+
+
+def track_options(results: PipelineResults) -> tuple[str, ...]:
+    return (ALL, *(str(k) for k in range(results.num_tracks)))
+
+
+def default_path(out_dir: Path, scene_name: str, fmt: str, stage: str) -> Path:
+    tag = "" if stage == LAST else f"_{stage}"
+    return out_dir / f"{scene_name}{tag}{EXTENSIONS[fmt]}"
+
+
+def make_export_gui(server: viser.ViserServer, results: PipelineResults, path: Path) -> ExportGui:
+    with server.gui.add_folder("Export", expand_by_default=False) as folder:
+        fmt = server.gui.add_dropdown(
+            "Format", FORMATS, initial_value="glb",
+            hint="trc/c3d: joints as markers; bvh: skeleton; smpl-npz: AMASS-style; "
+            "glb: every body, skinned and animated",
+        )  # fmt: skip
+        stage = server.gui.add_dropdown(
+            "Stage", stage_options(results, "glb"), initial_value=LAST,
+            hint="last: the run's last stage (bodies: smpl_vae, else smpl)",
+        )  # fmt: skip
+        track = server.gui.add_dropdown("Track", track_options(results), initial_value=ALL)
+        per_track = server.gui.add_checkbox(
+            "One file per track", initial_value=False,
+            hint="trc/c3d; bvh and smpl-npz always write one file per track",
+        )  # fmt: skip
+        out = server.gui.add_text("Export path", initial_value=str(path))
+        export = server.gui.add_button("Export", icon=viser.Icon.FILE_EXPORT)
+        status = server.gui.add_markdown("")
+    return ExportGui(folder, fmt, stage, track, per_track, out, export, status)
+
+
+class ExportPanel:
+    """The panel's GUI and its background export (one at a time)."""
+
+    def __init__(self, app: ViewerApp) -> None:
+        self.app = app
+        self.scene = app.state.scene
+        self.out_dir = self.scene.root / ".mvviz" / "export"
+        results = app.state.results
+        self.gui = make_export_gui(
+            app.server, results, default_path(self.out_dir, self.scene.name, "glb", LAST)
+        )
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self.last_files: list[ExportedFile] = []
+        self.gui.format.on_update(lambda _: self._choices_changed())
+        self.gui.stage.on_update(lambda _: self._suggest_path())
+        self.gui.export.on_click(lambda _: self.export())
+        app.state_changed.append(self._on_state_changed)
+
+    # ------------------------------------------------------------------ choices
+
+    def _results(self) -> PipelineResults:
+        """The newest complete results: the Pipeline panel's once its re-run lands."""
+        panel = getattr(self.app, "pipeline_panel", None)
+        if panel is not None:
+            return panel.complete_results()
+        return self.app.state.results
+
+    def _set_options(self, handle: viser.GuiDropdownHandle, options: tuple[str, ...]) -> None:
+        if tuple(handle.options) != options:
+            value = handle.value
+            handle.options = options
+            handle.value = value if value in options else options[0]
+
+    def _choices_changed(self) -> None:
+        results = self.app.state.results
+        self._set_options(self.gui.stage, stage_options(results, self.gui.format.value))
+        self._set_options(self.gui.track, track_options(results))
+        self._suggest_path()
+
+    def _suggest_path(self) -> None:
+        """Keep the path's extension (and stage tag) in step while it is one we made."""
+        g = self.gui
+        current = Path(g.path.value)
+        if current.parent == self.out_dir and current.name.startswith(self.scene.name):
+            g.path.value = str(default_path(self.out_dir, self.scene.name, g.format.value,
+                                            g.stage.value))  # fmt: skip
+
+    def _on_state_changed(self, state, reason: str) -> None:
+        if "results" in reason.split(","):
+            self._choices_changed()
+
+    # ------------------------------------------------------------------ export
+
+    def export(
+        self, *, fmt: str | None = None, stage: str | None = None, track: str | None = None,
+        path: str | Path | None = None, per_track: bool | None = None,
+    ) -> threading.Thread:  # fmt: skip
+        """Export with the GUI's choices (or these), on a background thread (returned)."""
+        g = self.gui
+        with self._lock:
+            if self._thread is not None and self._thread.is_alive():
+                return self._thread
+            job = {
+                "fmt": fmt or g.format.value,
+                "stage": stage or g.stage.value,
+                "track": track or g.track.value,
+                "path": Path(path if path is not None else g.path.value).expanduser(),
+                "per_track": g.per_track.value if per_track is None else per_track,
+            }
+            g.export.disabled = True
+            self._thread = threading.Thread(
+                target=self._export, kwargs=job, name="mvviz-export", daemon=True
+            )
+            self._thread.start()
+            return self._thread
+
+    def wait(self, timeout: float = 60.0) -> bool:
+        """Block until no export runs (for tests and scripts)."""
+        t = self._thread
+        if t is not None:
+            t.join(timeout)
+            return not t.is_alive()
+        return True
+
+    def _export(self, *, fmt: str, stage: str, track: str, path: Path, per_track: bool) -> None:
+        g = self.gui
+        try:
+            g.status.content = "waiting for the re-run…"
+            results = self._results()
+            g.status.content = f"exporting {fmt} to `{path}`…"
+            files = export_results(
+                results, fmt, path, fps=self.scene.fps,
+                stage=None if stage == LAST else stage, track=track, per_track=per_track,
+            )  # fmt: skip
+            self.last_files = files
+            lines = [
+                f"- `{f.path.name}` ({f.path.stat().st_size / 1e3:.0f} KB, tracks "
+                f"{', '.join(map(str, f.tracks))})" for f in files
+            ]  # fmt: skip
+            notes = [f"- {n}" for f in files for n in f.notes]
+            text = f"**wrote {len(files)} file(s)** in `{path.parent}`:\n\n" + "\n".join(lines)
+            if notes:
+                text += "\n\n**notes:**\n\n" + "\n".join(notes)
+            g.status.content = text
+        except Exception as exc:  # shown where the user looks: the panel
+            self.last_files = []
+            g.status.content = f"export failed: {exc}"
+        finally:
+            g.export.disabled = False
+
+
+def make_export_panel(app: ViewerApp) -> ExportPanel:
+    """The "Export" folder of ``app``."""
+    return ExportPanel(app)
