@@ -40,6 +40,7 @@ from tqdm import tqdm
 from mvviz.geometry import ViewerData, detection_rays
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import PipelineConfig, save_config
+from pipeline.joint_sets import get_joint_set
 from pipeline.results import (
     FIT_JOINT_SETS,
     PipelineResults,
@@ -178,6 +179,15 @@ def patch_frame(
     def splice(old: np.ndarray, new: np.ndarray) -> np.ndarray:
         return np.concatenate([old[before], np.asarray(new, old.dtype), old[after]])
 
+    # Left/right swaps: the other frames keep theirs, this frame takes its own.
+    flip = get_joint_set(results.joint_set).flip_index
+    det_flipped = np.zeros(len(joints2d_all), bool)
+    if results.det_flipped is not None and len(results.det_flipped) == len(joints2d_all):
+        det_flipped[:] = results.det_flipped
+    det_flipped[fr.rows] = a.flipped
+    det_joints2d = joints2d_all.copy()
+    det_joints2d[det_flipped] = joints2d_all[det_flipped][:, flip]
+
     # 2. tracks: match the new people to each track's pose in this frame
     raw, filt = results.track_raw[:, f], results.track_filtered[:, f]  # (K, J, 3)
     reference = np.where(np.isfinite(raw), raw, filt)
@@ -194,7 +204,8 @@ def patch_frame(
     return dataclasses.replace(
         results,
         config=config,
-        det_joints2d=joints2d_all,
+        det_joints2d=det_joints2d,
+        det_flipped=det_flipped,
         det_person=det_person,
         person_frame=splice(pf, np.full(P, f)),
         person_joints=splice(results.person_joints, points),

@@ -15,6 +15,22 @@ come from the same view (a cannot-link constraint). A detection therefore joins 
 person only if it agrees with every view of that person. Clusters seen in fewer than
 ``min_views`` views stay unassigned (false positives, or people only one camera sees).
 
+Left/right swaps: 2D detectors (BlazePose, OpenPose) often label a person seen from
+behind as if seen from the front, every left joint on the right. Given the joint set,
+every pair is also scored with one detection mirrored (its left and right joints
+exchanged) and the better of the two counts; each cluster then decides which of its
+detections are mirrored (the assignment whose members agree best, taken only when it
+clearly beats mirroring none; of it and its mirror image, the one whose triangulated nose
+lies in front of the body, where the labels' left-to-right direction and "up" put the
+front; without a nose, the one mirroring fewer detections). A cluster whose views all
+agree is never mirrored: labels wrong in every view are the label check's business. ``Association.flipped`` says which; the stages after association use the
+un-mirrored labels. On the real Pose2Sim demo, 36 of BlazePose's detections (the
+woman's in cam02 and cam03, in 22 frames around f50-90) are mirrored: without this her
+views split into two clusters that disagree and three tracks come out for two people.
+
+Duplicates: two clusters with no view in common whose bodies triangulate to the same
+place are one person (``AssociationParams.merge_distance_mm``).
+
 Units: mm, pixels.
 """
 
@@ -25,6 +41,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.cameras import CameraRig
+from pipeline.joint_sets import JointSet
+from pipeline.triangulate import triangulate_people
 
 
 @dataclass(frozen=True)
@@ -38,6 +56,15 @@ class AssociationParams:
     min_confidence: float = 0.1
     min_shared_joints: int = 3
     min_views: int = 2
+    resolve_flips: bool = True
+    """Score every pair also with one detection mirrored left/right, and un-mirror the
+    detections a cluster finds mirrored (needs the joint set)."""
+    merge_distance_mm: float = 200.0
+    """Two clusters with no view in common whose triangulated bodies (median joint) are
+    closer than this are one person, split because one of its detections disagrees with
+    the others (a detection that straddles two people, or has left and right swapped):
+    two people cannot stand in one place. They are merged, and triangulation's outlier
+    rejection sorts out the joints. 0 disables."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,6 +77,8 @@ class Association:
         ray_distance: (n, n) weighted mean ray distance, mm (NaN where not computed).
         members: (num_people, num_views) detection index (within the frame) per view, -1.
         linkage: (num_people,) mean affinity within each cluster.
+        flipped: (n,) bool, detections whose left and right labels the cluster found
+            swapped (their joints are to be read through ``joint_set.flip_index``).
     """
 
     cluster: np.ndarray
@@ -57,6 +86,11 @@ class Association:
     ray_distance: np.ndarray
     members: np.ndarray
     linkage: np.ndarray
+    flipped: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.flipped is None:
+            object.__setattr__(self, "flipped", np.zeros(len(self.cluster), bool))
 
     @property
     def num_people(self) -> int:
@@ -128,6 +162,7 @@ def associate_frame(
     params: AssociationParams = AssociationParams(),
     *,
     enabled_views: np.ndarray | None = None,
+    joint_set: JointSet | None = None,
 ) -> Association:
     """Cluster one frame's detections into people.
 
@@ -135,6 +170,8 @@ def associate_frame(
         views: (n,) view index per detection.
         joints2d: (n, J, 3) distorted pixels + confidence.
         enabled_views: (num_views,) bool; detections of disabled views stay unassigned.
+        joint_set: the layout of ``joints2d``; needed to resolve left/right swaps
+            (``params.resolve_flips``), which are not looked for without it.
     """
     views = np.asarray(views, int)
     n, V = len(views), len(rig)
@@ -151,11 +188,36 @@ def associate_frame(
     )
     if enabled_views is not None:
         weights = weights * np.asarray(enabled_views, bool)[views][:, None]
-    dist = ray_distances(origins, dirs, weights, params)
+    flip = None
+    if params.resolve_flips and joint_set is not None:
+        flip = joint_set.flip_index
+        if (flip == np.arange(len(flip))).all():
+            flip = None
+    if flip is None:
+        dist = ray_distances(origins, dirs, weights, params)
+        mirrored = np.full_like(dist, np.nan)
+    else:
+        # Every detection also mirrored: rows n..2n-1. dist(a, mirror b) = dist(mirror a, b).
+        both = ray_distances(
+            np.concatenate([origins, origins]),
+            np.concatenate([dirs, dirs[:, flip]]),
+            np.concatenate([weights, weights[:, flip]]),
+            params,
+        )
+        dist, mirrored = both[:n, :n], both[:n, n:]
     same_view = views[:, None] == views[None, :]
-    dist[same_view] = np.nan
-    affinity = 1.0 - dist / params.max_distance_mm
+    dist[same_view] = mirrored[same_view] = np.nan
+    best = np.fmin(dist, mirrored)
+    affinity = 1.0 - best / params.max_distance_mm
     cluster = _average_linkage(affinity, views, params.min_affinity)
+    flipped = np.zeros(n, bool)
+    if flip is not None:
+        flipped = resolve_flips(rig, views, joints2d, cluster, dist, mirrored, joint_set)
+        joints2d = joints2d.copy()
+        joints2d[flipped] = joints2d[flipped][:, flip]
+
+    if params.merge_distance_mm > 0:
+        cluster = merge_duplicates(rig, views, joints2d, cluster, params)
 
     # Keep clusters seen by enough views; number people by their first detection.
     people, linkage = [], []
@@ -173,10 +235,156 @@ def associate_frame(
     return Association(
         cluster=out,
         affinity=affinity,
-        ray_distance=dist,
+        ray_distance=best,
         members=np.array(people, int).reshape(-1, V),
         linkage=np.array(linkage),
+        flipped=flipped & (out >= 0),
     )
+
+
+FLIP_GAIN = 0.7
+"""Mirroring must bring a cluster's mean pair ray distance below this fraction..."""
+FLIP_MIN_MM = 15.0
+"""...and lower it by more than this many millimetres."""
+MAX_EXHAUSTIVE_FLIPS = 9
+"""Clusters up to this size try every assignment of mirrored members; larger ones are
+built greedily (each member oriented to agree with those already placed)."""
+
+
+def resolve_flips(
+    rig: CameraRig,
+    views: np.ndarray,
+    joints2d: np.ndarray,
+    cluster: np.ndarray,
+    dist: np.ndarray,
+    mirrored: np.ndarray,
+    joint_set: JointSet,
+) -> np.ndarray:
+    """(n,) which detections of each cluster have left and right swapped.
+
+    Args:
+        dist, mirrored: (n, n) mean ray distances of two detections as labelled, and with
+            one of them mirrored (NaN where unknown).
+    Returns:
+        bool per detection; see the module docstring for the rule.
+    """
+    flipped = np.zeros(len(views), bool)
+    clip = np.nanmax(np.concatenate([dist.ravel(), mirrored.ravel(), [0.0]]))
+    same = np.where(np.isfinite(dist), dist, clip)
+    cross = np.where(np.isfinite(mirrored), mirrored, clip)
+    for c in np.unique(cluster):
+        rows = np.flatnonzero(cluster == c)
+        if len(rows) < 2:
+            continue
+        S, X = same[np.ix_(rows, rows)], cross[np.ix_(rows, rows)]
+        bits = _orient(S, X)
+        if not bits.any():
+            continue  # every view agrees: nothing for association to decide
+        # The views split into two mirrored camps: which camp has the labels right?
+        if _faces_backwards(rig, views[rows], joints2d[rows], bits, joint_set):
+            bits = ~bits
+        elif "nose" not in joint_set.index and bits.sum() * 2 > len(bits):
+            bits = ~bits
+        flipped[rows] = bits
+    return flipped
+
+
+def _orient(S: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(m,) orientation bits minimising the mean pair distance: S where two members share
+    an orientation, X where they differ; the first member is never flipped. Mirroring
+    is taken only when it clearly helps (:data:`FLIP_GAIN`, :data:`FLIP_MIN_MM`): a
+    near-symmetric pose (standing, arms down) fits both ways within the noise, and a
+    wrong flip there costs more than it can win."""
+    m = len(S)
+    iu = np.triu_indices(m, 1)
+    if m <= MAX_EXHAUSTIVE_FLIPS:
+        codes = np.arange(2 ** (m - 1))
+        bits = np.zeros((len(codes), m), bool)
+        bits[:, 1:] = (codes[:, None] >> np.arange(m - 1)) & 1
+        differ = bits[:, iu[0]] != bits[:, iu[1]]
+        cost = np.where(differ, X[iu], S[iu]).mean(1)
+        best = int(np.argmin(cost))
+        gain = cost[0] - cost[best]  # code 0: nobody mirrored
+        if gain > FLIP_MIN_MM and cost[best] < FLIP_GAIN * cost[0]:
+            return bits[best]
+        return bits[0]
+    # Greedy for large clusters: place members from the most central one out.
+    order = np.argsort(S.sum(1))
+    bits = np.zeros(m, bool)
+    for i, k in enumerate(order[1:], start=1):
+        placed = order[:i]
+        keep = np.where(bits[placed], X[k, placed], S[k, placed]).mean()
+        swap = np.where(bits[placed], S[k, placed], X[k, placed]).mean()
+        bits[k] = keep - swap > FLIP_MIN_MM and swap < FLIP_GAIN * keep
+    return bits ^ bits[0]
+
+
+def _faces_backwards(
+    rig: CameraRig, views: np.ndarray, joints2d: np.ndarray, bits: np.ndarray, js: JointSet
+) -> bool:
+    """Whether the body triangulated with ``bits`` has its nose behind it: the labels'
+    left-to-right direction crossed with up (+z) must point where the nose is."""
+    names = ("nose", "left_shoulder", "right_shoulder")
+    if not all(n in js.index for n in names) or len(views) < 2:
+        return False
+    kp = joints2d.copy()
+    kp[bits] = kp[bits][:, js.flip_index]
+    sel = [js.index[n] for n in names]
+    cams = np.full((1, len(rig), 3, 3), np.nan)
+    cams[..., 2] = 0.0
+    cams[0, views] = kp[:, sel]
+    nose, left, right = triangulate_people(rig, cams, outlier_threshold_px=np.inf).points[0]
+    if not np.isfinite([nose, left, right]).all():
+        return False
+    forward = np.cross(left - right, [0.0, 0.0, 1.0])
+    return float(np.dot(nose - 0.5 * (left + right), forward)) < 0.0
+
+
+def cluster_centers(
+    rig: CameraRig, views: np.ndarray, joints2d: np.ndarray, cluster: np.ndarray, labels
+) -> np.ndarray:
+    """(len(labels), 3) median over joints of each cluster's triangulated body, mm (NaN
+    for a cluster of one view or without two shared joints)."""
+    V, J = len(rig), joints2d.shape[1]
+    kp = np.full((len(labels), V, J, 3), np.nan)
+    kp[..., 2] = 0.0
+    for i, c in enumerate(labels):
+        rows = np.flatnonzero(cluster == c)
+        kp[i, views[rows]] = joints2d[rows]
+    points = triangulate_people(rig, kp, outlier_threshold_px=np.inf).points
+    with np.errstate(all="ignore"):
+        return np.nanmedian(points, axis=1) if points.size else np.zeros((0, 3))
+
+
+def merge_duplicates(
+    rig: CameraRig,
+    views: np.ndarray,
+    joints2d: np.ndarray,
+    cluster: np.ndarray,
+    params: AssociationParams,
+) -> np.ndarray:
+    """Merge clusters that are one person (see ``AssociationParams.merge_distance_mm``).
+
+    Closest pair first; a merge needs the two clusters' views to be disjoint and each
+    cluster seen by ``min_views`` views (a single stray detection is not a body).
+    Returns the new (n,) labels.
+    """
+    cluster = cluster.copy()
+    while True:
+        labels = [c for c in np.unique(cluster) if (cluster == c).sum() >= params.min_views]
+        if len(labels) < 2:
+            return cluster
+        centers = cluster_centers(rig, views, joints2d, cluster, labels)
+        best, pair = params.merge_distance_mm, None
+        for i in range(len(labels)):
+            vi = set(views[cluster == labels[i]])
+            for j in range(i + 1, len(labels)):
+                d = float(np.linalg.norm(centers[i] - centers[j]))
+                if d < best and not vi & set(views[cluster == labels[j]]):
+                    best, pair = d, (labels[i], labels[j])
+        if pair is None:
+            return cluster
+        cluster[cluster == pair[1]] = pair[0]
 
 
 def _average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -> np.ndarray:

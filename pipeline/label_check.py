@@ -807,9 +807,17 @@ def check_labels(
 
 
 def view_observations(results: PipelineResults) -> ViewObservations:
-    """The run's per-frame people (raw triangulation) with their associated 2D per view."""
+    """The run's per-frame people (raw triangulation) with their associated 2D per view,
+    as the cameras' detector gave it: detections the association un-mirrored
+    (``results.det_flipped``) are mirrored back, so that a camera whose detector swaps
+    left and right is still told, though the 3D no longer suffers from it."""
     members = results.person_members  # (Q, V) detection row, -1
-    kp = results.det_joints2d[np.maximum(members, 0)]  # (Q, V, J, 3)
+    det = results.det_joints2d
+    if results.det_flipped is not None and results.det_flipped.any():
+        det = det.copy()
+        flipped = results.det_flipped
+        det[flipped] = det[flipped][:, get_joint_set(results.joint_set).flip_index]
+    kp = det[np.maximum(members, 0)]  # (Q, V, J, 3)
     if kp.size:
         kp = kp.copy()
         kp[members < 0, :, 2] = 0.0

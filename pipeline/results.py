@@ -34,7 +34,7 @@ from pipeline.scene import Scene
 from pipeline.smpl_fit import SmplFit, fit_sequence
 from pipeline.smpl_kinematics import SUPPORTED_JOINT_SETS
 
-RESULTS_VERSION = 2
+RESULTS_VERSION = 3
 FIT_JOINT_SETS = SUPPORTED_JOINT_SETS
 """Joint sets whose tracks get SMPL bodies: every set the body-model table
 (:mod:`pipeline.body_keypoints`) ties all limbs of."""
@@ -72,6 +72,8 @@ class PipelineResults:
     smpl: SmplFit | None = None  # step I fit to track_filtered
     smpl_vae: SmplFit | None = None  # step I corrected by the VAE pose prior
     cache_key: str = ""
+    det_flipped: np.ndarray | None = None  # (N,) bool: left/right swapped in the input,
+    # un-mirrored by association (det_joints2d holds the un-mirrored joints)
 
     @property
     def num_tracks(self) -> int:
@@ -102,6 +104,8 @@ def pack(
     """Flatten per-frame results and the sequence stages into :class:`PipelineResults`."""
     J = joints2d_all.shape[1]
     det_person = np.full(num_detections, -1)
+    det_flipped = np.zeros(num_detections, bool)
+    det_joints2d = joints2d_all
     cols: dict[str, list] = {
         k: [] for k in ("frame", "joints", "reproj", "used", "members", "link")
     }
@@ -112,6 +116,12 @@ def pack(
         P = a.num_people
         assigned = a.cluster >= 0
         det_person[fr.rows[assigned]] = q + a.cluster[assigned]
+        if a.flipped.any():
+            if det_joints2d is joints2d_all:
+                det_joints2d = joints2d_all.copy()
+            rows = fr.rows[a.flipped]
+            det_flipped[rows] = True
+            det_joints2d[rows] = fr.joints2d[a.flipped]
         members = np.where(a.members >= 0, fr.rows[np.maximum(a.members, 0)], -1)
         cols["frame"].append(np.full(P, fr.frame))
         cols["joints"].append(t.points.reshape(P, J, 3))
@@ -137,9 +147,10 @@ def pack(
         joint_set=joint_set,
         num_frames=num_frames,
         num_views=num_views,
-        det_joints2d=joints2d_all,
+        det_joints2d=det_joints2d,
         det_restored=restored,
         det_person=det_person,
+        det_flipped=det_flipped,
         person_frame=cat(cols["frame"], (0,), int),
         person_joints=cat(cols["joints"], (0, J, 3)),
         person_reproj=cat(cols["reproj"], (0, J, num_views)),
@@ -230,7 +241,9 @@ def run_pipeline(
 
 # Fields stored as one array each; the others go into the file's JSON meta or, for the
 # optional arrays and the fits, are handled one by one.
-_NOT_ARRAYS = {"config", "joint_set", "num_frames", "num_views", "cache_key", "det_restored"}
+_NOT_ARRAYS = {
+    "config", "joint_set", "num_frames", "num_views", "cache_key", "det_restored", "det_flipped",
+}  # fmt: skip
 _ARRAY_FIELDS = [
     f.name
     for f in dataclasses.fields(PipelineResults)
@@ -250,8 +263,9 @@ def save_results(results: PipelineResults, path: str | os.PathLike) -> None:
         "body_model": str(results.smpl.model.source) if results.smpl is not None else None,
     }
     arrays = {k: getattr(results, k) for k in _ARRAY_FIELDS}
-    if results.det_restored is not None:
-        arrays["det_restored"] = results.det_restored
+    for optional in ("det_restored", "det_flipped"):
+        if getattr(results, optional) is not None:
+            arrays[optional] = getattr(results, optional)
     for name, prefix in _FIT_PREFIXES.items():
         fit = getattr(results, name)
         if fit is not None:
@@ -288,6 +302,7 @@ def load_results(path: str | os.PathLike, *, model: BodyModel | None = None) -> 
         num_views=int(meta["num_views"]),
         cache_key=meta.get("cache_key", ""),
         det_restored=a.get("det_restored"),
+        det_flipped=a.get("det_flipped"),
         **{k: a[k] for k in _ARRAY_FIELDS},
     )
 

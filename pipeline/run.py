@@ -136,7 +136,12 @@ def run_frame(
     views = scene.detections.view[rows]
     joints2d = joints2d_all[rows].copy()
     joints2d[~enabled[views], :, 2] = 0.0  # a disabled camera contributes nothing
-    assoc = associate_frame(scene.rig, views, joints2d, config.association, enabled_views=enabled)
+    joint_set = source_joint_set(scene, config)
+    assoc = associate_frame(
+        scene.rig, views, joints2d, config.association, enabled_views=enabled, joint_set=joint_set
+    )
+    if assoc.flipped.any():  # detections with left and right swapped, read un-mirrored
+        joints2d[assoc.flipped] = joints2d[assoc.flipped][:, joint_set.flip_index]
     P, V, J = assoc.num_people, len(scene.rig), joints2d.shape[1]
     kp = np.full((P, V, J, 3), np.nan)
     kp[..., 2] = 0.0

@@ -118,7 +118,13 @@ def track_people(
                     for k, g, d in zip(active, gaps, damp, strict=True)
                 ]
             )
-            cost = _mean_joint_distance(pred, joints[rows])  # (tracks, people)
+            # Where the motion predicts, or where it was last seen: a velocity from one
+            # noisy step (a joint re-solved from another camera pair jumps by 10-25 cm on
+            # the real Pose2Sim demo) must not throw a track off its person.
+            last = np.stack([last_pose[k] for k in active])
+            cost = np.fmin(
+                _mean_joint_distance(pred, joints[rows]), _mean_joint_distance(last, joints[rows])
+            )  # (tracks, people)
             gate = params.max_distance_mm + params.gap_widening_mm * (gaps - 1)
             big = 1e9
             c = np.where(cost <= gate[:, None], cost, big)

@@ -95,3 +95,59 @@ def test_threshold_controls_merging():
     views, kp, _ = observe(rig, joints, sigma_px=2.0)
     strict = associate_frame(rig, views, kp, AssociationParams(min_affinity=0.999))
     assert strict.num_people == 0  # nothing agrees that perfectly with 2 px noise
+
+
+def _mirror(kp: np.ndarray, rows) -> np.ndarray:
+    from pipeline.joint_sets import SMPL24
+
+    kp = kp.copy()
+    kp[rows] = kp[rows][:, SMPL24.flip_index]
+    return kp
+
+
+def test_mirrored_detections_are_found_and_unmirrored():
+    """A detector that labels a person seen from behind as if from the front swaps every
+    left and right joint: the cluster finds which of its detections are mirrored."""
+    from pipeline.joint_sets import SMPL24
+    from pipeline.triangulate import triangulate_people
+
+    rig = shelf_rig()
+    joints = standing_people(SPOTS[:3], np.array([0.3, 2.0, -1.0]))
+    views, kp, person = observe(rig, joints, sigma_px=2.0)
+    # Person 0 mirrored in two of its views, person 1 in one.
+    bad = np.concatenate([np.flatnonzero(person == 0)[:2], np.flatnonzero(person == 1)[:1]])
+    mirrored = _mirror(kp, bad)
+    a = associate_frame(rig, views, mirrored, joint_set=SMPL24)
+    assert _clusters_match_truth(a, person)
+    np.testing.assert_array_equal(np.flatnonzero(a.flipped), np.sort(bad))
+    # Un-mirrored, person 0 triangulates as well as from clean 2D.
+    rows = np.flatnonzero(person == 0)
+    fixed = mirrored.copy()
+    fixed[a.flipped] = fixed[a.flipped][:, SMPL24.flip_index]
+    cams = np.full((1, len(rig), 24, 3), np.nan)
+    cams[..., 2] = 0.0
+    cams[0, views[rows]] = fixed[rows]
+    err = np.linalg.norm(triangulate_people(rig, cams).points[0] - joints[0], axis=-1)
+    assert np.nanmean(err) < 15.0
+    # Without the joint set nothing is mirrored, and the clean people never are.
+    assert not associate_frame(rig, views, mirrored).flipped.any()
+    assert not associate_frame(rig, views, kp, joint_set=SMPL24).flipped.any()
+
+
+def test_one_person_split_in_two_clusters_is_merged():
+    from pipeline.associate import merge_duplicates
+
+    rig = shelf_rig()
+    joints = standing_people(np.array([[0.0, 0.0], [700.0, 0.0]]), np.array([0.3, 0.3]))
+    views, kp, person = observe(rig, joints, sigma_px=2.0)
+    rows0 = np.flatnonzero(person == 0)
+    assert len(rows0) >= 4
+    # Person 0 split in two clusters (as a straddling or mirrored detection does):
+    # one place, one person. Person 1, 700 mm away, stays apart.
+    cluster = np.where(person == 0, 0, 10)
+    cluster[rows0[len(rows0) // 2 :]] = 1
+    merged = merge_duplicates(rig, views, kp, cluster, AssociationParams())
+    assert len(set(merged[rows0])) == 1
+    assert set(merged[person == 1]) == {10} and merged[rows0[0]] != 10
+    off = merge_duplicates(rig, views, kp, cluster, AssociationParams(merge_distance_mm=0.0))
+    np.testing.assert_array_equal(off, cluster)

@@ -34,18 +34,19 @@ NO_FIT = dataclasses.replace(PipelineConfig(), fit_smpl=False)
 P = LabelCheckParams()
 
 # The worst track of each correct scene, measured (see pipeline/label_check.py).
-MEASURED = {  # joints triangulated from >= 3 views (LabelCheckParams.min_views)
+MEASURED = {  # joints triangulated from >= 3 views (LabelCheckParams.min_views); the
+    # association un-mirrors left/right-swapped detections (pose2sim_demo: 36 of them)
     "shelf_synth": dict(
         left_right=0.0, facing=0.0, knee_hinge=0.0, elbow_hinge=0.008, symmetry=0.014,
         stability=0.080, camera_mirror=0.0,
     ),
     "shelf_synth_noisy": dict(
         left_right=0.0, facing=0.0, knee_hinge=0.004, elbow_hinge=0.039, symmetry=0.018,
-        stability=0.151, camera_mirror=0.001,
+        stability=0.148, camera_mirror=0.001,
     ),
     "pose2sim_demo": dict(
-        left_right=0.0145, facing=0.0135, knee_hinge=0.0, elbow_hinge=0.008, symmetry=0.086,
-        stability=0.070, camera_mirror=0.066,
+        left_right=0.012, facing=0.012, knee_hinge=0.0, elbow_hinge=0.0065, symmetry=0.087,
+        stability=0.085, camera_mirror=0.154,
     ),
     "pose2sim_balancing": dict(
         left_right=0.0, facing=0.0, knee_hinge=0.0, elbow_hinge=0.005, symmetry=0.062,
@@ -188,7 +189,9 @@ def test_a_mirrored_camera_is_flagged(shipped, name):
     # measured 0.79 (5 cameras) and 0.71 (4 cameras); the others stay at <= 0.02
     name_v = scene.rig.names[v]
     assert check.cameras[name_v] > 0.65 and cams[0].message.startswith(f"camera {name_v}: ")
-    assert all(x < 0.05 for c, x in check.cameras.items() if c != name_v)
+    # The others: <= 0.02 on the synthetic scenes; BlazePose on the real demo mirrors
+    # 15 % of the people one camera sees from behind (un-mirrored by association).
+    assert all(x < 0.2 for c, x in check.cameras.items() if c != name_v)
     assert len(cams[0].frames) > 50 and list(cams[0].frames) == sorted(cams[0].frames)
 
 

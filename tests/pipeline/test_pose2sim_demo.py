@@ -44,9 +44,27 @@ def test_both_people_are_tracked_over_the_whole_clip(demo):
     for k in long:
         f = np.flatnonzero(life[k])
         assert f.min() <= 2 and f.max() >= 97 and len(f) >= 90
-    # Anything else is a short-lived ghost (the third person in the background of two
-    # views, or a stray cluster), never a second track of the same person.
-    assert (life.sum(1)[np.setdiff1d(np.arange(len(life)), long)] <= 10).all()
+    # Two people, two tracks: nothing else. (Before the association un-mirrored
+    # BlazePose's left/right swaps, the woman's views split into two clusters that
+    # disagreed and a third track lived f52-72.)
+    assert len(life) == 2
+
+
+def test_mirrored_detections_are_unmirrored(demo):
+    scene, r = demo
+    from pipeline.run import frame_rows, run_frame
+
+    rows = frame_rows(scene)
+    flipped = [
+        int(
+            run_frame(
+                scene, f, PipelineConfig(), scene.detections.keypoints, rows=rows[f]
+            ).association.flipped.sum()
+        )
+        for f in range(scene.num_frames)
+    ]
+    # Measured: 36 detections in 22 frames, the woman's in cam02 / cam03 around f50-90.
+    assert 20 <= sum(flipped) <= 60 and (r.det_person >= 0).sum() >= 710
 
 
 def test_reprojection_error_per_camera(demo):
