@@ -120,8 +120,9 @@ class ExportPanel:
         g = self.gui
         current = Path(g.path.value)
         if current.parent == self.out_dir and current.name.startswith(self.scene.name):
-            g.path.value = str(default_path(self.out_dir, self.scene.name, g.format.value,
-                                            g.stage.value))  # fmt: skip
+            path = str(default_path(self.out_dir, self.scene.name, g.format.value, g.stage.value))
+            if path != g.path.value:  # no message for an unchanged value
+                g.path.value = path
 
     def _on_state_changed(self, state, reason: str) -> None:
         if "results" in reason.split(","):
