@@ -22,6 +22,8 @@ from pipeline.joint_sets import BODY25, BODY25B, COCO17, JOINT_SETS, convert_key
 from pipeline.scene import load_scene
 from tests.pipeline.layout_data import SAMPLE, layout_detections, write_openpose_tree
 
+# Cameras without a detection folder are a warning these tests provoke on purpose.
+pytestmark = pytest.mark.filterwarnings("ignore:.*no folder for camera:UserWarning")
 CAMS = ["0", "1", "2", "3", "4"]
 REAL_2D = Path(__file__).resolve().parents[2] / "sample_data" / "pose2sim_balancing" / "pose2d"
 
