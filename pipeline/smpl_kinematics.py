@@ -33,6 +33,13 @@ SUPPORTED_JOINT_SETS = FITTABLE_JOINT_SETS
 Joints the set leaves free and its torso points follow from the table by the rules of
 ``body_keypoints.free_joints`` and ``body_keypoints.torso_points``."""
 _J = SMPL24.index
+OFFSET_FRAMES = ("pelvis", "spine1", "spine2", "spine3", "neck", "head", "left_collar",
+                 "right_collar")  # fmt: skip
+"""Joints whose frame may carry a per-track keypoint offset: the trunk and head, i.e. the
+keypoints at the ends of a torso bone (hips, shoulders, face points). A limb keypoint
+(knee, ankle, elbow, wrist) with its own offset lets the body's limb joints drift from
+the observed ones (on the noisy Shelf scene the ankles' SMPL joints moved 45 mm), so
+limb proportions are left to the betas."""
 
 
 # --------------------------------------------------------------------------- rotations
@@ -102,6 +109,8 @@ class KeypointBuffers:
     torso: np.ndarray  # indices into the target set (body_keypoints.torso_points)
     fitted: np.ndarray  # (T,) bool: targets the model gives (others get weight 0)
     anchors: dict[str, int]  # SMPL-24 joint -> target anchored there (analytic init)
+    offset_joint: torch.Tensor  # (T,) the joint whose frame carries a target's offset
+    offset_mask: torch.Tensor  # (T,) 1 where a target may have an offset (OFFSET_FRAMES)
 
     @property
     def num_targets(self) -> int:
@@ -165,6 +174,13 @@ def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
             lever = lever_arms(A.double().numpy(), D0.double().numpy(), J0, parents)
     free = torch.zeros(NUM_JOINTS)
     free[[_J[n] for n in free_joints(lever, reg)]] = 1.0
+    # A target's offset frame: the parent of its anchor joint (the bone that ends at the
+    # joint), else the joint that moves it most.
+    dominant = np.arange(NUM_JOINTS) if A is None else A.double().numpy().argmax(1)
+    offset_joint = [
+        max(int(parents[_J[a]]), 0) if a is not None and a in _J else int(d)
+        for a, d in zip(reg.anchor, dominant, strict=True)
+    ]
     buf = KeypointBuffers(
         joint_set=js.name,
         parents=np.asarray(parents),
@@ -182,6 +198,10 @@ def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
         torso=torso_points(reg),
         fitted=reg.fitted.copy(),
         anchors=reg.anchors,
+        offset_joint=torch.as_tensor(offset_joint, dtype=torch.long),
+        offset_mask=torch.as_tensor(
+            [float(SMPL24.names[j] in OFFSET_FRAMES) for j in offset_joint]
+        ),
     )
     _BUFFER_CACHE[key] = buf
     return buf
@@ -223,11 +243,16 @@ def predict_targets(
     betas: torch.Tensor,
     transl: torch.Tensor,
     buf: KeypointBuffers,
+    offsets: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The model's target joints and its SMPL-24 joints.
 
     Args:
         rotmats: (N, 24, 3, 3) local rotations; betas: (N, B); transl: (N, 3) metres.
+        offsets: optional (N, T, 3) metres: where the observed keypoint sits relative to
+            the model's, in the frame of its joint ``buf.offset_joint`` (the keypoint's
+            anchor, else the joint that moves it most); added to the targets, not to the
+            joints.
     Returns:
         targets (N, T, 3) in ``buf.joint_set`` and joints (N, 24, 3), metres, world.
     """
@@ -235,7 +260,9 @@ def predict_targets(
     glob, posed = forward_kinematics(rotmats, rest, buf)
     joints = posed + transl[:, None]
     if buf.A is None:
-        return joints, joints
+        if offsets is None:
+            return joints, joints
+        return joints + _rotate_offsets(glob, offsets, buf), joints
     N = rotmats.shape[0]
     # sum_j G_j D_tj as matrix products over the flattened (joint, column) index:
     # (N, 3, J*3) @ (J*3, T [* B]) then the betas contraction.
@@ -251,4 +278,14 @@ def predict_targets(
         Ef = torch.einsum("tjcp,np->ntjc", buf.E, feat)  # pose blend shapes (licensed SMPL)
         kp = kp + torch.einsum("njab,ntjb->nat", glob, Ef)
     kp = kp.transpose(1, 2) + torch.einsum("tj,nja->nta", buf.A, posed)
-    return kp + buf.rowsum[:, None] * transl[:, None], joints
+    kp = kp + buf.rowsum[:, None] * transl[:, None]
+    if offsets is not None:
+        kp = kp + _rotate_offsets(glob, offsets, buf)
+    return kp, joints
+
+
+def _rotate_offsets(
+    glob: torch.Tensor, offsets: torch.Tensor, buf: KeypointBuffers
+) -> torch.Tensor:
+    """(N, 24, 3, 3) global rotations, (N, T, 3) local offsets -> (N, T, 3) world offsets."""
+    return (glob[:, buf.offset_joint] @ offsets[..., None])[..., 0] * buf.offset_mask[:, None]

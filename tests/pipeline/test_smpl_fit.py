@@ -22,7 +22,7 @@ from tests.conftest import REPO, tiny_body_model_arrays
 
 SCENE = REPO / "sample_data" / "shelf_synth"
 # Exact targets: no temporal prior (GT motion has real accelerations), more iterations.
-EXACT = FitParams(w_smooth=0.0, iters=300)
+EXACT = FitParams(w_smooth=0.0, iters=300, w_offset=0.0)  # model-made targets: no offsets
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,89 @@
+"""Joint limits as a differentiable penalty: :mod:`pipeline.pose_limits` in torch.
+
+:func:`pipeline.pose_limits.swing_twist` splits each local rotation into swing and twist
+in the joint's anatomical frame; :func:`swing_twist` here computes the same angles from
+rotation matrices in torch (a test checks them against the numpy reference), so the
+SMPL fit can penalise how far a joint is outside its box (:func:`limit_penalty`)
+instead of counting violations afterwards. Radians.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from pipeline import pose_limits
+
+_AXES = torch.as_tensor(pose_limits.AXES, dtype=torch.float32)  # (24, 3, 3)
+_LOW = torch.as_tensor(pose_limits.LOW.clip(-10, 10), dtype=torch.float32)  # (24, 3)
+_HIGH = torch.as_tensor(pose_limits.HIGH.clip(-10, 10), dtype=torch.float32)
+_MIRROR = torch.as_tensor(pose_limits.MIRROR)
+_LIMITED = torch.as_tensor(pose_limits.LIMITED)
+_FLIP = torch.tensor([1.0, -1.0, -1.0])
+
+
+def matrix_to_quaternion(R: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) rotations -> (..., 4) unit quaternions (w, x, y, z), w >= 0.
+
+    The branch with the largest denominator (Shepperd's method), so the gradient is finite
+    at every rotation."""
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    q_abs = torch.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22,
+                         1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)  # fmt: skip
+    q_abs = q_abs.clamp_min(1e-8).sqrt()  # 2|q_i|
+    d21, d02, d10 = (
+        R[..., 2, 1] - R[..., 1, 2],
+        R[..., 0, 2] - R[..., 2, 0],
+        R[..., 1, 0] - R[..., 0, 1],
+    )
+    s21, s02, s10 = (
+        R[..., 2, 1] + R[..., 1, 2],
+        R[..., 0, 2] + R[..., 2, 0],
+        R[..., 1, 0] + R[..., 0, 1],
+    )
+    cand = torch.stack(
+        [
+            torch.stack([q_abs[..., 0] ** 2, d21, d02, d10], -1),
+            torch.stack([d21, q_abs[..., 1] ** 2, s10, s02], -1),
+            torch.stack([d02, s10, q_abs[..., 2] ** 2, s21], -1),
+            torch.stack([d10, s02, s21, q_abs[..., 3] ** 2], -1),
+        ],
+        -2,
+    ) / (2.0 * q_abs[..., None])  # (..., 4 candidates, 4)
+    best = q_abs.argmax(-1)
+    q = torch.gather(cand, -2, best[..., None, None].expand(best.shape + (1, 4)))[..., 0, :]
+    q = q / q.norm(dim=-1, keepdim=True)
+    return torch.where(q[..., :1] < 0, -q, q)
+
+
+def swing_twist(rotmats: torch.Tensor) -> torch.Tensor:
+    """(N, 24, 3, 3) local rotations -> (N, 24, 3) (swing_a, swing_b, twist) radians in
+    each joint's anatomical frame (right joints mirrored onto the left), as
+    :func:`pipeline.pose_limits.swing_twist`; unlimited joints (the root) give 0."""
+    q = matrix_to_quaternion(rotmats)
+    w, v = q[..., 0], q[..., 1:]
+    v = torch.where(_MIRROR[:, None], v * _FLIP, v)
+    v = (_AXES @ v[..., None])[..., 0]  # vector part in the joint frame
+    x, y, z = v.unbind(-1)
+    twist = 2.0 * torch.atan2(z, w)
+    ct, st = torch.cos(0.5 * twist), torch.sin(0.5 * twist)
+    sw, sx, sy = ct * w + st * z, ct * x - st * y, ct * y + st * x
+    sign = torch.where(sw < 0, -1.0, 1.0)
+    sw, sx, sy = sw * sign, sx * sign, sy * sign
+    vnorm = (sx * sx + sy * sy + 1e-12).sqrt()
+    k = 2.0 * torch.atan2(vnorm, sw) / vnorm
+    out = torch.stack([k * sx, k * sy, twist], -1)
+    return torch.where(_LIMITED[:, None], out, torch.zeros_like(out))
+
+
+def limit_excess(rotmats: torch.Tensor, *, margin_deg: float = 0.0) -> torch.Tensor:
+    """(N, 24, 3, 3) -> (N, 24, 3) radians outside :data:`pipeline.pose_limits.LIMITS`
+    (per swing/twist axis, 0 inside the box shrunk by ``margin_deg``; 0 for the root)."""
+    ang = swing_twist(rotmats)
+    m = margin_deg * torch.pi / 180.0
+    over = torch.relu(ang - (_HIGH - m)) + torch.relu((_LOW + m) - ang)
+    return torch.where(_LIMITED[:, None], over, torch.zeros_like(over))
+
+
+def limit_penalty(rotmats: torch.Tensor, *, margin_deg: float = 0.0) -> torch.Tensor:
+    """(N, 24, 3, 3) -> (N,) sum over joints of the squared excess (radians^2)."""
+    return (limit_excess(rotmats, margin_deg=margin_deg) ** 2).sum((-1, -2))

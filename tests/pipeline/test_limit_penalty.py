@@ -1,0 +1,31 @@
+import numpy as np
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline import limit_penalty, pose_limits
+from pipeline.smpl_kinematics import rotvec_to_matrix
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.1, 1.5))
+def test_swing_twist_matches_the_numpy_reference(seed, scale):
+    r = np.random.default_rng(seed).normal(0, scale, (16, 24, 3))
+    R = torch.as_tensor(rotvec_to_matrix(r), dtype=torch.float32)
+    want = pose_limits.swing_twist(r)[:, pose_limits.LIMITED]
+    got = limit_penalty.swing_twist(R)[:, pose_limits.LIMITED].double().numpy()
+    # angles near +-pi wrap; compare away from the wrap
+    ok = np.abs(want) < 3.0
+    np.testing.assert_allclose(got[ok], want[ok], atol=1e-4)
+    excess = np.rad2deg(np.linalg.norm(limit_penalty.limit_excess(R).numpy(), axis=-1))
+    np.testing.assert_allclose(excess, pose_limits.limit_excess(r), atol=0.05)
+
+
+def test_penalty_is_zero_inside_and_has_finite_gradients():
+    R = torch.eye(3).repeat(5, 24, 1, 1).requires_grad_(True)
+    pen = limit_penalty.limit_penalty(R)
+    assert float(pen.abs().max()) == 0.0
+    r = np.random.default_rng(0).normal(0, 1.2, (8, 24, 3))
+    R = torch.as_tensor(rotvec_to_matrix(r), dtype=torch.float32).requires_grad_(True)
+    limit_penalty.limit_penalty(R).sum().backward()
+    assert torch.isfinite(R.grad).all() and float(R.grad.abs().sum()) > 0
