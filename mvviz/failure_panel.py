@@ -1,12 +1,15 @@
-"""The "Failures" panel: the worst entries of one criterion as buttons, and frame notes.
+"""The "Failures" panel: the worst problems of one criterion as buttons, and frame notes.
 
 A criterion dropdown (:data:`mvviz.failures.CRITERIA`, those the scene and run support)
 picks what to rank; the top :data:`MAX_ENTRIES` of :func:`~mvviz.failures.find_failures`
-become buttons labelled ``"1. f 123 · track 2 · left_wrist · cam 3 · 41.2 px"``. A click
-calls :meth:`ViewerApp.jump_to` (timeline, track, joint and, when a view is named, the
-camera panel's camera) and, with "Look at it" on, :meth:`ViewerApp.focus` on the joint.
-Lists are computed on a worker thread, cached per results and criterion, and recomputed
-when the app shows new results.
+(one entry per problem and span of frames) become buttons labelled with the span and the
+track (``"1. f 140–172 · track 2"``), each with its whole text on a wrapping line below
+(joint, camera, measure, frames). An overview line counts the entries of every
+criterion, and the summary those of each kind in the one shown. A click calls
+:meth:`ViewerApp.jump_to` (timeline, track, joint, and the camera panel on a camera that
+sees the person: :func:`~mvviz.failures.seeing_view`) and, with "Look at it" on,
+:meth:`ViewerApp.focus` on the joint or the person. Lists are computed on a worker
+thread, cached per results and criterion, and recomputed when the app shows new results.
 
 Notes: a text box and "Flag this frame" add a :class:`~mvviz.failures.Note` for the
 current frame, saved at once to ``SCENE/.mvviz/notes.json``; each note is a button that
@@ -28,12 +31,16 @@ import viser
 from mvviz.failures import (
     Failure,
     Note,
+    all_failures,
     available_criteria,
-    find_failures,
+    kind_counts,
     load_notes,
+    nearest_pose,
     new_note,
     notes_path,
+    rank,
     save_notes,
+    seeing_view,
 )
 from mvviz.geometry import MM, ViewerData
 from mvviz.workers import LatestWins
@@ -43,7 +50,6 @@ if TYPE_CHECKING:
     from mvviz.app import ViewerApp, ViewerState
 
 MAX_ENTRIES = 15
-TOP = 50  # computed per criterion; the summary says how many of them are shown
 SELECTED_COLOR = "orange"
 NOTE_LABEL_CHARS = 36
 CRITERION_LABELS = {
@@ -55,15 +61,26 @@ CRITERION_LABELS = {
     "smpl": "SMPL residual, joint limits",
     "labels": "Label check",
 }
+CRITERION_SHORT = {
+    "reprojection": "reproj.",
+    "mpjpe": "MPJPE",
+    "association": "assoc.",
+    "id": "ID",
+    "kalman": "Kalman",
+    "smpl": "SMPL",
+    "labels": "labels",
+}
 CRITERION_HELP = {
-    "reprojection": "worst reprojection error of the used views, per person-frame",
-    "mpjpe": "MPJPE of the filtered track vs its matched ground truth, worst joint named",
+    "reprojection": "reprojection errors of used views at least 2× that joint's usual error "
+    "in that camera (the run's median); ranked by the ratio",
+    "mpjpe": "MPJPE of the filtered track vs its matched ground truth at least 2× the run's "
+    "median; people or tracks left unmatched, one entry per span",
     "association": "detections close to two people, people seen by < 2 views, track gaps, "
-    "confident unassigned detections",
+    "confident unassigned detections (enabled cameras only)",
     "id": "track births after frame 0, deaths before the last frame, ID switches vs GT",
-    "kalman": "Mahalanobis distance of the measurement above 3, worst joint per person-frame",
-    "smpl": "worst fit residual per person-frame (÷ 50 mm) and joint rotations outside "
-    "their limits (÷ 10°)",
+    "kalman": "Mahalanobis distance of the measurement above 3, per track and span",
+    "smpl": "fit residuals at least 2× that joint's usual residual (ranked by the ratio) "
+    "and joint rotations outside their limits (÷ 10°)",
     "labels": "keypoint labels that look wrong (left/right, joint order, one camera "
     "mirrored), per scene, track or camera; measured ÷ threshold",
 }
@@ -79,6 +96,8 @@ class FailurePanel:
     look: viser.GuiCheckboxHandle
     summary: viser.GuiMarkdownHandle
     entries: list[viser.GuiButtonHandle]
+    details: list[viser.GuiMarkdownHandle]  # the whole text of each entry, wrapping
+    overview: viser.GuiMarkdownHandle  # entries per criterion
     notes_folder: viser.GuiFolderHandle
     note_text: viser.GuiTextHandle
     flag: viser.GuiButtonHandle
@@ -96,16 +115,21 @@ def make_failure_gui(server: viser.ViserServer, criteria: tuple[str, ...]) -> Fa
         look = gui.add_checkbox(
             "Look at it", True, hint="a click also points the 3D view at the failing joint"
         )
+        overview = gui.add_markdown("")
         summary = gui.add_markdown("")
-        entries = [gui.add_button("-", visible=False) for _ in range(MAX_ENTRIES)]
+        entries, details = [], []
+        for _ in range(MAX_ENTRIES):
+            entries.append(gui.add_button("-", visible=False))
+            details.append(gui.add_markdown("", visible=False))
         with gui.add_folder("Notes") as notes_folder:
             note_text = gui.add_text("Note", "", hint="what is wrong in this frame")
             flag = gui.add_button("Flag this frame", icon=viser.Icon.FLAG)
             delete = gui.add_button("Delete selected note", icon=viser.Icon.TRASH, disabled=True)
             notes_info = gui.add_markdown("")
     return FailurePanel(
-        folder, criterion, look, summary, entries, notes_folder, note_text, flag, delete, notes_info
-    )
+        folder, criterion, look, summary, entries, details, overview, notes_folder, note_text,
+        flag, delete, notes_info,
+    )  # fmt: skip
 
 
 def criterion_of(label: str) -> str:
@@ -120,9 +144,16 @@ def note_label(note: Note) -> str:
     return f"f {note.frame} · {text}"
 
 
+def entry_details(failure: Failure) -> str:
+    """The entry's whole text after its button's span (markdown-safe)."""
+    text = failure.text[len(failure.span) :].lstrip(" ·")
+    return text.replace("*", "\\*").replace("_", "\\_")
+
+
 def failure_point(data: ViewerData, failure: Failure) -> np.ndarray | None:
     """(3,) world metres to look at for ``failure``: its joint of the filtered track
-    (raw if the filter has none), else the track's centre; None without a track."""
+    (raw if the filter has none), else the track's centre, else (the track is missing
+    in that frame) the centre of its nearest known pose; None without a track."""
     k, f, j = failure.track, failure.frame, failure.joint
     if k is None or not 0 <= k < data.num_tracks:
         return None
@@ -132,14 +163,15 @@ def failure_point(data: ViewerData, failure: Failure) -> np.ndarray | None:
             return points[j] * MM
         if j is None and ok.any():
             return points[ok].mean(0) * MM
-    return None
+    pose = nearest_pose(data.results, k, f)
+    return None if pose is None else pose.mean(0) * MM
 
 
 class FailureReview:
     """The "Failures" panel at work.
 
     ``failures`` are the entries shown (at most :data:`MAX_ENTRIES`), ``found`` how many
-    the criterion ranked (up to :data:`TOP`); ``notes`` the scene's notes in frame order,
+    the criterion found, ``kinds`` those per kind; ``notes`` the scene's notes in frame order,
     ``notes_error`` why the notes file could not be read (nothing is saved over it).
     """
 
@@ -152,6 +184,8 @@ class FailureReview:
         self.gui = make_failure_gui(app.server, self.criteria)
         self.failures: list[Failure] = []
         self.found = 0
+        self.counts: dict[str, int] = {}  # entries per criterion, for the overview
+        self.kinds: dict[str, int] = {}
         self.selected_failure: int | None = None
         self.scene_root = self._data.scene.root
         self.notes_file = notes_path(self.scene_root)
@@ -182,7 +216,8 @@ class FailureReview:
             failure = self.failures[index]
             self._mark(self.gui.entries, index, self.selected_failure)
             self.selected_failure = index
-        self.app.jump_to(failure.frame, failure.track, failure.joint, failure.view)
+        view = seeing_view(self._data.scene, self._data.results, failure)
+        self.app.jump_to(failure.frame, failure.track, failure.joint, view)
         target = failure_point(self._data, failure)
         if self.gui.look.value and target is not None:
             self.app.focus(target)
@@ -311,35 +346,56 @@ class FailureReview:
                     if current in criteria:
                         self.gui.criterion.value = CRITERION_LABELS[current]
         criterion = self.criterion
-        key = (id(data), criterion)
         t0 = time.perf_counter()
-        if key not in self._cache:
-            self._cache[key] = find_failures(data.scene, data.results, criterion=criterion, top=TOP)
-        found = self._cache[key]
+        found = self._all(data, criterion)
         ms = (time.perf_counter() - t0) * 1e3
         with self._lock:
             if data is not self._data or criterion != self.criterion:
                 self._worker.request()  # changed meanwhile: show the newer one
                 return
-            self.failures, self.found = found[:MAX_ENTRIES], len(found)
+            self.failures, self.found = rank(found, MAX_ENTRIES), len(found)
+            self.kinds = kind_counts(found)
             self.selected_failure = None
             self._show_failures(criterion, ms)
+        counts = {c: len(self._all(data, c)) for c in self.criteria}  # the others, once
+        with self._lock:
+            if data is self._data:
+                self.counts = counts
+                self._show_overview()
+
+    def _all(self, data: ViewerData, criterion: str) -> list[Failure]:
+        """Every entry of ``criterion`` for ``data`` (cached)."""
+        key = (id(data), criterion)
+        if key not in self._cache:
+            self._cache[key] = all_failures(data.scene, data.results, criterion=criterion)
+        return self._cache[key]
+
+    def _show_overview(self) -> None:
+        parts = [
+            f"{CRITERION_SHORT[c]} **{n}**" if n else f"{CRITERION_SHORT[c]} 0"
+            for c, n in self.counts.items()
+        ]
+        self.gui.overview.content = "<small>Problems: " + " · ".join(parts) + "</small>"
 
     def _show_failures(self, criterion: str, ms: float) -> None:
         g = self.gui
-        for i, button in enumerate(g.entries):
+        for i, (button, details) in enumerate(zip(g.entries, g.details, strict=True)):
             if i < len(self.failures):
-                button.label = f"{i + 1}. {self.failures[i].text}"
+                f = self.failures[i]
+                button.label = f"{i + 1}. {f.head}"
                 button.color = None
                 button.visible = True
+                details.content = f"<small>{entry_details(f)}</small>"
+                details.visible = True
             else:
                 button.visible = False
+                details.visible = False
         if not self.failures:
-            head = "**No failures** for this criterion."
+            head = "**No problems** for this criterion."
         else:
             more = f" of {self.found}" if self.found > len(self.failures) else ""
-            more += "+" if self.found >= TOP else ""
             head = f"**{len(self.failures)}{more}** worst, worst first (click to go there)"
+            head += "\n\n" + " · ".join(f"{k} **{n}**" for k, n in self.kinds.items())
         g.summary.content = f"{head}\n\n<small>{CRITERION_HELP[criterion]} · {ms:.0f} ms</small>"
 
     @staticmethod

@@ -2,37 +2,42 @@
 
 Pure functions over a :class:`~pipeline.scene.Scene` and its
 :class:`~pipeline.results.PipelineResults`; the GUI is :mod:`mvviz.failure_panel`.
-:func:`find_failures` returns :class:`Failure` entries for one criterion, each naming
-the frame and, where they apply, the track, the joint (an index into the results' joint
-set, ``None`` where that set lacks it) and the view (camera index):
+:func:`find_failures` returns :class:`Failure` entries for one criterion: one per
+problem, its consecutive frames merged into a span (``first..last``, the worst frame
+``frame`` to jump to), naming, where they apply, the track, the joint (an index into the
+results' joint set, ``None`` where that set lacks it) and the view (camera index).
+Cameras the run disabled are left out.
 
 ========================  ==================================================  ===========
-criterion                 one entry per                                        score
+criterion                 a problem (``kind``)                                 score
 ========================  ==================================================  ===========
-``reprojection``          (frame, track): worst joint/view among used views   px
-``mpjpe``                 (frame, track) matched to ground truth (Hungarian   mm
-                          on MPJPE, the filtered tracks); unmatched people
-                          score the matching gate
+``reprojection``          (track, joint, view) whose used error is >= 2x its  error /
+                          usual (the run's median of that joint and camera)   usual
+``mpjpe``                 (track) whose MPJPE vs its matched ground truth     MPJPE /
+                          (Hungarian, the filtered tracks) is >= 2x the       median
+                          run's median; GT people / tracks left unmatched
 ``association``           person pair whose detections look alike, person     see below
                           seen by < 2 views, track gap, confident unassigned
-                          detection
+                          detection (per camera)
 ``id``                    track birth after frame 0, death before the last,   see below
                           ID switch against ground truth
-``kalman``                (frame, track) with a joint's Mahalanobis distance  Mahalanobis
-                          above the threshold: its worst joint
-``smpl``                  (frame, track): worst SMPL fit residual; joint      severity
-                          rotation outside its ``pose_limits.LIMITS`` box
+``kalman``                (track) with a joint's Mahalanobis distance above   Mahalanobis
+                          the threshold, its worst joint named
+``smpl``                  (track, joint) with a fit residual >= 2x that       see below
+                          joint's usual; rotation outside its
+                          ``pose_limits.LIMITS`` box
 ``labels``                finding of :mod:`pipeline.label_check` (scene,      measured /
-                          track or camera) at the first frame showing it      threshold
+                          track or camera)                                     threshold
 ========================  ==================================================  ===========
 
-Scores rank entries within one criterion. ``association``: the affinity of a detection
-to another person's detections (0.5..1), 1.0 for a track gap or a one-view person, the
-mean joint confidence of an unassigned detection. ``id``: 3 for an ID switch, 1 to 2
-for a birth or death (shorter-lived tracks higher). ``smpl``: residual / 50 mm or
-degrees outside the limits / 10 deg, so 50 mm off counts like 10 deg too far.
-``labels``: how far the measure is past its threshold (2 = twice the allowed fraction;
-a ratio below its lower bound scores bound / ratio).
+Scores rank entries within one criterion; relative scores (a ratio to the usual level)
+keep a camera or joint that is always a bit off from filling a list just under a limit.
+``association``: the affinity of a detection to another person's detections (0.5..1),
+1 + gap / clip length for a track gap, 1.0 for a one-view person, the mean joint
+confidence of an unassigned detection. ``id``: 3 for an ID switch, 1 to 2 for a birth or
+death (shorter-lived tracks higher). ``smpl``: residual / usual, or degrees outside the
+limits / 10 deg. ``labels``: how far the measure is past its threshold (2 = twice the
+allowed fraction; a ratio below its lower bound scores bound / ratio).
 
 Notes (:class:`Note`) are JSON beside the results: ``SCENE/.mvviz/notes.json``.
 Units: millimetres and pixels, as in the results.
@@ -40,9 +45,11 @@ Units: millimetres and pixels, as in the results.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
+import warnings
 from dataclasses import asdict, dataclass
 from datetime import datetime
 from pathlib import Path
@@ -62,16 +69,30 @@ MAHALANOBIS_THRESHOLD = 3.0
 AFFINITY_THRESHOLD = 0.5  # a detection this close to another person's is "close to two"
 UNASSIGNED_CONFIDENCE = 0.3  # mean joint confidence of an unassigned detection worth a look
 MATCH_GATE_MM = 500.0  # as pipeline.evaluate: pairs above this MPJPE never match
-RESIDUAL_SCALE_MM = 50.0
 LIMIT_SCALE_DEG = 10.0
 SWITCH_SCORE = 3.0
+# A measure this many times its usual level (the run's median for that joint and camera)
+# is a problem worth listing; entries rank by the ratio, so no list fills up at a limit.
+RELATIVE_LEVEL = 2.0
+USUAL_FLOOR_PX = 1.0  # usual reprojection errors below this count as 1 px
+RESIDUAL_FLOOR_MM = 10.0
+MERGE_GAP = 2  # entries of one problem this many frames apart (or fewer) merge
+# What one problem is, beyond its kind and track: these criteria merge frames whichever
+# joint (Kalman, MPJPE: the track is off) or camera (reprojection: the 3D joint is off,
+# so every view shows it) is worst frame by frame, and name the worst frame's.
+MERGE_IGNORES = {"kalman": ("joint",), "mpjpe": ("joint",), "reprojection": ("view",)}
 NOTES_VERSION = 1
 
 
 @dataclass(frozen=True)
 class Failure:
-    """One thing to look at. ``joint`` indexes the results' joint set, ``view`` the rig;
-    ``text`` is a one-line label, e.g. ``"f 123 · track 2 · left_wrist · cam 3 · 41.2 px"``."""
+    """One problem to look at, over a span of frames ``first..last`` (inclusive) of which
+    ``frames`` show it; ``frame`` is the worst of them (where a jump goes). ``joint``
+    indexes the results' joint set, ``view`` the rig. ``score`` ranks entries within a
+    criterion; ``value`` is the measure itself at ``frame`` (px, mm, Mahalanobis ...).
+    ``where`` names track, joint and camera (``"track 2 · left_wrist · cam03"``),
+    ``detail`` the measure; ``kind`` groups entries within a criterion for the counts.
+    """
 
     criterion: str
     score: float
@@ -79,7 +100,58 @@ class Failure:
     track: int | None
     joint: int | None
     view: int | None
-    text: str
+    where: str = ""
+    detail: str = ""
+    kind: str = ""
+    first: int = -1  # -1: ``frame``
+    last: int = -1
+    frames: int = 1
+    value: float = math.nan
+
+    def __post_init__(self) -> None:
+        if self.first < 0:
+            object.__setattr__(self, "first", self.frame)
+        if self.last < 0:
+            object.__setattr__(self, "last", self.frame)
+
+    @property
+    def span(self) -> str:
+        """``"f 12"`` or ``"f 140–172"``."""
+        return f"f {self.first}" if self.first == self.last else f"f {self.first}–{self.last}"
+
+    @property
+    def head(self) -> str:
+        """Short enough for a button: the span and the track (else the camera)."""
+        who = f"track {self.track}" if self.track is not None else ""
+        if not who and self.view is not None:
+            who = self.where.split(" · ")[-1] if self.where else ""
+        return f"{self.span} · {who}" if who else self.span
+
+    @property
+    def text(self) -> str:
+        """The whole entry on one line, e.g.
+        ``"f 140–152 · track 2 · left_wrist · cam03 · 19.5 px, 4.1× its usual 4.8 px
+        (13 frames, worst f 147)"``."""
+        parts = [self.span] + [p for p in (self.where, self.detail) if p]
+        out = " · ".join(parts)
+        if self.first != self.last:
+            n = f"{self.frames} frames" if self.frames != self.last - self.first + 1 else ""
+            n = n or f"{self.last - self.first + 1} frames"
+            out += f" ({n}, worst f {self.frame})"
+        return out
+
+
+def camera_label(name: str) -> str:
+    """A camera as the lists name it: ``"cam03"`` as it is, ``"3"`` as ``"cam 3"``."""
+    return name if name.lower().startswith(("cam", "view")) else f"cam {name}"
+
+
+def where_label(track: int | None = None, joint: str | None = None, view: str | None = None) -> str:
+    """``"track 2 · left_wrist · cam03"``, leaving out what is None (``view``: a camera name)."""
+    parts = [] if track is None else [f"track {track}"]
+    parts += [] if joint is None else [joint]
+    parts += [] if view is None else [camera_label(view)]
+    return " · ".join(parts)
 
 
 def label(
@@ -89,17 +161,8 @@ def label(
     view: str | None = None,
     detail: str = "",
 ) -> str:
-    """``"f 12 · track 2 · left_wrist · cam 3 · detail"``, leaving out what is None."""
-    parts = [f"f {frame}"]
-    if track is not None:
-        parts.append(f"track {track}")
-    if joint is not None:
-        parts.append(joint)
-    if view is not None:
-        parts.append(f"cam {view}")
-    if detail:
-        parts.append(detail)
-    return " · ".join(parts)
+    """``"f 12 · track 2 · left_wrist · cam03 · detail"``, leaving out what is None."""
+    return " · ".join(p for p in (f"f {frame}", where_label(track, joint, view), detail) if p)
 
 
 def find_failures(
@@ -114,9 +177,35 @@ def find_failures(
 ) -> list[Failure]:
     """The ``top`` worst entries of ``criterion`` (one of :data:`CRITERIA`), worst first.
 
-    ``mpjpe`` and ID switches need ``scene.gt``, ``smpl`` a fit: without them those
-    lists are empty (``id`` still lists births and deaths).
+    Consecutive frames of one problem (same kind, track, joint and camera; gaps of up to
+    :data:`MERGE_GAP` frames bridged) are one entry with its span. Cameras the run
+    disabled (``results.config.disabled_views``) are left out. ``mpjpe`` and ID switches
+    need ``scene.gt``, ``smpl`` a fit: without them those lists are empty (``id`` still
+    lists births and deaths).
     """
+    return rank(
+        all_failures(
+            scene,
+            results,
+            criterion=criterion,
+            mahalanobis_threshold=mahalanobis_threshold,
+            affinity_threshold=affinity_threshold,
+            unassigned_confidence=unassigned_confidence,
+        ),
+        top,
+    )
+
+
+def all_failures(
+    scene: Scene,
+    results: PipelineResults,
+    *,
+    criterion: str,
+    mahalanobis_threshold: float = MAHALANOBIS_THRESHOLD,
+    affinity_threshold: float = AFFINITY_THRESHOLD,
+    unassigned_confidence: float = UNASSIGNED_CONFIDENCE,
+) -> list[Failure]:
+    """Every merged entry of ``criterion``, unranked (see :func:`find_failures`)."""
     if criterion not in CRITERIA:
         raise ValueError(f"unknown failure criterion {criterion!r}; expected one of {CRITERIA}")
     if results.num_frames != scene.num_frames or results.num_views != len(scene.rig):
@@ -143,7 +232,27 @@ def find_failures(
         found = label_failures(scene, results)
     else:
         found = smpl_failures(scene, results)
-    return rank(found, top)
+    off = disabled_views(scene, results)
+    found = [f for f in found if f.view is None or f.view not in off]
+    # a kind "no track|3" merges per GT person 3 and is counted as "no track"
+    return [
+        dataclasses.replace(f, kind=f.kind.split("|")[0]) if "|" in f.kind else f
+        for f in merge_spans(found)
+    ]
+
+
+def disabled_views(scene: Scene, results: PipelineResults) -> set[int]:
+    """Indices of the cameras the run left out."""
+    off = set(results.config.disabled_views)
+    return {v for v, name in enumerate(scene.rig.names) if name in off}
+
+
+def kind_counts(failures: list[Failure]) -> dict[str, int]:
+    """Entries per kind, most first (ties: first seen)."""
+    counts: dict[str, int] = {}
+    for f in failures:
+        counts[f.kind or f.criterion] = counts.get(f.kind or f.criterion, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))
 
 
 def available_criteria(scene: Scene, results: PipelineResults) -> tuple[str, ...]:
@@ -157,8 +266,55 @@ def available_criteria(scene: Scene, results: PipelineResults) -> tuple[str, ...
 def rank(failures: list[Failure], top: int) -> list[Failure]:
     """Worst first (ties: earlier frame, lower track); NaN scores dropped."""
     ok = [f for f in failures if math.isfinite(f.score)]
-    ok.sort(key=lambda f: (-f.score, f.frame, -1 if f.track is None else f.track))
+    ok.sort(key=lambda f: (-f.score, f.first, f.frame, -1 if f.track is None else f.track))
     return ok[: max(int(top), 0)]
+
+
+def merge_spans(failures: list[Failure], *, max_gap: int = MERGE_GAP) -> list[Failure]:
+    """Entries of one problem (criterion, kind, track, joint, view, less what
+    :data:`MERGE_IGNORES` says) on frames at most ``max_gap`` frames apart merged into
+    one: its span, the count of frames and the worst frame's score, value and detail.
+    Entries that already span frames (a gap) merge only with entries near them likewise."""
+    groups: dict[tuple, list[Failure]] = {}
+    for f in failures:
+        ignores = MERGE_IGNORES.get(f.criterion, ())
+        joint = None if "joint" in ignores else f.joint
+        view = None if "view" in ignores else f.view
+        groups.setdefault((f.criterion, f.kind, f.track, joint, view), []).append(f)
+    out = []
+    for entries in groups.values():
+        entries.sort(key=lambda f: (f.first, f.last))
+        run = [entries[0]]
+        for f in entries[1:]:
+            if f.first - max(r.last for r in run) <= max_gap + 1:
+                run.append(f)
+            else:
+                out.append(_merged(run))
+                run = [f]
+        out.append(_merged(run))
+    return out
+
+
+def _merged(run: list[Failure]) -> Failure:
+    if len(run) == 1:
+        return run[0]
+    worst = max(run, key=lambda f: (f.score, -f.frame))
+    return dataclasses.replace(
+        worst,
+        first=min(f.first for f in run),
+        last=max(f.last for f in run),
+        frames=len(set().union(*(range(f.first, f.last + 1) for f in run))),
+    )
+
+
+def usual_level(values: np.ndarray, axis: int = 0, *, floor: float) -> np.ndarray:
+    """The median of ``values`` along ``axis`` (NaN ignored), at least ``floor``; where a
+    slice has no finite value, the median of all of them."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices
+        med = np.nanmedian(values, axis=axis)
+        overall = np.nanmedian(values) if np.isfinite(values).any() else floor
+    return np.maximum(np.where(np.isfinite(med), med, overall), floor)
 
 
 # --------------------------------------------------------------------------- criteria
@@ -177,24 +333,34 @@ def present(results: PipelineResults) -> np.ndarray:
     return np.isfinite(results.track_raw).all(-1).any(-1)
 
 
-def reprojection_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
-    """Per person-frame (i.e. per (frame, track)) its worst reprojection error, px, over
-    the joints and views triangulation used."""
+def reprojection_failures(
+    scene: Scene, results: PipelineResults, *, level: float = RELATIVE_LEVEL
+) -> list[Failure]:
+    """Each (person-frame, joint, view) triangulation used whose reprojection error is at
+    least ``level`` times that joint's usual error in that camera (the median over the
+    run, at least :data:`USUAL_FLOOR_PX`); score = error / usual. Ranking by the ratio
+    keeps a camera that always reprojects at 18 px (far away, blurry) from filling the
+    list just under the outlier threshold, while an error twice its usual stands out."""
     reproj = np.where(results.person_used, results.person_reproj, np.nan)  # (Q, J, V)
-    Q, J, V = reproj.shape
-    flat = np.where(np.isfinite(reproj), reproj, -np.inf).reshape(Q, J * V)
-    if Q == 0:
+    if reproj.shape[0] == 0:
         return []
-    best = flat.argmax(1)
-    worst = flat[np.arange(Q), best]
+    usual = usual_level(reproj, 0, floor=USUAL_FLOOR_PX)  # (J, V)
+    ratio = reproj / usual
     names, cams = _joint_names(results), scene.rig.names
     out = []
-    for q in np.flatnonzero(np.isfinite(worst)):
-        j, v = divmod(int(best[q]), V)
+    with np.errstate(invalid="ignore"):
+        hits = np.argwhere(ratio >= level)
+    for q, j, v in hits:
         f, k = int(results.person_frame[q]), _track_or_none(results.person_track[q])
-        detail = f"{worst[q]:.1f} px" + (" (untracked person)" if k is None else "")
-        text = label(f, k, names[j], cams[v], detail)
-        out.append(Failure("reprojection", float(worst[q]), f, k, j, v, text))
+        e, r = float(reproj[q, j, v]), float(ratio[q, j, v])
+        detail = f"{e:.1f} px, {r:.1f}× its usual {usual[j, v]:.1f} px"
+        detail += " (untracked person)" if k is None else ""
+        out.append(
+            Failure(
+                "reprojection", r, f, k, int(j), int(v), where_label(k, names[j], cams[v]),
+                detail, kind="reprojection", value=e,
+            )
+        )  # fmt: skip
     return out
 
 
@@ -206,12 +372,17 @@ def _slot_to_joint(joint_set: str) -> dict[int, int]:
 
 
 def mpjpe_failures(
-    scene: Scene, results: PipelineResults, *, gate_mm: float = MATCH_GATE_MM
+    scene: Scene,
+    results: PipelineResults,
+    *,
+    gate_mm: float = MATCH_GATE_MM,
+    level: float = RELATIVE_LEVEL,
 ) -> list[Failure]:
     """Per frame, match the filtered tracks to ground truth (Hungarian on MPJPE, as
-    :func:`pipeline.evaluate.evaluate` does) and report every matched (frame, track)
-    with its MPJPE and worst joint; a ground-truth person or a track left unmatched
-    scores ``gate_mm``."""
+    :func:`pipeline.evaluate.evaluate` does); list every matched (frame, track) whose
+    MPJPE is at least ``level`` times the run's median MPJPE (score = that ratio), with
+    its worst joint. A ground-truth person or a track left unmatched is one entry per
+    run of frames, scored as ``gate_mm`` / median (above any matched pair)."""
     if scene.gt is None or results.num_tracks == 0:
         return []
     gt_slots, _ = ground_truth_slots(scene.gt, results.joint_set)
@@ -220,7 +391,7 @@ def mpjpe_failures(
     slot_joint = _slot_to_joint(results.joint_set)
     slots = np.array(sorted(slot_joint))
     names = _joint_names(results)
-    out = []
+    matched, unmatched = [], []
     for f in range(results.num_frames):
         p, g = pred[:, f], gt_dense[f]
         p_ok = np.isfinite(p).all(-1).any(-1)
@@ -229,22 +400,44 @@ def mpjpe_failures(
         for k, gi in pairs:
             err = metrics.joint_errors(p[k], g[gi])  # (24,) mm
             e = err[slots]
-            if not np.isfinite(e).any():
-                continue
-            j = slot_joint[int(slots[np.nanargmax(e)])]
-            score = float(np.nanmean(err))
-            detail = f"MPJPE {score:.0f} mm (worst {np.nanmax(e):.0f} mm, GT {gt_ids[gi]})"
-            out.append(Failure("mpjpe", score, f, k, j, None, label(f, k, names[j], None, detail)))
+            if np.isfinite(e).any():
+                matched.append((f, int(k), int(gi), float(np.nanmean(err)), e))
         matched_p = {k for k, _ in pairs}
         matched_g = {gi for _, gi in pairs}
         for gi in np.flatnonzero(g_ok):
             if int(gi) not in matched_g:
-                text = label(f, None, None, None, f"GT person {gt_ids[gi]} matched by no track")
-                out.append(Failure("mpjpe", gate_mm, f, None, None, None, text))
+                unmatched.append((f, None, int(gi)))
         for k in np.flatnonzero(p_ok):
             if int(k) not in matched_p:
-                text = label(f, int(k), None, None, "matches no GT person")
-                out.append(Failure("mpjpe", gate_mm, f, int(k), None, None, text))
+                unmatched.append((f, int(k), None))
+    usual = float(usual_level(np.array([m[3] for m in matched] or [np.nan]), floor=10.0))
+    out = []
+    for f, k, gi, score, e in matched:
+        if score < level * usual:
+            continue
+        j = slot_joint[int(slots[np.nanargmax(e)])]
+        detail = (
+            f"MPJPE {score:.0f} mm, {score / usual:.1f}× the run's {usual:.0f} mm "
+            f"(worst joint {np.nanmax(e):.0f} mm, GT {gt_ids[gi]})"
+        )
+        out.append(
+            Failure(
+                "mpjpe", score / usual, f, k, j, None, where_label(k, names[j]), detail,
+                kind="MPJPE", value=score,
+            )
+        )  # fmt: skip
+    for f, k, gi in unmatched:
+        if k is None:
+            where, detail, kind = "", f"GT person {gt_ids[gi]} matched by no track", "no track"
+        else:
+            where, detail, kind = where_label(k), "matches no GT person", "no GT"
+        # one problem per GT person (or track): the kind and the person make the key
+        out.append(
+            Failure(
+                "mpjpe", gate_mm / usual, f, k, None, None, where, detail,
+                kind=kind if gi is None else f"{kind}|{gt_ids[gi]}", value=gate_mm,
+            )
+        )  # fmt: skip
     return out
 
 
@@ -261,17 +454,17 @@ def association_failures(
     affinity_threshold: float = AFFINITY_THRESHOLD,
     unassigned_confidence: float = UNASSIGNED_CONFIDENCE,
 ) -> list[Failure]:
-    """Association conflicts and gaps.
+    """Association conflicts and gaps (kinds in quotes).
 
-    1. "close to two people": a detection of person p whose affinity to a detection of
-       another person p' of the frame is ``>= affinity_threshold``; one entry per
-       (frame, p, p'), naming the more doubtful detection (the one whose mean affinity
-       to its own person's detections is lower); score = that affinity.
-    2. a person triangulated from fewer than 2 views (score 1).
-    3. a track present before and after but missing from the raw triangulation: one
-       entry per gap, at its first frame (score 1).
-    4. an unassigned detection with mean joint confidence ``>= unassigned_confidence``
-       (score = that confidence).
+    1. "close to two": a detection of person p whose affinity to a detection of another
+       person p' of the frame is ``>= affinity_threshold``; per (frame, p, p'), naming
+       the more doubtful detection (the one whose mean affinity to its own person's
+       detections is lower); score = that affinity.
+    2. "one view": a person triangulated from fewer than 2 views (score 1).
+    3. "missing in raw": a track present before and after but missing from the raw
+       triangulation: one entry per gap (score 1 + gap length / clip length).
+    4. "unassigned": an unassigned detection with mean joint confidence
+       ``>= unassigned_confidence`` (score = that confidence), per frame and camera.
     """
     out: list[Failure] = []
     cams, det_person = scene.rig.names, results.det_person
@@ -309,8 +502,13 @@ def association_failures(
         own_txt = f", own {own[d]:.2f}" if np.isfinite(own[d]) else ""
         detail = f"close to {who(q2)} too (affinity {score:.2f}{own_txt})"
         k = _track_or_none(ptrack[q])
-        text = label(f, k, None, cams[int(view[d])], detail)
-        out.append(Failure("association", score, f, k, None, int(view[d]), text))
+        out.append(
+            Failure(
+                "association", score, f, k, None, int(view[d]),
+                where_label(k, None, cams[int(view[d])]), detail,
+                kind=f"close to two|{who(q2)}", value=score,
+            )
+        )  # fmt: skip
 
     # 2. people seen by fewer than two views
     nviews = (results.person_members >= 0).sum(1)
@@ -318,11 +516,14 @@ def association_failures(
         f, k = int(results.person_frame[q]), _track_or_none(ptrack[q])
         v = int(np.flatnonzero(results.person_members[q] >= 0)[0]) if nviews[q] else None
         detail = f"seen by {nviews[q]} view" + ("s" if nviews[q] != 1 else "")
-        text = label(f, k, None, None if v is None else cams[v], detail)
-        out.append(Failure("association", 1.0, f, k, None, v, text))
+        where = where_label(k, None, None if v is None else cams[v])
+        out.append(
+            Failure("association", 1.0, f, k, None, v, where, detail, kind="one view", value=1)
+        )
 
     # 3. gaps in a track's raw triangulation
     pres = present(results)
+    F = max(results.num_frames, 1)
     for k in range(results.num_tracks):
         seen = np.flatnonzero(pres[k])
         if len(seen) < 2:
@@ -331,30 +532,34 @@ def association_failures(
         inside[seen[0] : seen[-1] + 1] = True
         for start, stop in _runs(inside & ~pres[k]):
             n = stop - start
-            span = f"{n} frames: f {start}–{stop - 1}" if n > 1 else "1 frame"
-            detail = f"missing in raw ({span})"
-            text = label(start, k, None, None, detail)
-            out.append(Failure("association", 1.0, start, k, None, None, text))
+            out.append(
+                Failure(
+                    "association", 1.0 + n / F, start, k, None, None, where_label(k),
+                    "missing in raw", kind="missing in raw", first=start, last=stop - 1,
+                    frames=n, value=n,
+                )
+            )  # fmt: skip
 
-    # 4. confident detections nobody took
+    # 4. confident detections nobody took, per frame and camera
     conf = results.det_joints2d[..., 2]
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         mean_conf = np.nanmean(np.where(np.isfinite(conf), conf, np.nan), axis=1)
     frames = scene.detections.frame
+    best: dict[tuple[int, int], int] = {}
     for d in np.flatnonzero((det_person < 0) & (mean_conf >= unassigned_confidence)):
-        f, v = int(frames[d]), int(view[d])
+        key = (int(frames[d]), int(view[d]))
+        if key not in best or mean_conf[d] > mean_conf[best[key]]:
+            best[key] = int(d)
+    for (f, v), d in best.items():
         detail = f"unassigned detection (confidence {mean_conf[d]:.2f})"
         out.append(
             Failure(
-                "association",
-                float(mean_conf[d]),
-                f,
-                None,
-                None,
-                v,
-                label(f, None, None, cams[v], detail),
+                "association", float(mean_conf[d]), f, None, None, v,
+                where_label(None, None, cams[v]), detail, kind="unassigned",
+                value=float(mean_conf[d]),
             )
-        )
+        )  # fmt: skip
     return out
 
 
@@ -374,28 +579,21 @@ def id_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
         life = f"lives f {first}–{last}"
         if first > 0:
             out.append(
-                Failure(
-                    "id", score, first, k, None, None, label(first, k, None, None, f"born ({life})")
-                )
-            )
+                Failure("id", score, first, k, None, None, where_label(k), f"born ({life})",
+                        kind="birth")
+            )  # fmt: skip
         if last < F - 1:
             out.append(
-                Failure(
-                    "id",
-                    score,
-                    last,
-                    k,
-                    None,
-                    None,
-                    label(last, k, None, None, f"last seen ({life})"),
-                )
-            )
+                Failure("id", score, last, k, None, None, where_label(k), f"last seen ({life})",
+                        kind="death")
+            )  # fmt: skip
     if scene.gt is not None and results.num_tracks:
         for f, gt_id, old, new in evaluate(scene, results).id_switch_events:
             detail = f"ID switch: GT {gt_id} was track {old}"
             out.append(
-                Failure("id", SWITCH_SCORE, f, new, None, None, label(f, new, None, None, detail))
-            )
+                Failure("id", SWITCH_SCORE, f, new, None, None, where_label(new), detail,
+                        kind="ID switch")
+            )  # fmt: skip
     return out
 
 
@@ -403,7 +601,8 @@ def kalman_failures(
     scene: Scene, results: PipelineResults, *, threshold: float = MAHALANOBIS_THRESHOLD
 ) -> list[Failure]:
     """Per (frame, track) whose worst joint's Mahalanobis distance exceeds ``threshold``:
-    that joint, scored by the distance."""
+    that joint, scored by the distance (already relative: the innovation over its
+    expected spread)."""
     del scene
     m = np.where(np.isfinite(results.track_mahalanobis), results.track_mahalanobis, -np.inf)
     if m.size == 0:
@@ -414,16 +613,25 @@ def kalman_failures(
     out = []
     for k, f in zip(*np.nonzero(worst > threshold), strict=True):
         j, s = int(j_best[k, f]), float(worst[k, f])
-        text = label(int(f), int(k), names[j], None, f"Mahalanobis {s:.1f}")
-        out.append(Failure("kalman", s, int(f), int(k), j, None, text))
-    return out
+        out.append(
+            Failure(
+                "kalman", s, int(f), int(k), j, None, where_label(int(k), names[j]),
+                f"Mahalanobis {s:.1f}", kind="Mahalanobis", value=s,
+            )
+        )  # fmt: skip
+    return out  # a span merges whichever joint is worst frame by frame: MERGE_IGNORES
 
 
 def smpl_failures(
-    scene: Scene, results: PipelineResults, *, tol_deg: float = pose_limits.DEFAULT_TOL_DEG
+    scene: Scene,
+    results: PipelineResults,
+    *,
+    tol_deg: float = pose_limits.DEFAULT_TOL_DEG,
+    level: float = RELATIVE_LEVEL,
 ) -> list[Failure]:
-    """The VAE-corrected fit if present, else step I: per (frame, track) the worst fit
-    residual (score residual / :data:`RESIDUAL_SCALE_MM`) and the joint rotation furthest
+    """The VAE-corrected fit if present, else step I: each (frame, track, joint) whose fit
+    residual is at least ``level`` times that joint's usual residual (median over the
+    run, at least :data:`RESIDUAL_FLOOR_MM`; score = the ratio), and each joint rotation
     outside its limits by more than ``tol_deg`` (score excess / :data:`LIMIT_SCALE_DEG`)."""
     del scene
     fit = results.smpl_vae if results.smpl_vae is not None else results.smpl
@@ -433,45 +641,45 @@ def smpl_failures(
     index = {n: i for i, n in enumerate(names)}
     fit_names = get_joint_set(fit.joint_set).names
     out = []
-    res = np.where(np.isfinite(fit.residual), fit.residual, -np.inf)  # (K, F, T) mm
+    res = np.asarray(fit.residual, float)  # (K, F, T) mm
     if res.size:
-        t_best = res.argmax(-1)
-        worst = np.take_along_axis(res, t_best[..., None], -1)[..., 0]
-        for k, f in zip(*np.nonzero(np.isfinite(worst)), strict=True):
-            name, r = fit_names[t_best[k, f]], float(worst[k, f])
-            text = label(int(f), int(k), name, None, f"{fit.stage} residual {r:.0f} mm")
+        K, F, T = res.shape
+        usual = usual_level(res.reshape(K * F, T), 0, floor=RESIDUAL_FLOOR_MM)  # (T,)
+        with np.errstate(invalid="ignore"):
+            hits = np.argwhere(res >= level * usual)
+        for k, f, t in hits:
+            name, r = fit_names[t], float(res[k, f, t])
+            detail = f"{fit.stage} residual {r:.0f} mm, {r / usual[t]:.1f}× its usual"
             out.append(
-                Failure("smpl", r / RESIDUAL_SCALE_MM, int(f), int(k), index.get(name), None, text)
-            )
+                Failure(
+                    "smpl", r / usual[t], int(f), int(k), index.get(name), None,
+                    where_label(int(k), name), detail, kind=f"residual|{name}", value=r,
+                )
+            )  # fmt: skip
     with np.errstate(invalid="ignore"):
         excess = pose_limits.limit_excess(fit.pose_rotvecs)  # (K, F, 24) deg
         excess = np.where(np.isfinite(excess), excess, 0.0)
     if excess.size:
-        j_best = excess.argmax(-1)
-        worst = np.take_along_axis(excess, j_best[..., None], -1)[..., 0]
         angles = np.rad2deg(pose_limits.swing_twist(fit.pose_rotvecs))
-        for k, f in zip(*np.nonzero(worst > tol_deg), strict=True):
-            j = int(j_best[k, f])
+        for k, f, j in np.argwhere(excess > tol_deg):
             name = SMPL24.names[j]
-            detail = _limit_detail(name, angles[k, f, j], float(worst[k, f]))
+            detail = _limit_detail(name, angles[k, f, j], float(excess[k, f, j]))
             out.append(
                 Failure(
-                    "smpl",
-                    float(worst[k, f]) / LIMIT_SCALE_DEG,
-                    int(f),
-                    int(k),
-                    index.get(name),
-                    None,
-                    label(int(f), int(k), name, None, detail),
+                    "smpl", float(excess[k, f, j]) / LIMIT_SCALE_DEG, int(f), int(k),
+                    index.get(name), None, where_label(int(k), name), detail,
+                    kind=f"joint limit|{name}", value=float(excess[k, f, j]),
                 )
-            )
+            )  # fmt: skip
+    # kinds carry the joint: a joint the results' set lacks (index None) still merges
+    # with itself only
     return out
 
 
 def label_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
     """One entry per finding of :func:`pipeline.label_check.check_results` (raw tracks,
-    and each camera's associated 2D against the triangulation), at the first frame that
-    shows it, naming its track (None for the scene) and camera; score = measured value /
+    and each camera's associated 2D against the triangulation), spanning the frames that
+    show it, naming its track (None for the scene) and camera; score = measured value /
     threshold (threshold / value for a ratio below its lower bound)."""
     cams = scene.rig.names
     out = []
@@ -479,12 +687,17 @@ def label_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
         frame = f.frames[0] if f.frames else 0
         low = f.kind == "proportion" and f.value < f.threshold
         score = f.threshold / f.value if low and f.value > 0 else f.value / f.threshold
-        named = f.track is not None or f.camera is not None  # label() names them
+        named = f.track is not None or f.camera is not None  # where_label() names them
         detail = f.message.split(": ", 1)[1] if named else f.message
         detail += f" ({len(f.frames)} frames)"
         view = None if f.camera is None else cams[f.camera]
-        text = label(frame, f.track, None, view, detail)
-        out.append(Failure("labels", float(score), frame, f.track, None, f.camera, text))
+        out.append(
+            Failure(
+                "labels", float(score), frame, f.track, None, f.camera,
+                where_label(f.track, None, view), detail, kind=f.kind,
+                value=float(f.value),
+            )
+        )  # fmt: skip
     return out
 
 
@@ -497,6 +710,63 @@ def _limit_detail(name: str, angles_deg: np.ndarray, excess_deg: float) -> str:
         f"{lim.names[a]} {angles_deg[a]:.0f}° outside [{lim.low[a]}°, {lim.high[a]}°] "
         f"({excess_deg:.0f}° over)"
     )
+
+
+# --------------------------------------------------------------------------- jumps
+
+
+def seeing_view(scene: Scene, results: PipelineResults, failure: Failure) -> int | None:
+    """The camera to show for ``failure``: its own view if it names one; else, for a
+    track, the enabled camera whose detection of that person at the failure's frame is
+    most confident; else (the track is missing there) the enabled camera in whose image
+    the track's nearest known pose lands most fully, nearest first. None without a track
+    or a camera that sees it."""
+    if failure.view is not None:
+        return failure.view
+    k, f = failure.track, failure.frame
+    if k is None or not 0 <= k < results.num_tracks:
+        return None
+    off = disabled_views(scene, results)
+    q = np.flatnonzero((results.person_frame == f) & (results.person_track == k))
+    if len(q):
+        members = results.person_members[int(q[0])]  # (V,)
+        best, best_conf = None, -np.inf
+        for v in np.flatnonzero(members >= 0):
+            if int(v) in off:
+                continue
+            c = results.det_joints2d[members[v], :, 2]
+            c = float(np.nanmean(c)) if np.isfinite(c).any() else 0.0
+            if c > best_conf:
+                best, best_conf = int(v), c
+        if best is not None:
+            return best
+    pose = nearest_pose(results, k, f)
+    if pose is None:
+        return None
+    scores = []
+    for v, cam in enumerate(scene.rig):
+        if v in off:
+            continue
+        uv = cam.project(pose)  # (J, 2) px, NaN behind
+        inside = np.isfinite(uv).all(1)
+        inside &= (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0)
+        inside &= uv[:, 1] < cam.height
+        dist = float(np.linalg.norm(np.nanmean(pose, 0) - cam.center))
+        scores.append((-inside.mean(), dist, v))
+    scores.sort()
+    return scores[0][2] if scores and scores[0][0] < 0 else None
+
+
+def nearest_pose(results: PipelineResults, track: int, frame: int) -> np.ndarray | None:
+    """(J', 3) mm: the finite joints of ``track`` at the frame nearest ``frame`` that has
+    any (filtered first, raw else), or None when the track has none."""
+    for points in (results.track_filtered[track], results.track_raw[track]):  # (F, J, 3)
+        ok = np.isfinite(points).all(-1)  # (F, J)
+        frames = np.flatnonzero(ok.any(1))
+        if len(frames):
+            g = int(frames[np.argmin(np.abs(frames - frame))])
+            return points[g][ok[g]]
+    return None
 
 
 # --------------------------------------------------------------------------- notes
