@@ -5,8 +5,10 @@ filter B as controls. Any change to B re-filters the whole sequence with the vec
 :func:`~pipeline.kalman.kalman_filter` (tens of milliseconds) on a worker thread with a
 "latest wins" slot, so typing never queues work. Then:
 
-- B's skeletons are drawn beside A's under ``/world/skeletons/filter_b/<track>`` (darker
-  track colour, a "B" label; "Show B", x offset);
+- B's skeletons are drawn under ``/world/skeletons/filter_b/<track>`` as a distinct
+  overlay: dashed bones in a darker track colour with a "B" label, over A's skeletons
+  or, with "B drawn: strip", in a strip shifted past everyone's x range (so they never
+  land on another person); hidden while B = A ("Reset B to A" removes them);
 - a plot of the selected track and joint over time (:mod:`mvviz.trace_plot`): x, y, z
   (raw dots, A and B lines, gate rejections as crosses) and both filters' Mahalanobis
   distances with their gates. The plot image is sent when what it shows changes
@@ -58,8 +60,11 @@ if TYPE_CHECKING:
 
 CONFIG_NAME = "mvviz_config.json"  # the scene's run config (mvviz/cli_run.py resolve_config)
 B_ROOT = "/world/skeletons/filter_b"
-B_BONE_WIDTH_M = 0.016  # A's filtered bones are 0.022 m
+B_BONE_WIDTH_M = 0.034  # A's filtered bones are 0.022 m: B's dashes sleeve them
 B_LABEL_LIFT_M = 0.12
+B_DASHES = 4  # dashes per bone
+PLACEMENTS = ("over A, dashed", "strip beside everyone")
+STRIP_GAP_M = 1.0  # between the people's x range and B's strip
 PLOT_INTERVAL_S = 0.1  # at most ~10 plot renders per second while the selection changes
 WINDOWS = {"all": None, "±25": 25, "±50": 50, "±100": 100}  # plotted frames around the frame
 Q_SCALES = {"÷4": 0.25, "÷2": 0.5, "×2": 2.0, "×4": 4.0}  # B's q scale buttons
@@ -236,7 +241,7 @@ class FilterPanel:
     reset: viser.GuiButtonHandle
     apply: viser.GuiButtonHandle
     show_b: viser.GuiCheckboxHandle
-    offset: viser.GuiSliderHandle
+    placement: viser.GuiDropdownHandle  # one of PLACEMENTS
     window: viser.GuiDropdownHandle
     plot: viser.GuiImageHandle
     playhead: viser.GuiImageHandle  # the current frame, under the plot
@@ -293,17 +298,37 @@ def make_filter_gui(server: viser.ViserServer, a: KalmanParams) -> FilterPanel:
         apply = gui.add_button("Apply B", icon=viser.Icon.CHECK, color="green")
         status = gui.add_markdown("")
         metrics_md = gui.add_markdown("")
-        show_b = gui.add_checkbox("Show B skeletons", False)
-        offset = gui.add_slider("B x offset (m)", min=-3.0, max=3.0, step=0.1, initial_value=1.0)
+        show_b = gui.add_checkbox("Show B skeletons", False, hint="dashed; hidden while B = A")
+        placement = gui.add_dropdown("B drawn", PLACEMENTS, initial_value=PLACEMENTS[0])
         window = gui.add_dropdown("Plot frames", tuple(WINDOWS), initial_value="all")
         plot = gui.add_image(blank, format="png")
         playhead = gui.add_image(blank[:PLAYHEAD_HEIGHT], format="png")
     panel = FilterPanel(
         folder, a_info, model, q, q_scale, r, p0, gain, smoother, gate_on, gate, reset, apply,
-        show_b, offset, window, plot, playhead, metrics_md, status,
+        show_b, placement, window, plot, playhead, metrics_md, status,
     )  # fmt: skip
     panel.sync_enabled()
     return panel
+
+
+def dashed_segments(segments: np.ndarray, dashes: int) -> np.ndarray:
+    """(S, 2, 3) segments -> (S * dashes, 2, 3): each cut into ``2 * dashes - 1`` equal
+    pieces, every other one kept (a dashed line from end to end)."""
+    n = 2 * dashes - 1
+    t = np.arange(0, n, 2)[:, None] / n  # (dashes, 1) start of each dash
+    a, b = segments[:, None, 0], segments[:, None, 1]  # (S, 1, 3)
+    start, stop = a + (b - a) * t, a + (b - a) * (t + 1.0 / n)
+    return np.stack([start, stop], 2).reshape(-1, 2, 3)
+
+
+def strip_offset(data: ViewerData) -> np.ndarray:
+    """(3,) m: the shift along x that moves a skeleton from where people go to a strip
+    beyond all of them (the x range of every raw joint of the run plus
+    :data:`STRIP_GAP_M`), so a shifted B lands on nobody."""
+    x = data.results.track_raw[..., 0]
+    x = x[np.isfinite(x)]
+    width = float(x.max() - x.min()) * MM if len(x) else 0.0
+    return np.array([width + STRIP_GAP_M, 0.0, 0.0])
 
 
 # --------------------------------------------------------------------------- worker
@@ -403,7 +428,7 @@ class FilterTuning:
 
         for h in (g.model, g.q, g.r, g.p0, g.control_gain, g.smoother, g.gate_on, g.gate):
             h.on_update(edited)  # B's parameters
-        g.offset.on_update(edited)
+        g.placement.on_update(edited)
         g.window.on_update(edited)
 
         @g.show_b.on_update
@@ -480,18 +505,24 @@ class FilterTuning:
         self._score_cache.clear()
         self._build_nodes()
 
+    @property
+    def b_differs(self) -> bool:
+        """B has been re-filtered with parameters other than A's (what is drawn)."""
+        return self.run_b is not None and self.run_b.params != self.run_a.params
+
     def _draw_b(self, frame: int, offset_filtered: bool) -> None:
         """B's skeletons at ``frame`` (call with the lock held)."""
-        show, dx = bool(self.gui.show_b.value), float(self.gui.offset.value)
-        key = (self._data, self.run_b, frame, show, dx, offset_filtered)
+        show, placement = bool(self.gui.show_b.value), self.gui.placement.value
+        key = (self._data, self.run_a, self.run_b, frame, show, placement, offset_filtered)
         if key == self._drawn_key:
             return
         t0 = time.perf_counter()
         group = self._nodes[B_ROOT]
         try:
-            base = OFFSET_FILTERED_M if offset_filtered else np.zeros(3)
-            group.position = base + np.array([dx, 0.0, 0.0])
-            group.visible = show and self.run_b is not None
+            base = OFFSET_FILTERED_M if offset_filtered else np.zeros(3)  # follow A
+            strip = placement == PLACEMENTS[1]
+            group.position = base + (strip_offset(self._data) if strip else np.zeros(3))
+            group.visible = show and self.b_differs
             if group.visible:
                 self._draw_b_skeletons(frame)
         except RuntimeError:  # nodes removed with a results change: the rebuild redraws
@@ -505,7 +536,7 @@ class FilterTuning:
         for k in range(self._data.num_tracks):
             base, pts = f"{B_ROOT}/{k}", points[k]
             ok = np.isfinite(pts).all(1)
-            seg = bone_segments(pts, bones)
+            seg = dashed_segments(bone_segments(pts, bones), B_DASHES)
             line, pc, label = (self._nodes[f"{base}/{n}"] for n in ("bones", "joints", "label"))
             if len(seg):
                 line.points = seg.astype(np.float32)
@@ -529,7 +560,8 @@ class FilterTuning:
             data, run_b = self._data, self.run_b
         if run_b is None or params != run_b.params:  # 1. re-filter the whole sequence
             t0 = time.perf_counter()
-            run = run_filter(data.results.track_raw, params)
+            same = params == self.run_a.params  # reset to A: A's run, nothing to filter
+            run = self.run_a if same else run_filter(data.results.track_raw, params)
             self.timings["filter_ms"] = (time.perf_counter() - t0) * 1e3
             with self._lock:
                 if data is not self._data:
@@ -612,7 +644,9 @@ class FilterTuning:
             ("re-filter", "filter_ms"), ("plot", "plot_ms"), ("metrics", "metrics_ms"),
         ) if k in t]  # fmt: skip
         a, b = self.run_a.params, self.run_b.params if self.run_b else None
-        same = "B = A" if b == a else "B: …" if b is None else f"B: {describe(b)}"
+        same = (
+            "B = A (nothing of B drawn)" if b == a else "B: …" if b is None else f"B: {describe(b)}"
+        )
         lines = [f"<small>{same}<br/>{' · '.join(parts)}</small>"]
         if self.message:
             lines.append(self.message)

@@ -19,13 +19,17 @@ import pytest
 from mvviz.app import ViewerApp, ViewerState
 from mvviz.cli_run import resolve_config
 from mvviz.filter_panel import (
+    B_DASHES,
     B_ROOT,
+    PLACEMENTS,
+    dashed_segments,
     metrics_table,
     results_run,
     run_filter,
     score,
     with_filter,
 )
+from mvviz.geometry import bone_segments
 from mvviz.trace_plot import PLAYHEAD_HEIGHT, PLOT_HEIGHT, PLOT_WIDTH
 from pipeline.config import load_config
 from pipeline.evaluate import evaluate
@@ -90,8 +94,12 @@ def test_changing_b_q_refilters_the_sequence(app):
     assert fp.gui.show_b.value  # turned on by the first edit
     node = fp._nodes[f"{B_ROOT}/0/bones"]
     assert node.visible and len(node.points) > 3
-    assert fp._nodes[B_ROOT].position[0] == pytest.approx(1.0)
+    # over A (no shift), dashed: B_DASHES dashes per bone
+    assert fp._nodes[B_ROOT].visible and np.allclose(fp._nodes[B_ROOT].position, 0.0)
     f = app.state.frame
+    bones = bone_segments(fp.run_b.forward[0, f] / 1000, app.state.data.joint_set.bones)
+    assert len(node.points) == B_DASHES * len(bones)
+    np.testing.assert_allclose(node.points[0, 0], bones[0, 0], atol=1e-5)
     np.testing.assert_allclose(
         fp._nodes[f"{B_ROOT}/0/joints"].points,
         fp.run_b.forward[0, f][np.isfinite(fp.run_b.forward[0, f]).all(1)] / 1000,
@@ -181,14 +189,15 @@ def test_apply_b_saves_the_config_and_swaps_the_results(app):
     np.testing.assert_array_equal(app.state.data.filtered, res.track_smoothed)
     assert fp.run_a.params == b and "applied" in fp.gui.status.content
     assert "gate 8" in fp.gui.a_info.content
-    # B's skeletons were rebuilt for the new results and still draw
-    assert fp._nodes[f"{B_ROOT}/0/bones"].visible
+    # B's skeletons were rebuilt for the new results; B = the new A, so not drawn
+    assert f"{B_ROOT}/0/bones" in fp._nodes and not fp._nodes[B_ROOT].visible
     # Apply keeps the other sections of an existing config file
     text = json.loads(path.read_text())
     text["triangulation"]["min_views"] = 3
     path.write_text(json.dumps(text))
     fp.gui.q.value = 40.0
     idle(app)
+    assert fp._nodes[B_ROOT].visible and fp._nodes[f"{B_ROOT}/0/bones"].visible
     fp.apply_b()
     cfg = load_config(path)
     assert cfg.kalman.q == 40.0 and cfg.triangulation.min_views == 3
@@ -201,10 +210,39 @@ def test_reset_b_to_a(app):
     fp.gui.q.value = 400.0
     idle(app)
     assert fp.run_b.params.model == "random_walk" and not fp.gui.control_gain.disabled
+    assert fp.b_differs and fp._nodes[B_ROOT].visible
     fp.reset_b()
     idle(app)
     assert fp.run_b.params == fp.run_a.params
     assert fp.gui.control_gain.disabled
+    # B = A: nothing of B drawn, though "Show B skeletons" stays on
+    assert fp.gui.show_b.value and not fp.b_differs
+    assert not fp._nodes[B_ROOT].visible and "B = A" in fp.gui.status.content
+
+
+def test_b_overlay_only_when_b_differs_and_its_strip_lands_on_nobody(app):
+    """B starts as A: not drawn even with "Show B" on; an edit draws it over A (dashed);
+    "strip" shifts it past the x range of every person of the run."""
+    fp = app.filter_panel
+    fp.gui.show_b.value = True
+    idle(app)
+    assert not fp._nodes[B_ROOT].visible
+    fp.gui.q.value = float(fp.run_a.params.q) * 4
+    idle(app)
+    assert fp._nodes[B_ROOT].visible
+    fp.gui.placement.value = PLACEMENTS[1]
+    idle(app)
+    dx = fp._nodes[B_ROOT].position
+    raw_x = app.state.results.track_raw[..., 0] / 1000
+    lo, hi = np.nanmin(raw_x), np.nanmax(raw_x)
+    assert dx[1] == dx[2] == 0.0 and dx[0] == pytest.approx(hi - lo + 1.0)
+    f = app.state.frame
+    for k in range(app.state.data.num_tracks):
+        b_x = fp._nodes[f"{B_ROOT}/{k}/joints"].points[:, 0] + dx[0]
+        assert b_x.min() > hi + 0.5  # beyond everyone, at every frame
+    assert fp.gui.placement.value == PLACEMENTS[1] and f == app.state.frame
+    seg = dashed_segments(np.array([[[0.0, 0, 0], [7.0, 0, 0]]]), 4)
+    np.testing.assert_allclose(seg[:, :, 0], [[0, 1], [2, 3], [4, 5], [6, 7]])
 
 
 def test_panel_plot_follows_selection_and_frame(app):
@@ -294,11 +332,11 @@ def test_browser_plot_follows_filter_b(browser, running_app, tmp_path):
             diff = float(np.abs(after.astype(int) - before).mean())
         assert diff >= 0.5, f"the plot in the page did not change ({diff:.2f})"
         assert fp.gui.show_b.value and fp.metrics["B"]["jitter"] < fp.metrics["A"]["jitter"]
-        # this page's camera on track 0, A on the left and B (+1 m x) on the right
+        # this page's camera on track 0, B dashed over A
         pts = app.state.data.filtered[0, app.state.frame]
-        target = np.nanmean(pts, axis=0) / 1000 + np.array([0.5, 0.0, -0.1])
+        target = np.nanmean(pts, axis=0) / 1000 + np.array([0.0, 0.0, -0.1])
         for client in mine:
-            client.camera.position = target + np.array([0.0, -3.6, 1.1])
+            client.camera.position = target + np.array([0.0, -2.4, 0.8])
             client.camera.look_at = target
         # the whole folder in view, from its title down to the plot
         title = page.get_by_text("Filter A/B", exact=True).first
