@@ -2,7 +2,7 @@
 
 On the shipped sample scene (sample_data/shelf_synth; the pipeline is run first if its
 results file is missing or stale), fits every track of the configured Kalman output
-(``results.track_filtered``, COCO-17) with :func:`pipeline.smpl_fit.fit_sequence`:
+(``results.track_smoothed``, COCO-17, as ``fit_bodies``) with :func:`pipeline.smpl_fit.fit_sequence`:
 step I and the VAE-corrected fit with the shipped prior. Reports person-frames fitted
 per second and the mean joint residual (mm), then, in the same run, the baseline on
 ``--baseline-frames`` person-frames spread over the sequence: one frame at a time, the
@@ -121,7 +121,7 @@ def main() -> None:
     scene = load_scene(args.scene)
     model = load_body_model()
     results, _ = run_or_load(scene, PipelineConfig(), model, progress=False)
-    tracks, js = results.track_filtered, results.joint_set
+    tracks, js = results.track_smoothed, results.joint_set  # what fit_bodies fits
     prior = load_prior()
     params = FitParams()
     fit_sequence(tracks[:, :3], js, model, params=params, progress=False)  # warm-up, buffers
