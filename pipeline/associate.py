@@ -23,7 +23,8 @@ detections are mirrored (the assignment whose members agree best, taken only whe
 clearly beats mirroring none; of it and its mirror image, the one whose triangulated nose
 lies in front of the body, where the labels' left-to-right direction and "up" put the
 front; without a nose, the one mirroring fewer detections). A cluster whose views all
-agree is never mirrored: labels wrong in every view are the label check's business. ``Association.flipped`` says which; the stages after association use the
+agree is never mirrored: labels wrong in every view are the label check's business.
+``Association.flipped`` says which; the stages after association use the
 un-mirrored labels. On the real Pose2Sim demo, 36 of BlazePose's detections (the
 woman's in cam02 and cam03, in 22 frames around f50-90) are mirrored: without this her
 views split into two clusters that disagree and three tracks come out for two people.
@@ -36,6 +37,7 @@ Units: mm, pixels.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -122,36 +124,44 @@ def detection_rays(
 
 
 def ray_distances(
-    origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray, params: AssociationParams
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
+    params: AssociationParams,
+    *,
+    other: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """(n, n) confidence-weighted mean of clipped ray-to-ray distances, mm.
+    """(n, m) confidence-weighted mean of clipped ray-to-ray distances, mm.
 
-    NaN where two detections share fewer than ``min_shared_joints`` joints.
+    Between the n detections ``(origins, dirs, weights)`` and the m of ``other`` (the
+    same n when None; the diagonal is then NaN). NaN where two detections share fewer
+    than ``min_shared_joints`` joints.
     """
-    n = origins.shape[0]
+    o2, d2, w2 = (origins, dirs, weights) if other is None else other
     # Closest points of lines a + s da and b + t db; distance |(b - a) . (da x db)| / |da x db|.
-    cross = np.cross(dirs[:, None], dirs[None, :])  # (n, n, J, 3)
+    cross = np.cross(dirs[:, None], d2[None, :])  # (n, m, J, 3)
     norm = np.linalg.norm(cross, axis=-1)
-    base = origins[None, :] - origins[:, None]  # (n, n, 3)
+    base = o2[None, :] - origins[:, None]  # (n, m, 3)
     with np.errstate(invalid="ignore", divide="ignore"):
         d = np.abs(np.einsum("abc,abjc->abj", base, cross)) / norm
         # Both closest points must lie in front of their cameras, else the rays diverge.
-        dd = np.einsum("ajc,bjc->abj", dirs, dirs)
+        dd = np.einsum("ajc,bjc->abj", dirs, d2)
         w0 = np.einsum("abc,ajc->abj", base, dirs)
-        w1 = np.einsum("abc,bjc->abj", base, dirs)
+        w1 = np.einsum("abc,bjc->abj", base, d2)
         denom = 1 - dd**2
         s = (w0 - dd * w1) / denom
         t = (dd * w0 - w1) / denom
     behind = (s <= 0) | (t <= 0)
     clip = params.joint_clip_mm
     d = np.where(behind | ~np.isfinite(d), clip, np.minimum(d, clip))
-    w = weights[:, None, :] * weights[None, :, :]
+    w = weights[:, None, :] * w2[None, :, :]
     w = np.where(np.isfinite(norm) & (norm > 1e-6), w, 0.0)
     shared = (w > 0).sum(-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = (w * d).sum(-1) / w.sum(-1)
     mean[shared < params.min_shared_joints] = np.nan
-    mean[np.arange(n), np.arange(n)] = np.nan
+    if other is None:
+        mean[np.arange(len(origins)), np.arange(len(origins))] = np.nan
     return mean
 
 
@@ -193,18 +203,13 @@ def associate_frame(
         flip = joint_set.flip_index
         if (flip == np.arange(len(flip))).all():
             flip = None
+    dist = ray_distances(origins, dirs, weights, params)
     if flip is None:
-        dist = ray_distances(origins, dirs, weights, params)
         mirrored = np.full_like(dist, np.nan)
-    else:
-        # Every detection also mirrored: rows n..2n-1. dist(a, mirror b) = dist(mirror a, b).
-        both = ray_distances(
-            np.concatenate([origins, origins]),
-            np.concatenate([dirs, dirs[:, flip]]),
-            np.concatenate([weights, weights[:, flip]]),
-            params,
+    else:  # dist(a, mirror b) = dist(mirror a, b)
+        mirrored = ray_distances(
+            origins, dirs, weights, params, other=(origins, dirs[:, flip], weights[:, flip])
         )
-        dist, mirrored = both[:n, :n], both[:n, n:]
     same_view = views[:, None] == views[None, :]
     dist[same_view] = mirrored[same_view] = np.nan
     best = np.fmin(dist, mirrored)
@@ -213,11 +218,12 @@ def associate_frame(
     flipped = np.zeros(n, bool)
     if flip is not None:
         flipped = resolve_flips(rig, views, joints2d, cluster, dist, mirrored, joint_set)
-        joints2d = joints2d.copy()
-        joints2d[flipped] = joints2d[flipped][:, flip]
+        dirs, weights = dirs.copy(), weights.copy()
+        dirs[flipped] = dirs[flipped][:, flip]
+        weights[flipped] = weights[flipped][:, flip]
 
     if params.merge_distance_mm > 0:
-        cluster = merge_duplicates(rig, views, joints2d, cluster, params)
+        cluster = merge_duplicates(origins, dirs, weights, views, cluster, params)
 
     # Keep clusters seen by enough views; number people by their first detection.
     people, linkage = [], []
@@ -296,12 +302,8 @@ def _orient(S: np.ndarray, X: np.ndarray) -> np.ndarray:
     near-symmetric pose (standing, arms down) fits both ways within the noise, and a
     wrong flip there costs more than it can win."""
     m = len(S)
-    iu = np.triu_indices(m, 1)
     if m <= MAX_EXHAUSTIVE_FLIPS:
-        codes = np.arange(2 ** (m - 1))
-        bits = np.zeros((len(codes), m), bool)
-        bits[:, 1:] = (codes[:, None] >> np.arange(m - 1)) & 1
-        differ = bits[:, iu[0]] != bits[:, iu[1]]
+        iu, bits, differ = _assignments(m)
         cost = np.where(differ, X[iu], S[iu]).mean(1)
         best = int(np.argmin(cost))
         gain = cost[0] - cost[best]  # code 0: nobody mirrored
@@ -317,6 +319,17 @@ def _orient(S: np.ndarray, X: np.ndarray) -> np.ndarray:
         swap = np.where(bits[placed], S[k, placed], X[k, placed]).mean()
         bits[k] = keep - swap > FLIP_MIN_MM and swap < FLIP_GAIN * keep
     return bits ^ bits[0]
+
+
+@functools.cache
+def _assignments(m: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
+    """Every orientation of m members with the first unflipped: the pair indices, the
+    (2^(m-1), m) bits and whether each pair's members differ."""
+    iu = np.triu_indices(m, 1)
+    codes = np.arange(2 ** (m - 1))
+    bits = np.zeros((len(codes), m), bool)
+    bits[:, 1:] = (codes[:, None] >> np.arange(m - 1)) & 1
+    return iu, bits, bits[:, iu[0]] != bits[:, iu[1]]
 
 
 def _faces_backwards(
@@ -341,25 +354,42 @@ def _faces_backwards(
 
 
 def cluster_centers(
-    rig: CameraRig, views: np.ndarray, joints2d: np.ndarray, cluster: np.ndarray, labels
+    origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray, cluster: np.ndarray, labels
 ) -> np.ndarray:
-    """(len(labels), 3) median over joints of each cluster's triangulated body, mm (NaN
-    for a cluster of one view or without two shared joints)."""
-    V, J = len(rig), joints2d.shape[1]
-    kp = np.full((len(labels), V, J, 3), np.nan)
-    kp[..., 2] = 0.0
-    for i, c in enumerate(labels):
-        rows = np.flatnonzero(cluster == c)
-        kp[i, views[rows]] = joints2d[rows]
-    points = triangulate_people(rig, kp, outlier_threshold_px=np.inf).points
+    """(len(labels), 3) each cluster's body centre, mm: per joint, the point nearest its
+    rays in the least-squares sense (the midpoint of the rays, weighted by confidence),
+    then the median over joints (NaN without a joint seen twice).
+
+    Args:
+        origins: (n, 3) camera centres; dirs: (n, J, 3) unit rays (NaN if missing);
+        weights: (n, J) confidences (0 if missing).
+    """
+    C, J = len(labels), dirs.shape[1]
+    index = {c: i for i, c in enumerate(labels)}
+    rows = np.flatnonzero(np.isin(cluster, labels))
+    which = np.array([index[c] for c in cluster[rows]], int)
+    d = np.nan_to_num(dirs[rows])  # (m, J, 3)
+    w = weights[rows] * np.isfinite(dirs[rows]).all(-1)  # (m, J)
+    P = np.eye(3) - d[..., :, None] * d[..., None, :]  # (m, J, 3, 3) projector off the ray
+    A = np.zeros((C, J, 3, 3))
+    b = np.zeros((C, J, 3))
+    np.add.at(A, which, w[..., None, None] * P)
+    np.add.at(b, which, np.einsum("mj,mjab,mb->mja", w, P, origins[rows]))
+    count = np.zeros((C, J))
+    np.add.at(count, which, w > 0)
+    seen = count >= 2
+    pts = np.full((C, J, 3), np.nan)
+    if seen.any():
+        pts[seen] = np.linalg.solve(A[seen] + 1e-9 * np.eye(3), b[seen][..., None])[..., 0]
     with np.errstate(all="ignore"):
-        return np.nanmedian(points, axis=1) if points.size else np.zeros((0, 3))
+        return np.nanmedian(pts, axis=1) if C else np.zeros((0, 3))
 
 
 def merge_duplicates(
-    rig: CameraRig,
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
     views: np.ndarray,
-    joints2d: np.ndarray,
     cluster: np.ndarray,
     params: AssociationParams,
 ) -> np.ndarray:
@@ -367,21 +397,25 @@ def merge_duplicates(
 
     Closest pair first; a merge needs the two clusters' views to be disjoint and each
     cluster seen by ``min_views`` views (a single stray detection is not a body).
-    Returns the new (n,) labels.
+    Arguments as :func:`cluster_centers`; returns the new (n,) labels.
     """
     cluster = cluster.copy()
     while True:
         labels = [c for c in np.unique(cluster) if (cluster == c).sum() >= params.min_views]
         if len(labels) < 2:
             return cluster
-        centers = cluster_centers(rig, views, joints2d, cluster, labels)
-        best, pair = params.merge_distance_mm, None
-        for i in range(len(labels)):
-            vi = set(views[cluster == labels[i]])
-            for j in range(i + 1, len(labels)):
-                d = float(np.linalg.norm(centers[i] - centers[j]))
-                if d < best and not vi & set(views[cluster == labels[j]]):
-                    best, pair = d, (labels[i], labels[j])
+        centers = cluster_centers(origins, dirs, weights, cluster, labels)
+        gap = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
+        gap[~np.isfinite(gap)] = np.inf
+        np.fill_diagonal(gap, np.inf)
+        pair = None
+        for flat in np.argsort(gap, axis=None):
+            i, j = np.unravel_index(flat, gap.shape)
+            if gap[i, j] >= params.merge_distance_mm:
+                break
+            if not set(views[cluster == labels[i]]) & set(views[cluster == labels[j]]):
+                pair = (labels[i], labels[j])
+                break
         if pair is None:
             return cluster
         cluster[cluster == pair[1]] = pair[0]

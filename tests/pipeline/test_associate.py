@@ -146,8 +146,11 @@ def test_one_person_split_in_two_clusters_is_merged():
     # one place, one person. Person 1, 700 mm away, stays apart.
     cluster = np.where(person == 0, 0, 10)
     cluster[rows0[len(rows0) // 2 :]] = 1
-    merged = merge_duplicates(rig, views, kp, cluster, AssociationParams())
+    from pipeline.associate import detection_rays
+
+    rays = detection_rays(rig, views, kp, min_confidence=0.1)
+    merged = merge_duplicates(*rays, views, cluster, AssociationParams())
     assert len(set(merged[rows0])) == 1
     assert set(merged[person == 1]) == {10} and merged[rows0[0]] != 10
-    off = merge_duplicates(rig, views, kp, cluster, AssociationParams(merge_distance_mm=0.0))
+    off = merge_duplicates(*rays, views, cluster, AssociationParams(merge_distance_mm=0.0))
     np.testing.assert_array_equal(off, cluster)
