@@ -137,7 +137,7 @@ class FitParams:
     """|R_j - decoded_j|_F^2 on the joints the targets constrain."""
     w_anchor_free: float = 1e-3
     """|R_j - decoded_j|_F^2 on the joints the targets leave free."""
-    w_limit_prior: float = 1e-3
+    w_limit_prior: float = 3e-2
     """Squared excess over the joint limits in the prior's refinement."""
     max_extra_residual_mm: float = 1.0
     """A person-frame the correction leaves farther than this (mean residual) beyond step
