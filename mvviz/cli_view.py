@@ -36,6 +36,18 @@ def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False
         "--out", type=Path, default=None, help="results file (default SCENE/.mvviz/results.npz)"
     )
     p.add_argument("--force", action="store_true", help="re-run the pipeline, ignore the cache")
+    p.add_argument(
+        "--rerun", action="store_true",
+        help="also serve rerun's web viewer and log into it live (mvviz/rerun_live.py)",
+    )  # fmt: skip
+    p.add_argument(
+        "--rerun-port", type=int, default=9090,
+        help="port of rerun's web viewer, its gRPC server on the next one (default 9090)",
+    )  # fmt: skip
+    p.add_argument(
+        "--rerun-save", type=Path, default=None, metavar="RRD",
+        help="with --rerun: also write the live stream to this .rrd file",
+    )  # fmt: skip
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -70,6 +82,14 @@ def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
     app.wait_idle(30)
     if app.server.get_port() != args.port:  # viser moves to the next free port
         print(f"port {args.port} is taken: serving on port {app.server.get_port()} instead")
+    app.rerun_live = None
+    if getattr(args, "rerun", False):
+        # rerun (~0.3 s to import) loads only with --rerun
+        from mvviz.rerun_live import LiveRerun, RerunWebServer  # noqa: PLC0415
+
+        server = RerunWebServer(host=args.host, web_port=args.rerun_port)
+        app.rerun_live = LiveRerun(app, server=server, save=args.rerun_save)
+        print(f"rerun web viewer: {server.url}")
     print(f"ready in {time.perf_counter() - t0:.1f} s: {app.url}")
     if frames.sources and not frames.ready:
         print("(decoding videos in the background; frames appear as they are ready)")
@@ -84,5 +104,15 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("\nstopping")
     finally:
-        app.stop()
+        stop(app)
     return 0
+
+
+def stop(app: ViewerApp) -> None:
+    """Stop the viewer and, with --rerun, the live logging and rerun's server."""
+    live = getattr(app, "rerun_live", None)
+    app.stop()
+    if live is not None:
+        live.close()
+        if live.server is not None:
+            live.server.stop()

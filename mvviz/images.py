@@ -229,6 +229,15 @@ class FrameStore:
 
     # ------------------------------------------------------------------ access
 
+    def jpeg(self, cam: str, frame: int) -> bytes | None:
+        """The stored JPEG of ``cam``'s video at ``frame`` (``width`` px wide, on the
+        calibrated image); None for image folders or before the video is decoded."""
+        with self._lock:
+            jpegs = self._jpegs.get(cam)
+        if jpegs is None or not 0 <= frame < len(jpegs):
+            return None
+        return jpegs[frame]
+
     def frame(self, cam: str, frame: int) -> np.ndarray | None:
         """(h, width, 3) RGB of ``cam`` at ``frame``; None if unavailable (yet)."""
         key = (cam, int(frame))
