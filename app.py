@@ -2,6 +2,7 @@
 
 Usage:
     python app.py [SCENE] [--port 8080] [--host 127.0.0.1] [--smpl-model PATH]
+                  [--rerun [--rerun-port 9090] [--rerun-save RRD]]
 
 Loads SCENE (default sample_data/shelf_synth), runs the pipeline or reuses its cached
 results (SCENE/.mvviz/results.npz), and serves the viewer at http://127.0.0.1:8080.
@@ -10,6 +11,8 @@ planes, rays, raw / filtered / ground-truth skeletons, trails, ground-truth and 
 SMPL meshes), click a joint to select it; re-run the per-frame stages with other
 parameters or cameras off (Pipeline), tune a second Kalman filter side by side
 (Filter A/B), jump to the worst moments (Failures). Same as ``mvviz view SCENE``.
+With --rerun, rerun's web viewer (from the rerun-sdk package) is served too, on
+--rerun-port, and logged into live (mvviz/rerun_live.py).
 Binds to 127.0.0.1 unless --host says otherwise. Ctrl-C stops the server.
 """
 

@@ -23,10 +23,13 @@ and the figures and the ratio are printed. Targets with skinned meshes: median <
 and <= 50 KB per frame change. Then what the options and design choices cost: every
 track's rays, sharp videos (320 px frustums, 640 px panel), bones posed through viser's
 per-bone setters instead of mvviz.skinned.BonePoser, and the viewer alone (other
-panels detached).
+panels detached). And the same frame changes with ``--rerun`` (mvviz/rerun_live.py
+logging into rerun's server): the frame-change time with and without it, the rerun
+logging time per frame, and 1x playback with it (frames logged / dropped, lag).
 
 Usage:
     python bench/bench_viewer.py [--scene DIR] [--changes N] [--client] [--json FILE]
+                                 [--rerun-only]
 """
 
 from __future__ import annotations
@@ -226,6 +229,64 @@ def use_public_bone_setters(app: ViewerApp) -> None:
     app.layers.bone_posers.clear()
 
 
+def rerun_overhead(start, changes: np.ndarray, warm: np.ndarray) -> dict:
+    """The same frame changes in one app without, with and again without ``--rerun``'s
+    live logging (mvviz/rerun_live.py into a rerun server), then 5 s of 1x playback with
+    it: what the logging adds to a frame change and whether it keeps up."""
+    from mvviz.rerun_live import LiveRerun, RerunWebServer  # noqa: PLC0415
+
+    app, tap = start()
+    server = RerunWebServer(web_port=free_port())
+    try:
+        measure(app, tap, warm, None)
+        before = measure(app, tap, changes, None)
+        live = LiveRerun(app, server=server)
+        assert live.wait_idle(120)
+        measure(app, tap, warm, None)
+        t0 = time.perf_counter()
+        with_rr = measure(app, tap, changes, None)
+        took = time.perf_counter() - t0
+        assert live.wait_idle(60)
+        logged, dropped, log_ms = live.logged, live.dropped, live.log_ms
+        n = app.state.data.num_frames
+        app.state.speed, app.state.playing = 1.0, True
+        app._on_change("playing")
+        f0, t1, l0, d0 = app.state.frame, time.perf_counter(), live.logged, live.dropped
+        time.sleep(5.0)
+        app.state.playing = False
+        app._on_change("playing")
+        shown = (app.state.frame - f0) % n
+        lag = (app.state.frame - (live.last_frame or 0)) % n
+        playback = {
+            "seconds": time.perf_counter() - t1, "shown": int(shown),
+            "logged": live.logged - l0, "dropped": live.dropped - d0, "lag_frames": int(lag),
+        }  # fmt: skip
+        live.close()
+        after = measure(app, tap, changes, None)
+    finally:
+        app.stop()
+        server.stop()
+    without = float(np.mean([before["median_ms"], after["median_ms"]]))
+    without_cpu = float(np.mean([before["median_cpu_ms"], after["median_cpu_ms"]]))
+    r = {
+        "without_ms": [before["median_ms"], after["median_ms"]],
+        "with_ms": with_rr["median_ms"], "with_p95_ms": with_rr["p95_ms"],
+        "overhead_ms": with_rr["median_ms"] - without,
+        "overhead_cpu_ms": with_rr["median_cpu_ms"] - without_cpu,
+        "frames_logged": logged, "frames_dropped": dropped, "log_ms_last": log_ms,
+        "seconds": took, "playback_1x": playback,
+    }  # fmt: skip
+    print(
+        f"--rerun, same app and frame changes: median {before['median_ms']:.1f} ms without, "
+        f"{with_rr['median_ms']:.1f} ms with (p95 {with_rr['p95_ms']:.1f}), "
+        f"{after['median_ms']:.1f} ms without again: {r['overhead_ms']:+.1f} ms "
+        f"(CPU {r['overhead_cpu_ms']:+.1f} ms); {logged} frames logged, {dropped} dropped; "
+        f"1x playback 5 s: {shown} frames shown, {playback['logged']} logged, "
+        f"{playback['dropped']} dropped, {lag} behind at the end"
+    )
+    return r
+
+
 # --------------------------------------------------------------------------- runs
 
 
@@ -314,6 +375,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--client", action="store_true", help="also count bytes at a ws client")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
+    ap.add_argument(
+        "--rerun-only", action="store_true", help="only the default with and without --rerun"
+    )
     args = ap.parse_args(argv)
 
     scene = load_scene(args.scene)
@@ -356,6 +420,11 @@ def main(argv: list[str] | None = None) -> dict:
     )
     out["load_per_cpu"] = load
     skinned = out["skinned"] = run("skinned meshes (bone poses)")
+    out["rerun"] = rerun_overhead(lambda: start_app(scene, results, model, frames), changes, warm)
+    if args.rerun_only:
+        if args.json:
+            write_json(args.json, out)
+        return out
     full = out["full"] = run("full vertex arrays", use_full_vertex_meshes)
     ratio_kb = full["median_kb"] / skinned["median_kb"]
     ratio_mesh = full["meshes_kb"] / max(skinned["meshes_kb"], 1e-9)

@@ -15,11 +15,13 @@ rerun-sdk package (``python -m rerun --serve-web``, nothing downloaded), bound t
 The logging runs on its own thread through a "latest wins" slot: the render thread only
 stores the newest frame (``state_changed`` callback, microseconds), frames visited while
 one is being logged are dropped, never queued; and the logger waits while the viewer
-renders, so it does not hold the GIL against a frame change.
+renders, so it does not hold the GIL against a frame change; it and rerun's server run
+at a lower CPU priority (nice 10) than the viewer.
 """
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -39,7 +41,12 @@ if TYPE_CHECKING:
 
 DEFAULT_WEB_PORT = 9090
 POLL_S = 0.25  # how often the logger looks at filter B and the stop flag
+NICE = 10  # the logging thread and rerun's server yield the CPU to the viewer
 SERVER_MEMORY_LIMIT = "1GiB"  # the gRPC server's buffer for late viewers (oldest dropped)
+
+
+def _lower_priority() -> None:
+    os.nice(NICE)  # the viewer's frame changes first
 
 
 def port_is_free(host: str, port: int) -> bool:
@@ -75,8 +82,9 @@ class RerunWebServer:
             "--server-memory-limit", SERVER_MEMORY_LIMIT, "--hide-welcome-screen",
         ]  # fmt: skip
         self.process = subprocess.Popen(
-            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL
-        )
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+            preexec_fn=_lower_priority if os.name == "posix" else None,
+        )  # fmt: skip
         self._wait_listening(30.0)
 
     def _wait_listening(self, timeout: float) -> None:
@@ -128,8 +136,8 @@ class LiveRerun:
             neither ``server`` nor ``save`` is given).
 
     Attributes (for tests and the benchmark): ``logged`` frames logged, ``dropped``
-    frames visited but skipped, ``branches`` the branch names logged, ``log_ms`` the last
-    frame's logging time, ``errors``.
+    frames visited but skipped, ``last_frame`` the last one logged, ``branches`` the
+    branch names logged, ``log_ms`` the last frame's logging time, ``errors``.
     """
 
     def __init__(
@@ -141,17 +149,13 @@ class LiveRerun:
         recording: rr.RecordingStream | None = None,
     ) -> None:
         self.app, self.server = app, server
-        self.rec = recording if recording is not None else rr.RecordingStream(APP_ID)
-        sinks = []
-        if server is not None:
-            sinks.append(rr.GrpcSink(server.grpc_uri))
-        if save is not None:
-            sinks.append(rr.FileSink(str(save)))
-        if sinks:
-            self.rec.set_sinks(*sinks)
+        self._sink_args = (recording, save)
+        self.rec: rr.RecordingStream | None = None
+        self._ready = threading.Event()
         self.logged = self.dropped = 0
         self.branches: list[str] = []
         self.log_ms = 0.0
+        self.last_frame: int | None = None
         self.errors: list[str] = []
         self._cv = threading.Condition()
         self._want: tuple[int, object] | None = None  # (frame, ViewerData) to log next
@@ -167,6 +171,7 @@ class LiveRerun:
         self._want = (st.frame, st.data)
         self._thread = threading.Thread(target=self._loop, name="mvviz-rerun", daemon=True)
         self._thread.start()
+        self._ready.wait(30)
         app.state_changed.append(self._on_state_changed)
 
     # ------------------------------------------------------------------ public
@@ -190,8 +195,9 @@ class LiveRerun:
         with self._cv:
             self._cv.notify_all()
         self._thread.join(timeout=10)
-        self.rec.flush()
-        self.rec.disconnect()
+        if self.rec is not None:
+            self.rec.flush()
+            self.rec.disconnect()
 
     @property
     def on_state_changed_attached(self) -> bool:
@@ -218,7 +224,28 @@ class LiveRerun:
         while lock.locked() and time.monotonic() - t0 < 0.5:
             time.sleep(0.001)
 
+    def _open(self) -> None:
+        """On the logging thread, at a lower CPU priority (Linux nice is per thread): so
+        are the encoder and sink threads rerun starts here, which inherit it."""
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICE)
+        except (AttributeError, OSError):
+            pass
+        recording, save = self._sink_args
+        try:
+            self.rec = recording if recording is not None else rr.RecordingStream(APP_ID)
+            sinks = []
+            if self.server is not None:
+                sinks.append(rr.GrpcSink(self.server.grpc_uri))
+            if save is not None:
+                sinks.append(rr.FileSink(str(save)))
+            if sinks:
+                self.rec.set_sinks(*sinks)
+        finally:
+            self._ready.set()
+
     def _loop(self) -> None:
+        self._open()
         try:
             self.rec.send_blueprint(make_blueprint(self.app.state.scene.rig.names))
         except Exception as exc:
@@ -273,6 +300,7 @@ class LiveRerun:
         self._logger.log_frame(frame, images=images, filter_b=self._b_shown)
         self.log_ms = (time.perf_counter() - t0) * 1e3
         self.logged += 1
+        self.last_frame = frame
 
     def _image_width(self) -> int:
         frames = self.app.frames
