@@ -9,6 +9,7 @@ re-run with the same inputs reuses it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
@@ -193,6 +194,19 @@ def cache_key(scene: Scene, config: PipelineConfig, model: BodyModel) -> str:
         if prior.is_file():
             h.update(hashlib.sha256(prior.read_bytes()).digest())
     h.update(str(RESULTS_VERSION).encode())
+    h.update(code_digest().encode())
+    return h.hexdigest()[:16]
+
+
+@functools.cache
+def code_digest() -> str:
+    """A digest of the pipeline's own source: results made by other code are recomputed
+    (a cache that outlives an upgrade of the stages would show the old stages' numbers)."""
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parent
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 
