@@ -120,7 +120,13 @@ def test_reference_checkbox_and_nodes(ref_scene):
 
 
 def test_convert_with_reference_flag(tmp_path, capsys):
-    trc = REPO / "sample_data" / "trc" / "S00_P00_T01_BalancingTrial_0-100.trc"
+    trc = (
+        REPO
+        / "sample_data"
+        / "pose2sim_balancing"
+        / "ref3d"
+        / "S00_P00_T01_BalancingTrial_0-100.trc"
+    )
     out = tmp_path / "conv"
     argv = ["convert", "--from", "voxelpose", str(CAMPUS), "--joint-set", "body25b"]
     argv += ["--fps", "60", "--reference", f"pose2sim={trc}", "-o", str(out)]

@@ -23,7 +23,9 @@ from pipeline.references import ReferenceTrack, add_reference, fit_frames
 from pipeline.scene import Detections, load_scene, write_scene
 
 REPO = Path(__file__).resolve().parents[2]
-BALANCING_TRC = REPO / "sample_data" / "trc" / "S00_P00_T01_BalancingTrial_0-100.trc"
+BALANCING_TRC = (
+    REPO / "sample_data" / "pose2sim_balancing" / "ref3d" / "S00_P00_T01_BalancingTrial_0-100.trc"
+)
 F = 6
 
 

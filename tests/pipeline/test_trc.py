@@ -20,7 +20,7 @@ from pipeline.importers.trc import (
 from pipeline.joint_sets import BODY25B, get_joint_set
 
 REPO = Path(__file__).resolve().parents[2]
-SHIPPED = REPO / "sample_data" / "trc"
+SHIPPED = REPO / "sample_data" / "pose2sim_balancing" / "ref3d"
 RAW = "S00_P00_T01_BalancingTrial_0-100.trc"
 FILT = "S00_P00_T01_BalancingTrial_0-100_filt_butterworth.trc"
 BODY25B_MARKERS = (
