@@ -57,11 +57,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-images", action="store_true", help="leave out the camera images")
     p.add_argument("--image-width", type=int, default=480, help="width of logged images (px)")
     p.add_argument("--no-meshes", action="store_true", help="leave out the ground-truth meshes")
+    p.add_argument("--no-bodies", action="store_true", help="leave out the fitted SMPL bodies")
     p.add_argument(
         "--mesh-cell-mm",
         type=float,
         default=25.0,
-        help="decimation cell of the GT meshes in mm, 0 for the full mesh (default 25)",
+        help="decimation cell of the GT meshes and fitted bodies in mm, 0 for the full mesh "
+        "(default 25)",
     )
     p.add_argument(
         "--plot-joints",
@@ -86,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
             images=not args.no_images,
             image_width=args.image_width,
             meshes=not args.no_meshes,
+            bodies=not args.no_bodies,
             mesh_cell_mm=args.mesh_cell_mm or None,
             plot_joints=[j.strip() for j in args.plot_joints.split(",") if j.strip()],
         )

@@ -34,7 +34,11 @@ paths that mirror the data)::
     world/rays/<track>, world/rays/untracked   LineStrips3D: camera centre -> used 2D joint's
                                                ray, up to the triangulated joint's depth
     world/meshes/gt/<person>                   Mesh3D: faces static, vertex positions per frame
-    world/meshes/<name>                        any extra MeshSequence (the hook for SMPL fits)
+    world/bodies/{smpl,smpl_vae}/<track>       Mesh3D: the fitted SMPL body (step I, and
+                                               corrected by the VAE prior), decimated as
+                                               the GT meshes; faces static, vertices per
+                                               frame; track colour (step I darker)
+    world/meshes/<name>                        any extra MeshSequence (e.g. a fit of yours)
     plots/joints/<track>/<joint>/<stage>/{x,y,z}   Scalars, mm; stage raw / filtered
     plots/metrics/mahalanobis<branch>/<track>  mean Mahalanobis distance over joints
     plots/metrics/{people,tracks,gt_people}<branch>   counts per frame
@@ -66,6 +70,7 @@ from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
+from pipeline.smpl_fit import SmplFit
 
 APP_ID = "mvviz"
 MM_TO_M = 1e-3
@@ -80,6 +85,7 @@ JOINT_ALIASES: dict[str, tuple[tuple[str, ...], ...]] = {
 GREY_UNASSIGNED = (110, 110, 110)
 GREY_UNTRACKED = (210, 210, 210)
 GT_COLOR = (120, 225, 140)
+BODY_STAGES = ("smpl", "smpl_vae")  # PipelineResults fields holding SmplFit bodies
 AXIS_COLORS = ((230, 80, 80), (80, 200, 90), (80, 130, 235))
 
 
@@ -88,7 +94,7 @@ AXIS_COLORS = ((230, 80, 80), (80, 200, 90), (80, 130, 235))
 
 @dataclass(frozen=True, eq=False)
 class MeshSequence:
-    """A mesh over time, logged at ``world/meshes/<name>`` (e.g. the SMPL fits of a track).
+    """A mesh over time, logged at ``world/meshes/<name>`` (e.g. a body fit of your own).
 
     Attributes:
         frames: (T,) int scene frame of each row.
@@ -237,6 +243,26 @@ def decimate_mesh(
     f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
     _, first = np.unique(np.sort(f, 1), axis=0, return_index=True)
     return keep, f[np.sort(first)]
+
+
+def display_mesh(body_model: BodyModel, cell_mm: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(keep, faces)`` of ``body_model``'s mesh decimated by :func:`decimate_mesh` at
+    ``cell_mm`` (None: every vertex): kept vertex indices, uint32 faces into them."""
+    faces = body_model.faces.cpu().numpy()
+    keep = np.arange(body_model.num_vertices)
+    if cell_mm:
+        keep, faces = decimate_mesh(
+            body_model.v_template.cpu().numpy(),
+            faces,
+            body_model.weights.cpu().numpy(),
+            cell_mm * MM_TO_M,
+        )
+    return keep, faces.astype(np.uint32)
+
+
+def body_color(stage: str, track: int) -> tuple[int, int, int]:
+    """A fitted body's colour: its track's; step I's (``smpl``) the darker shade."""
+    return track_color(track, raw=stage != "smpl_vae")
 
 
 def resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -544,6 +570,20 @@ def _log_gt(logger, gt, layout, rows: np.ndarray, mesh_vertices: np.ndarray | No
             )
 
 
+def _send_mesh_column(rec, path: str, frames, vertices, lengths, fps: float) -> None:
+    """Mesh vertex positions over ``frames`` as one column: ``vertices`` (N, V, 3) m are
+    the rows of the frames with ``lengths`` V (the others, 0, get an empty mesh)."""
+    frames = np.asarray(frames)
+    rec.send_columns(
+        path,
+        indexes=[
+            rr.TimeColumn("frame", sequence=frames),
+            rr.TimeColumn("time", duration=frames / fps),
+        ],
+        columns=rr.Mesh3D.columns(vertex_positions=vertices.reshape(-1, 3)).partition(lengths),
+    )
+
+
 def _send_series(rec, path: str, frames: np.ndarray, values: np.ndarray, fps: float) -> None:
     ok = np.isfinite(values)
     if not ok.any():
@@ -645,10 +685,13 @@ class SceneLogger:
     Args:
         recording: where to log (None: rerun's global recording, as ``rr.log`` does).
         body_model: skins the GT meshes (None or ``meshes=False``: no GT meshes).
+        bodies: log the fitted SMPL bodies of ``results.smpl`` / ``results.smpl_vae`` at
+            ``world/bodies/<stage>/<track>`` (each fit skins with its own body model).
         image_width: width of the logged images, px (never more than the camera's); the
             pinholes match it. ``images=False``: pinholes at the camera's resolution.
         mesh_cell_mm: the GT meshes are decimated with :func:`decimate_mesh` at this cell
-            size (25 mm keeps ~1/4 of the vertices); None keeps them all.
+            size (25 mm keeps ~1/4 of the vertices); None keeps them all. The fitted
+            bodies are decimated the same way.
         extra_meshes: name -> :class:`MeshSequence`, logged at ``world/meshes/<name>``.
         plot_joints: joints plotted per track (aliases such as ``pelvis`` resolve per set).
         sparse: frames come in any order (a viewer's visits): a frame clears every entity
@@ -667,6 +710,7 @@ class SceneLogger:
         image_width: int = 480,
         jpeg_quality: int = 80,
         meshes: bool = True,
+        bodies: bool = True,
         mesh_cell_mm: float | None = 25.0,
         extra_meshes: Mapping[str, MeshSequence] | None = None,
         plot_joints: Sequence[str] = DEFAULT_PLOT_JOINTS,
@@ -708,17 +752,16 @@ class SceneLogger:
             a is not None for a in (gt.smpl_pose, gt.smpl_betas, gt.transl)
         )
         if meshes and body_model is not None and has_smpl:
-            faces = body_model.faces.cpu().numpy()
-            keep = np.arange(body_model.num_vertices)
-            if mesh_cell_mm:
-                keep, faces = decimate_mesh(
-                    body_model.v_template.cpu().numpy(),
-                    faces,
-                    body_model.weights.cpu().numpy(),
-                    mesh_cell_mm * MM_TO_M,
-                )
-            self.mesh_faces, self.mesh_keep = faces.astype(np.uint32), keep
+            self.mesh_keep, self.mesh_faces = display_mesh(body_model, mesh_cell_mm)
         self._mesh_vertices: np.ndarray | None = None
+        # the fitted bodies: stage -> SmplFit, and (keep, faces) of its display mesh
+        self.fits: dict[str, SmplFit] = {}
+        self.body_meshes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        for stage in BODY_STAGES if bodies else ():
+            fit = getattr(results, stage, None)
+            if fit is not None and fit.present.any():
+                self.fits[stage] = fit
+                self.body_meshes[stage] = display_mesh(fit.model, mesh_cell_mm)
         self._frames = _FrameLogger(self.rec, sparse=sparse, pause=pause)
 
     @property
@@ -740,6 +783,16 @@ class SceneLogger:
                 rec.log(
                     f"world/meshes/gt/{p}",
                     rr.Mesh3D.from_fields(triangle_indices=self.mesh_faces, albedo_factor=GT_COLOR),
+                    static=True,
+                )
+        for stage, fit in self.fits.items():
+            faces = self.body_meshes[stage][1]
+            for k in np.flatnonzero(fit.present.any(1)):
+                rec.log(
+                    f"world/bodies/{stage}/{k}",
+                    rr.Mesh3D.from_fields(
+                        triangle_indices=faces, albedo_factor=body_color(stage, int(k))
+                    ),
                     static=True,
                 )
         for name, seq in self.extra.items():
@@ -769,6 +822,18 @@ class SceneLogger:
             self._mesh_vertices = out
         return self._mesh_vertices
 
+    def body_vertices(self, stage: str, tracks: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """(N, V', 3) float32 world METRES: the display mesh of the ``stage`` fit of
+        ``tracks[i]`` at ``frames[i]`` (present person-frames), skinned in batches."""
+        fit, (keep, _) = self.fits[stage], self.body_meshes[stage]
+        out = np.empty((len(tracks), len(keep), 3), np.float32)
+        with torch.no_grad():
+            for a in range(0, len(out), 128):
+                k, f = tracks[a : a + 128], frames[a : a + 128]
+                v = skin_subset(fit.model, fit.pose_rotvecs[k, f], fit.betas[k], keep)
+                out[a : a + len(k)] = v + fit.transl[k, f][:, None, :] * MM_TO_M
+        return out
+
     def set_time(self, frame: int) -> None:
         self.rec.set_time("frame", sequence=int(frame))
         self.rec.set_time("time", duration=int(frame) / self.scene.fps)
@@ -779,6 +844,7 @@ class SceneLogger:
         *,
         images: Mapping[str, ImageLike | None] | None = None,
         gt_meshes: bool = True,
+        bodies: bool = True,
         filter_b: np.ndarray | None = None,
     ) -> None:
         """Set the time to ``frame`` and log its per-frame entities.
@@ -787,6 +853,7 @@ class SceneLogger:
             images: camera name -> JPEG bytes already at the pinhole's size, or a BGR
                 image (resized and encoded here); cameras left out log no image.
             gt_meshes: log the GT meshes' vertices (the export sends them as columns).
+            bodies: log the fitted bodies' vertices (the export sends them as columns).
             filter_b: (K, F, J, 3) mm, a second filter's tracks, logged at
                 ``world/skeletons/filter_b/<track>``.
         """
@@ -814,6 +881,14 @@ class SceneLogger:
         if gt is not None and f in self.gt_by_frame:
             verts = self.gt_mesh_vertices() if gt_meshes else None
             _log_gt(logger, gt, layout, self.gt_by_frame[f], verts)
+        for stage, fit in self.fits.items() if bodies else ():
+            ks = np.flatnonzero(fit.present[:, f])
+            if ks.size:
+                verts = self.body_vertices(stage, ks, np.full(ks.size, f))
+                for k, v in zip(ks, verts, strict=True):
+                    logger.log(
+                        f"world/bodies/{stage}/{k}", rr.Mesh3D.from_fields(vertex_positions=v)
+                    )
         for name, seq in self.extra.items():
             i = self._extra_rows[name].get(f)
             if i is not None:
@@ -842,16 +917,25 @@ class SceneLogger:
             fr = np.asarray(frame_ids)[int(np.argmax(present)) :]
             rows = [row_of[int(f)] for f in fr if int(f) in row_of]
             lengths = np.array([verts.shape[1] if int(f) in row_of else 0 for f in fr])
-            self.rec.send_columns(
-                f"world/meshes/gt/{p}",
-                indexes=[
-                    rr.TimeColumn("frame", sequence=fr),
-                    rr.TimeColumn("time", duration=fr / fps),
-                ],
-                columns=rr.Mesh3D.columns(vertex_positions=verts[rows].reshape(-1, 3)).partition(
-                    lengths
-                ),
-            )
+            _send_mesh_column(self.rec, f"world/meshes/gt/{p}", fr, verts[rows], lengths, fps)
+
+    def send_bodies(self, frame_ids: np.ndarray) -> None:
+        """Every fitted body's vertices over ``frame_ids`` as one column per (stage,
+        track), as :meth:`send_gt_meshes`."""
+        frame_ids = np.asarray(frame_ids, np.int64)
+        for stage, fit in self.fits.items():
+            present = fit.present[:, frame_ids]  # (K, F')
+            ks, cols = np.nonzero(present)
+            if ks.size == 0:
+                continue
+            verts = self.body_vertices(stage, ks, frame_ids[cols])
+            n = verts.shape[1]
+            for k in np.unique(ks):
+                pk = present[k]
+                fr = frame_ids[int(np.argmax(pk)) :]
+                lengths = np.where(pk[int(np.argmax(pk)) :], n, 0)
+                _send_mesh_column(self.rec, f"world/bodies/{stage}/{k}", fr, verts[ks == k],
+                                  lengths, self.scene.fps)  # fmt: skip
 
     def send_plots(
         self,
@@ -887,8 +971,8 @@ def log_scene(
 ) -> SceneLogger:
     """Log ``scene`` and its ``results`` into ``recording`` (default: the global one of
     ``rr.init``) with the layout of this module: static context, blueprint, the
-    ``frames`` (default all; a slice or range may run past the end), GT meshes and time
-    series as columns.
+    ``frames`` (default all; a slice or range may run past the end), GT meshes, fitted
+    bodies and time series as columns.
 
     Args:
         images: camera name -> ``read(frame)`` returning JPEG bytes or a BGR image (e.g.
@@ -918,8 +1002,11 @@ def log_scene(
         loop = progress(frame_ids) if progress is not None else frame_ids
         for f in loop:
             f = int(f)
-            logger.log_frame(f, images={n: r(f) for n, r in readers.items()}, gt_meshes=False)
+            logger.log_frame(
+                f, images={n: r(f) for n, r in readers.items()}, gt_meshes=False, bodies=False
+            )
         logger.send_gt_meshes(frame_ids)
+        logger.send_bodies(frame_ids)
         logger.send_plots(frame_ids)
     finally:
         for src in opened:

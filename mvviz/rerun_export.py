@@ -3,7 +3,7 @@
 The entity layout, timelines and units are those of :mod:`mvviz.rerun` (documented there
 once); this module writes them to a file atomically, fast: the camera images are read,
 resized and JPEG-encoded on one thread per camera ahead of the logging loop, and the GT
-meshes and time series go out as columns (``send_columns``). Open a file with
+meshes, fitted bodies and time series go out as columns (``send_columns``). Open a file with
 ``rerun run.rrd``.
 """
 
@@ -222,6 +222,7 @@ def export_rrd(
     image_width: int = 480,
     jpeg_quality: int = 80,
     meshes: bool = True,
+    bodies: bool = True,
     mesh_cell_mm: float | None = 25.0,
     extra_meshes: Mapping[str, MeshSequence] | None = None,
     plot_joints: Sequence[str] = DEFAULT_PLOT_JOINTS,
@@ -238,6 +239,8 @@ def export_rrd(
         mesh_cell_mm: GT meshes are decimated with :func:`decimate_mesh` at this cell size
             (25 mm keeps ~1/4 of the open model's vertices); ``None`` keeps them all.
             Vertex positions dominate the file size: 12 bytes per vertex per frame.
+        bodies: log the fitted SMPL bodies (``results.smpl`` / ``smpl_vae``) at
+            ``world/bodies/<stage>/<track>``, decimated at ``mesh_cell_mm`` as well.
         frames: the scene frames to log (default all), e.g. ``range(100, 150)``.
         images: log each camera's video frame, downscaled to ``image_width`` pixels (never
             upscaled) and JPEG-encoded; without images the pinholes keep the camera's
@@ -264,7 +267,7 @@ def export_rrd(
     try:
         logger = SceneLogger(
             scene, results, rec, body_model=body_model, images=images,
-            image_width=image_width, jpeg_quality=jpeg_quality, meshes=meshes,
+            image_width=image_width, jpeg_quality=jpeg_quality, meshes=meshes, bodies=bodies,
             mesh_cell_mm=mesh_cell_mm, extra_meshes=extra_meshes, plot_joints=plot_joints,
         )  # fmt: skip
         rec.set_log_time_enabled(False)
@@ -276,8 +279,9 @@ def export_rrd(
             prefetch = _Prefetcher(sources, frame_ids, logger.cam_size, jpeg_quality)
         for f in tqdm(frame_ids, desc="export rrd", unit="frame", disable=not progress):
             imgs = prefetch.next() if prefetch is not None else None
-            logger.log_frame(int(f), images=imgs, gt_meshes=False)
+            logger.log_frame(int(f), images=imgs, gt_meshes=False, bodies=False)
         logger.send_gt_meshes(frame_ids)
+        logger.send_bodies(frame_ids)
         logger.send_plots(frame_ids)
         rec.flush()
         rec.disconnect()  # closes the file and writes its footer

@@ -8,7 +8,8 @@ rerun-sdk package (``python -m rerun --serve-web``, nothing downloaded), bound t
 - at start the static context (cameras as Pinhole + Transform3D, the skeleton
   AnnotationContext, the blueprint) and the time series of the results;
 - each frame the timeline visits: images (the viewer's stored JPEGs, not re-encoded),
-  2D joints, rays, raw / filtered / GT skeletons, GT meshes, filter B's skeletons;
+  2D joints, rays, raw / filtered / GT skeletons, GT meshes, the fitted SMPL bodies
+  (step I and SMPL + VAE, decimated), filter B's skeletons;
 - every re-run of the Pipeline panel (new results) as a branch ``_run<n>`` and every
   filter B change as a branch ``_b<n>`` of the time series (see :mod:`mvviz.rerun`).
 

@@ -203,6 +203,67 @@ def test_logged_numbers_match_the_scene_and_results(tiny, exported):
     assert len(mesh) < model.num_vertices / 3
 
 
+def body_stages(results) -> list[str]:
+    """The fits the results hold (step I, and with the VAE prior when it is shipped)."""
+    stages = [s for s in ("smpl", "smpl_vae") if getattr(results, s) is not None]
+    assert "smpl" in stages
+    return stages
+
+
+def test_fitted_bodies_are_decimated_meshes_per_track_and_frame(tiny, exported):
+    """world/bodies/<stage>/<track>: static faces in the track colour, one decimated mesh
+    (the fit's vertices at the kept indices) per frame the track is fitted, empty where not."""
+    scene, results, _ = tiny
+    path, summary = exported
+    for stage in body_stages(results):
+        fit = getattr(results, stage)
+        model = fit.model
+        keep, faces = decimate_mesh(
+            model.v_template.numpy(), model.faces.numpy(), model.weights.numpy(), 0.025
+        )
+        for k in range(results.num_tracks):
+            ent = f"/world/bodies/{stage}/{k}"
+            assert ent in summary.static_entities, ent
+            ((_, logged_faces),) = rows_of(path, ent, "Mesh3D:triangle_indices")
+            np.testing.assert_array_equal(logged_faces, faces)
+            (color,) = one(rows_of(path, ent, "Mesh3D:albedo_factor")).reshape(1)
+            want_color = rerun_export.track_color(k, raw=stage == "smpl")
+            assert int(color) == int.from_bytes(bytes([*want_color, 255]), "big")
+            meshes = dict(rows_of(path, ent, "Mesh3D:vertex_positions"))
+            fitted = {f for f in range(NUM_FRAMES) if fit.present[k, f]}
+            assert fitted, (stage, k)
+            assert {f for f, v in meshes.items() if len(v)} == fitted
+            assert all(len(v) == len(keep) for f, v in meshes.items() if f in fitted)
+            f = min(fitted)
+            np.testing.assert_allclose(
+                np.asarray(meshes[f]), fit.vertices(k, f)[keep] / 1000, atol=1e-5
+            )
+
+
+def test_full_body_meshes_without_decimation(tiny, tmp_path):
+    scene, results, model = tiny
+    path = tmp_path / "full.rrd"
+    export_rrd(scene, results, model, path, frames=range(3, 5), images=False, meshes=False,
+               mesh_cell_mm=None, progress=False)  # fmt: skip
+    summary = read_rrd_summary(path)
+    assert not any(e.startswith("/world/meshes") for e in summary.rows)
+    for stage in body_stages(results):
+        fit = getattr(results, stage)
+        k = int(np.flatnonzero(fit.present[:, 3])[0])
+        meshes = dict(rows_of(path, f"/world/bodies/{stage}/{k}", "Mesh3D:vertex_positions"))
+        assert len(meshes[3]) == fit.model.num_vertices
+        np.testing.assert_allclose(np.asarray(meshes[3]), fit.vertices(k, 3) / 1000, atol=1e-5)
+    exe = rerun_cli()
+    if exe is not None:
+        proc = subprocess.run([exe, "rrd", "verify", str(path)], capture_output=True, text=True,
+                              timeout=120)  # fmt: skip
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+    path2 = tmp_path / "none.rrd"
+    export_rrd(scene, results, model, path2, frames=range(3, 5), images=False, bodies=False,
+               progress=False)  # fmt: skip
+    assert not any(e.startswith("/world/bodies") for e in read_rrd_summary(path2).rows)
+
+
 def test_rays_end_on_the_triangulated_joints(tiny, exported):
     """Each ray starts at a camera centre and ends within a few cm of a raw joint."""
     scene, results, _ = tiny

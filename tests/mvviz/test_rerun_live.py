@@ -18,10 +18,10 @@ import pytest
 import rerun as rr
 
 from mvviz import cli_view
-from mvviz.rerun import SceneLogger, log_scene
+from mvviz.rerun import SceneLogger, display_mesh, log_scene
 from mvviz.rerun_export import export_rrd, read_rrd_summary
 from tests.mvviz.conftest import free_port
-from tests.mvviz.test_rerun_export import rerun_cli
+from tests.mvviz.test_rerun_export import rerun_cli, rows_of
 
 SHOTS = Path(os.environ.get("MVVIZ_SHOTS", "/tmp/mvviz_shots"))
 VISITED = (3, 7, 12, 5)
@@ -89,6 +89,18 @@ def test_live_stream_holds_the_visited_frames_and_the_branches(viewer_scene, liv
         assert "Points3D:positions" in comp[f"/world/skeletons/{stage}/0"]
     assert "Points3D:positions" in comp["/world/skeletons/filter_b/0"]
     assert "Mesh3D:vertex_positions" in comp["/world/meshes/gt/0"]
+    # the fitted bodies of every visited frame, decimated as the GT meshes
+    for stage in ("smpl", "smpl_vae"):
+        fit = getattr(results, stage)
+        if fit is None:
+            continue
+        keep, _ = display_mesh(fit.model, 25.0)
+        ent = f"/world/bodies/{stage}/0"
+        assert "Mesh3D:triangle_indices" in comp[ent] and ent in summary.static_entities
+        meshes = dict(rows_of(path, ent, "Mesh3D:vertex_positions"))
+        for f in VISITED:
+            if fit.present[0, f]:
+                assert len(meshes[f]) == len(keep), (stage, f)
     # A, the re-run and filter B side by side: one series each, every frame of the scene
     for stage in ("filtered", "raw_run1", "filtered_run1", "filtered_b1"):
         ent = f"/plots/joints/0/pelvis/{stage}/x"
