@@ -17,6 +17,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -68,13 +69,18 @@ def main(argv: list[str] | None = None) -> dict:
 
     t_restore, restored = median_time(lambda: restored_joints(scene, model), args.repeats)
 
-    def associate_all():
+    def associate_all(params=config.association):
         return [
-            associate_frame(scene.rig, scene.detections.view[r], kp[r], config.association)
+            associate_frame(
+                scene.rig, scene.detections.view[r], kp[r], params, joint_set=scene.joint_set
+            )
             for r in rows
         ]
 
     t_assoc, assocs = median_time(associate_all, args.repeats)
+    # The same without left/right resolution and duplicate merging (what they cost).
+    plain = dataclasses.replace(config.association, resolve_flips=False, merge_distance_mm=0.0)
+    t_assoc_plain, _ = median_time(lambda: associate_all(plain), args.repeats)
 
     # Triangulation input: per frame (people, views, joints, 3) from the clusters.
     V = len(scene.rig)
@@ -117,6 +123,7 @@ def main(argv: list[str] | None = None) -> dict:
     for name, t in (
         ("restoration", t_restore),
         ("association", t_assoc),
+        ("association without flips/merge", t_assoc_plain),
         ("triangulation", t_tri),
         ("tracking", t_track),
         ("kalman", t_kal),

@@ -165,6 +165,65 @@ def ray_distances(
     return mean
 
 
+def centre_rays(dirs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(n, 3) each detection's confidence-weighted mean ray (unit; zero if it has none):
+    the direction of its body's centre, whatever its joints are labelled."""
+    c = np.nansum(np.nan_to_num(dirs) * weights[..., None], axis=1)
+    return c / np.maximum(np.linalg.norm(c, axis=-1, keepdims=True), 1e-12)
+
+
+def flip_candidates(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
+    views: np.ndarray,
+    params: AssociationParams,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (ia < ib) worth scoring with one detection mirrored: in different views, and
+    whose centre rays (the confidence-weighted mean ray of each detection, which mirroring
+    the labels does not move) pass within ``joint_clip_mm`` of each other: the same body,
+    maybe mirrored. Other pairs are other people either way. Cuts the mirrored scoring
+    to about the pairs of one person per frame instead of all pairs."""
+    c = centre_rays(dirs, weights)
+    ia, ib = np.triu_indices(len(views), 1)
+    keep = views[ia] != views[ib]
+    ia, ib = ia[keep], ib[keep]
+    cross = np.cross(c[ia], c[ib])
+    norm = np.linalg.norm(cross, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gap = np.abs(((origins[ib] - origins[ia]) * cross).sum(-1)) / norm
+    near = np.isfinite(gap) & (gap < params.joint_clip_mm)
+    return ia[near], ib[near]
+
+
+def pair_distances(
+    a: tuple[np.ndarray, np.ndarray, np.ndarray],
+    b: tuple[np.ndarray, np.ndarray, np.ndarray],
+    params: AssociationParams,
+) -> np.ndarray:
+    """(P,) :func:`ray_distances` of P aligned pairs: ``a`` and ``b`` are (origins (P, 3),
+    dirs (P, J, 3), weights (P, J)) of each pair's two detections."""
+    (oa, da, wa), (ob, db, wb) = a, b
+    cross = np.cross(da, db)  # (P, J, 3)
+    norm = np.linalg.norm(cross, axis=-1)
+    base = ob - oa  # (P, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.abs(np.einsum("pc,pjc->pj", base, cross)) / norm
+        dd = (da * db).sum(-1)
+        w0 = np.einsum("pc,pjc->pj", base, da)
+        w1 = np.einsum("pc,pjc->pj", base, db)
+        denom = 1 - dd**2
+        s = (w0 - dd * w1) / denom
+        t = (dd * w0 - w1) / denom
+    clip = params.joint_clip_mm
+    d = np.where((s <= 0) | (t <= 0) | ~np.isfinite(d), clip, np.minimum(d, clip))
+    w = np.where(np.isfinite(norm) & (norm > 1e-6), wa * wb, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (w * d).sum(-1) / w.sum(-1)
+    mean[(w > 0).sum(-1) < params.min_shared_joints] = np.nan
+    return mean
+
+
 def associate_frame(
     rig: CameraRig,
     views: np.ndarray,
@@ -204,12 +263,16 @@ def associate_frame(
         if (flip == np.arange(len(flip))).all():
             flip = None
     dist = ray_distances(origins, dirs, weights, params)
-    if flip is None:
-        mirrored = np.full_like(dist, np.nan)
-    else:  # dist(a, mirror b) = dist(mirror a, b)
-        mirrored = ray_distances(
-            origins, dirs, weights, params, other=(origins, dirs[:, flip], weights[:, flip])
-        )
+    mirrored = np.full_like(dist, np.nan)
+    if flip is not None:  # dist(a, mirror b) = dist(mirror a, b)
+        ia, ib = flip_candidates(origins, dirs, weights, views, params)
+        if len(ia):
+            m = pair_distances(
+                (origins[ia], dirs[ia], weights[ia]),
+                (origins[ib], dirs[ib][:, flip], weights[ib][:, flip]),
+                params,
+            )
+            mirrored[ia, ib] = mirrored[ib, ia] = m
     same_view = views[:, None] == views[None, :]
     dist[same_view] = mirrored[same_view] = np.nan
     best = np.fmin(dist, mirrored)
@@ -356,33 +419,29 @@ def _faces_backwards(
 def cluster_centers(
     origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray, cluster: np.ndarray, labels
 ) -> np.ndarray:
-    """(len(labels), 3) each cluster's body centre, mm: per joint, the point nearest its
-    rays in the least-squares sense (the midpoint of the rays, weighted by confidence),
-    then the median over joints (NaN without a joint seen twice).
+    """(len(labels), 3) each cluster's body centre, mm: the point nearest (least squares)
+    the centre rays (:func:`centre_rays`) of its detections; NaN for fewer than two.
 
     Args:
         origins: (n, 3) camera centres; dirs: (n, J, 3) unit rays (NaN if missing);
         weights: (n, J) confidences (0 if missing).
     """
-    C, J = len(labels), dirs.shape[1]
     index = {c: i for i, c in enumerate(labels)}
     rows = np.flatnonzero(np.isin(cluster, labels))
     which = np.array([index[c] for c in cluster[rows]], int)
-    d = np.nan_to_num(dirs[rows])  # (m, J, 3)
-    w = weights[rows] * np.isfinite(dirs[rows]).all(-1)  # (m, J)
-    P = np.eye(3) - d[..., :, None] * d[..., None, :]  # (m, J, 3, 3) projector off the ray
-    A = np.zeros((C, J, 3, 3))
-    b = np.zeros((C, J, 3))
-    np.add.at(A, which, w[..., None, None] * P)
-    np.add.at(b, which, np.einsum("mj,mjab,mb->mja", w, P, origins[rows]))
-    count = np.zeros((C, J))
-    np.add.at(count, which, w > 0)
+    c = centre_rays(dirs[rows], weights[rows])  # (m, 3)
+    ok = np.linalg.norm(c, axis=-1) > 0.5
+    P = np.eye(3) - c[:, :, None] * c[:, None, :]  # (m, 3, 3) projector off the ray
+    A = np.zeros((len(labels), 3, 3))
+    b = np.zeros((len(labels), 3))
+    np.add.at(A, which[ok], P[ok])
+    np.add.at(b, which[ok], np.einsum("mab,mb->ma", P[ok], origins[rows][ok]))
+    count = np.bincount(which[ok], minlength=len(labels))
+    out = np.full((len(labels), 3), np.nan)
     seen = count >= 2
-    pts = np.full((C, J, 3), np.nan)
     if seen.any():
-        pts[seen] = np.linalg.solve(A[seen] + 1e-9 * np.eye(3), b[seen][..., None])[..., 0]
-    with np.errstate(all="ignore"):
-        return np.nanmedian(pts, axis=1) if C else np.zeros((0, 3))
+        out[seen] = np.linalg.solve(A[seen] + 1e-9 * np.eye(3), b[seen][..., None])[..., 0]
+    return out
 
 
 def merge_duplicates(
