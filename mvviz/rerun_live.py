@@ -34,6 +34,7 @@ from urllib.parse import quote
 
 import numpy as np
 import rerun as rr
+import torch
 
 from mvviz.rerun import APP_ID, SceneLogger, make_blueprint
 
@@ -232,6 +233,12 @@ class LiveRerun:
             os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICE)
         except (AttributeError, OSError):
             pass
+        # One intra-op thread for this thread's skinning (GT meshes, fitted bodies): on 2
+        # busy cores two spinning threads made a frame's bodies up to ~30x slower (230 vs
+        # 8 ms). With torch's OpenMP backend the setting is mostly per thread; where it
+        # is not, the viewer's other torch work (skinning on load, the Pipeline panel's
+        # re-runs, whose fits set their own threads) runs on one thread as well.
+        torch.set_num_threads(1)
         recording, save = self._sink_args
         try:
             self.rec = recording if recording is not None else rr.RecordingStream(APP_ID)
