@@ -348,6 +348,7 @@ def start_app(scene, results, model, frames, **options) -> tuple[ViewerApp, Mess
     on = {f.name: True for f in dataclasses.fields(state.layers) if f.type in ("bool", bool)}
     on["rays_selected_only"] = True  # the app's default: the selected track's rays
     on["offset_filtered"] = False  # a display option, not a layer
+    on["meshes_selected_only"] = False  # every body, as before that option
     if "panel_image_width" in options:
         state.panel_image_width = options.pop("panel_image_width")
     state.layers = dataclasses.replace(state.layers, **{**on, **options})

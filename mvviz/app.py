@@ -35,6 +35,8 @@ from mvviz.failure_panel import make_failure_panel
 from mvviz.filter_panel import make_filter_panel
 from mvviz.geometry import (
     FRUSTUM_WIDTHS,
+    MESH_DETAILS,
+    MESH_STYLES,
     LayerToggles,
     Selection,
     ViewerData,
@@ -197,6 +199,9 @@ class LayersPanel:
     toggles: dict[str, viser.GuiCheckboxHandle]
     trail_window: viser.GuiSliderHandle
     frustum_width: viser.GuiDropdownHandle
+    mesh_style: viser.GuiDropdownHandle
+    mesh_detail: viser.GuiDropdownHandle
+    software_notice: viser.GuiHtmlHandle  # shown by the page itself in software WebGL
 
 
 LAYER_LABELS = {
@@ -214,13 +219,41 @@ LAYER_LABELS = {
     "trails": "Trails (selected joint)",
     "meshes": "Ground-truth meshes",
     "fit_meshes": "Fitted SMPL meshes",
+    "meshes_selected_only": "Meshes: selected track only",
 }
+
+# The page shows this itself when its WebGL renderer is a software one (SwiftShader,
+# llvmpipe: what viser's client warns about too), through an <img> error handler that
+# asks a throw-away WebGL context for its renderer: the server cannot know.
+SOFTWARE_NOTICE_HTML = """<div class="mvviz-software-gl" style="display:none;font-size:0.8em;
+color:#9a3412;background:#fff7ed;border:1px solid #fdba74;border-radius:4px;padding:4px 6px;
+margin:2px 0">⚠ <b>Software WebGL</b> (<span class="mvviz-gl-renderer"></span>): bodies are
+slow to draw here. Keep meshes <i>decimated</i>, try <i>wireframe</i> or <i>selected track
+only</i>, or turn hardware acceleration on in the browser.</div><img alt="" src="data:,"
+style="display:none" onerror="(function(img){try{var gl=document.createElement('canvas')
+.getContext('webgl');var ext=gl&&gl.getExtension('WEBGL_debug_renderer_info');var r=ext?
+gl.getParameter(ext.UNMASKED_RENDERER_WEBGL):'';if(/swiftshader|llvmpipe|softpipe|software/i
+.test(r)){var box=img.previousElementSibling;box.style.display='block';box.querySelector(
+'.mvviz-gl-renderer').textContent=r;}var lose=gl&&gl.getExtension('WEBGL_lose_context');
+if(lose){lose.loseContext();}}catch(e){}})(this)">"""
 
 
 def make_layers_panel(
     server: viser.ViserServer, state: ViewerState, on_change: OnChange
 ) -> LayersPanel:
     toggles = {}
+    # what this scene and run cannot show: off, and disabled below
+    missing = [
+        name
+        for name, absent in (
+            ("gt", state.data.gt_points is None),
+            ("meshes", state.data.bodies is None),
+            ("fit_meshes", state.data.fit_bodies is None),
+        )
+        if absent
+    ]
+    for name in missing:
+        setattr(state.layers, name, False)
     with server.gui.add_folder("Layers") as folder:
         for name, label in LAYER_LABELS.items():
             cb = server.gui.add_checkbox(label, initial_value=getattr(state.layers, name))
@@ -254,6 +287,25 @@ def make_layers_panel(
         frustum_width = server.gui.add_dropdown(
             "Frustum video", widths, initial_value=f"{state.layers.frustum_image_width} px"
         )
+        mesh_style = server.gui.add_dropdown(
+            "Mesh style", MESH_STYLES, initial_value=state.layers.mesh_style,
+            hint="translucent / wireframe bodies show the skeletons inside",
+        )  # fmt: skip
+        mesh_detail = server.gui.add_dropdown(
+            "Mesh detail", MESH_DETAILS, initial_value=state.layers.mesh_detail,
+            hint="decimated: ~1/6 of the faces, for the display only (exports are full)",
+        )  # fmt: skip
+        software_notice = server.gui.add_html(SOFTWARE_NOTICE_HTML)
+
+    @mesh_style.on_update
+    def _(_) -> None:
+        state.layers.mesh_style = str(mesh_style.value)
+        on_change("layers")
+
+    @mesh_detail.on_update
+    def _(_) -> None:
+        state.layers.mesh_detail = str(mesh_detail.value)
+        on_change("layers")
 
     @frustum_width.on_update
     def _(_) -> None:
@@ -265,9 +317,11 @@ def make_layers_panel(
         state.layers.trail_window = int(window.value)
         on_change("layers")
 
-    if state.data.bodies is None:
-        toggles["meshes"].disabled = True
-    return LayersPanel(folder, toggles, window, frustum_width)
+    for name in missing:
+        toggles[name].disabled = True
+    return LayersPanel(
+        folder, toggles, window, frustum_width, mesh_style, mesh_detail, software_notice
+    )
 
 
 @dataclass

@@ -91,6 +91,9 @@ class LayerToggles:
     frustum_image_width: int = 128  # px of the video on the frustums (see FRUSTUM_WIDTHS)
     meshes: bool = False  # opaque bodies hide the skeletons inside them
     fit_meshes: bool = False
+    meshes_selected_only: bool = False  # the selected track's body (and its GT person's)
+    mesh_style: str = "solid"  # one of MESH_STYLES
+    mesh_detail: str = "decimated"  # one of MESH_DETAILS: what the browser skins
     references_off: frozenset[str] = frozenset()  # reference tracks not drawn, by name
 
 
@@ -102,6 +105,14 @@ class Selection:
     track: int | None = None
     joint: int = 0
     view: int | None = None
+
+
+# How the bodies are drawn: "translucent" and "wireframe" show the skeletons inside;
+# "decimated" display meshes (mvviz.decimate, ~1/6 of the faces) keep software WebGL
+# interactive, "full" is the body model's own mesh (what exports write).
+MESH_STYLES = ("solid", "translucent", "wireframe")
+MESH_DETAILS = ("decimated", "full")
+MESH_OPACITY = 0.45  # of a translucent body
 
 
 # Frustum video widths offered (px): an image plane is ~100-200 px on screen at the
@@ -526,14 +537,31 @@ def frame_geometry(state: ViewerState, frame: int | None = None) -> FrameGeometr
     if lay.trails and lay.trail_window > 0 and 0 <= sel.joint < data.joint_set.num_joints:
         # the selected track's trail; every track's while none is selected
         geom["trails"] = trails(data, f, sel.joint, lay.trail_window, track=track)
-    for key, on, b in (
-        ("meshes", lay.meshes, data.bodies),
-        ("fit_meshes", lay.fit_meshes, data.fit_bodies),
+    only = lay.meshes_selected_only
+    for key, on, b, keep in (
+        ("meshes", lay.meshes, data.bodies, {gt_person_of(data, track, f)} if only else None),
+        ("fit_meshes", lay.fit_meshes, data.fit_bodies, {track} if only else None),
     ):
         if on and b is not None:
             geom[key] = {
                 int(p): BonePoses(b.bone_wxyz[i, f], b.bone_position[i, f])
                 for i, p in enumerate(b.ids)
-                if b.present[i, f]
+                if b.present[i, f] and (keep is None or int(p) in keep)
             }
     return FrameGeometry(**geom)
+
+
+def gt_person_of(data: ViewerData, track: int | None, frame: int) -> int | None:
+    """The ground-truth person nearest ``track`` at ``frame`` (mean joint position of
+    its filtered, else raw, joints against each person's), or None."""
+    if track is None or data.gt_points is None:
+        return None
+    rows = data.gt_rows_per_frame[frame]
+    pts = data.filtered[track, frame]
+    if not np.isfinite(pts).any():
+        pts = data.results.track_raw[track, frame]
+    if len(rows) == 0 or not np.isfinite(pts).any():
+        return None
+    c = np.nanmean(pts, 0)
+    d = [np.linalg.norm(np.nanmean(data.gt_points[r], 0) - c) for r in rows]
+    return int(data.scene.gt.person_id[rows[int(np.nanargmin(d))]])

@@ -28,10 +28,12 @@ import numpy as np
 import trimesh
 import viser
 
+from mvviz.decimate import DISPLAY_CELL_M, WIREFRAME_CELL_M, decimate_bodies
 from mvviz.geometry import (
     FRUSTUM_JPEG_QUALITY,
     GT_MESH,
     GT_SKELETON,
+    MESH_OPACITY,
     OFFSET_FILTERED_M,
     OUTLIER,
     REFERENCE_SKELETON,
@@ -92,6 +94,8 @@ class SceneLayers:
     meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
     fit_meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
     bone_posers: dict[str, BonePoser] = field(default_factory=dict)  # by mesh name
+    mesh_detail: dict[str, str] = field(default_factory=dict)  # kind -> detail drawn
+    _display_bodies: dict[tuple[str, str], object] = field(default_factory=dict)
     fast_bones: bool | None = None  # None: the bulk path when viser has its internals
     _frustum_key: dict[str, object] = field(default_factory=dict)
     _selected: tuple[int | None, int] = (None, -1)
@@ -212,14 +216,46 @@ class SceneLayers:
                 point_size=0.03, point_shape="circle", precision="float32", visible=False,
             )  # fmt: skip
 
-    def _ensure_meshes(self, kind: str) -> None:
-        """Create the skinned meshes of ``kind`` ("gt" or "fit") the first time their
-        layer is shown: each body is ~0.8 MB to the browser (vertices, faces, skin
-        weights), so a page whose mesh layers are off loads ~8 MB less."""
+    @staticmethod
+    def mesh_version(lay: LayerToggles, kind: str) -> str:
+        """Which mesh ``kind`` is drawn with under ``lay``: "full", "decimated" or
+        "coarse" (decimated for a wireframe, which software WebGL draws slowly)."""
+        if lay.mesh_detail == "full":
+            return "full"
+        return "coarse" if SceneLayers.mesh_style(lay, kind) == "wireframe" else "decimated"
+
+    @staticmethod
+    def mesh_style(lay: LayerToggles, kind: str) -> str:
+        """The style of ``kind``'s bodies: the chosen one, but with both mesh layers on
+        and solid the ground truth is translucent (two opaque bodies in one place
+        z-fight into speckle)."""
+        if kind == "gt" and lay.mesh_style == "solid" and lay.meshes and lay.fit_meshes:
+            return "translucent"
+        return lay.mesh_style
+
+    def display_bodies(self, kind: str, version: str):
+        """The bodies of ``kind`` ("gt" or "fit") as drawn: ``version`` "full", or
+        "decimated" / "coarse" (:func:`mvviz.decimate.decimate_bodies`, computed once)."""
         b = self.data.bodies if kind == "gt" else self.data.fit_bodies
+        if b is None or version == "full":
+            return b
+        key = (kind, version)
+        if key not in self._display_bodies:
+            cell = WIREFRAME_CELL_M if version == "coarse" else DISPLAY_CELL_M
+            self._display_bodies[key] = decimate_bodies(b, cell=cell)
+        return self._display_bodies[key]
+
+    def _ensure_meshes(self, kind: str, detail: str = "decimated") -> None:
+        """Create the skinned meshes of ``kind`` ("gt" or "fit") the first time their
+        layer is shown, or again at another ``detail``: each full body is ~0.8 MB to the
+        browser (vertices, faces, skin weights; decimated ~0.15 MB), so a page whose
+        mesh layers are off loads that much less. A re-creation reuses the names, so
+        viser replaces the nodes in place."""
+        b = self.display_bodies(kind, detail)
         store = self.meshes if kind == "gt" else self.fit_meshes
-        if b is None or store:
+        if b is None or (store and self.mesh_detail.get(kind) == detail):
             return
+        self.mesh_detail[kind] = detail
         ident = np.tile([1.0, 0, 0, 0], (24, 1))
         for i, pid in enumerate(b.ids):
             color = GT_MESH if kind == "gt" else tuple(int(c) for c in track_color(int(pid)))
@@ -231,8 +267,7 @@ class SceneLayers:
                 bone_positions=b.rest_joints[i],
                 skin_weights=b.weights,
                 color=color,
-                # Opaque: a translucent skinned mesh washes out every line in
-                # viser 1.1's renderer (the lines' blended fringe pass).
+                # Opaque unless asked ("translucent": see set_mesh_style)
                 opacity=None,
                 cast_shadow=False,
                 receive_shadow=False,
@@ -259,11 +294,20 @@ class SceneLayers:
     def _update(self, path: str, segments: np.ndarray) -> None:
         _set_segments(self.nodes[path], segments, self.colors[path])
 
+    def set_mesh_style(self, lay: LayerToggles) -> None:
+        """Solid, translucent or wireframe bodies (see :meth:`mesh_style`)."""
+        for kind, store in (("gt", self.meshes), ("fit", self.fit_meshes)):
+            style = self.mesh_style(lay, kind)
+            for mesh in store.values():
+                mesh.wireframe = style == "wireframe"
+                mesh.opacity = MESH_OPACITY if style == "translucent" else None
+
     def set_visibility(self, lay: LayerToggles) -> None:
         if lay.meshes:
-            self._ensure_meshes("gt")
+            self._ensure_meshes("gt", self.mesh_version(lay, "gt"))
         if lay.fit_meshes:
-            self._ensure_meshes("fit")
+            self._ensure_meshes("fit", self.mesh_version(lay, "fit"))
+        self.set_mesh_style(lay)
         g = self.groups
         g["/world/grid"].visible = lay.grid
         g["/world/cameras"].visible = lay.cameras
