@@ -201,7 +201,6 @@ class LayersPanel:
     frustum_width: viser.GuiDropdownHandle
     mesh_style: viser.GuiDropdownHandle
     mesh_detail: viser.GuiDropdownHandle
-    software_notice: viser.GuiHtmlHandle  # shown by the page itself in software WebGL
 
 
 LAYER_LABELS = {
@@ -295,7 +294,6 @@ def make_layers_panel(
             "Mesh detail", MESH_DETAILS, initial_value=state.layers.mesh_detail,
             hint="decimated: ~1/6 of the faces, for the display only (exports are full)",
         )  # fmt: skip
-        software_notice = server.gui.add_html(SOFTWARE_NOTICE_HTML)
 
     @mesh_style.on_update
     def _(_) -> None:
@@ -319,9 +317,7 @@ def make_layers_panel(
 
     for name in missing:
         toggles[name].disabled = True
-    return LayersPanel(
-        folder, toggles, window, frustum_width, mesh_style, mesh_detail, software_notice
-    )
+    return LayersPanel(folder, toggles, window, frustum_width, mesh_style, mesh_detail)
 
 
 @dataclass
@@ -365,6 +361,17 @@ class CameraPanel:
     camera: viser.GuiDropdownHandle
     image: viser.GuiImageHandle
     width: viser.GuiDropdownHandle
+    legend: viser.GuiMarkdownHandle
+    # shown by the page itself in software WebGL; in this panel, which is always in view
+    software_notice: viser.GuiHtmlHandle
+
+
+# What the camera panel's lines are (mvviz.images.draw_overlay).
+CAMERA_LEGEND = (
+    "<small>**thick** lines, dots: 2D detections, coloured by the person they were "
+    "associated to (**grey**: unassigned) · **thin**, rings: the filtered 3D result "
+    "reprojected · **thin dark**, crosses: ground truth</small>"
+)
 
 
 def make_camera_panel(
@@ -382,7 +389,9 @@ def make_camera_panel(
             jpeg_quality=PANEL_JPEG_QUALITY,
         )
         widths = tuple(f"{w} px" for w in PANEL_WIDTHS)
+        legend = server.gui.add_markdown(CAMERA_LEGEND)
         width = server.gui.add_dropdown("Image width", widths, initial_value=f"{w} px")
+        software_notice = server.gui.add_html(SOFTWARE_NOTICE_HTML)
     panel.dock_left()
     panel.set_width(400)
 
@@ -397,7 +406,7 @@ def make_camera_panel(
         state.panel_image_width = int(width.value.split()[0])
         on_change("camera")
 
-    return CameraPanel(panel, camera, image, width)
+    return CameraPanel(panel, camera, image, width, legend, software_notice)
 
 
 # --------------------------------------------------------------------------- rendering
@@ -439,14 +448,25 @@ class ViewerApp:
         server.scene.set_up_direction("+z")
         self._set_initial_camera()
         self.layers = SceneLayers(server, state.data, on_joint_click=self._on_joint_click)
-        self.timeline = make_timeline_panel(server, state, self._on_change)
-        self.selection_panel = make_selection_panel(server, state, self._on_change)
-        self.layers_panel = make_layers_panel(server, state, self._on_change)
+        # one tab per panel: the right-hand column shows one at a time
+        self.tabs = tabs = server.gui.add_tab_group()
+        with tabs.add_tab("Timeline", viser.Icon.CLOCK):
+            self.timeline = make_timeline_panel(server, state, self._on_change)
+        with tabs.add_tab("Layers", viser.Icon.STACK_2):
+            self.layers_panel = make_layers_panel(server, state, self._on_change)
+        with tabs.add_tab("Selection", viser.Icon.POINTER):
+            self.selection_panel = make_selection_panel(server, state, self._on_change)
         self.camera_panel = make_camera_panel(server, state, self._on_change)
-        self.filter_panel = make_filter_panel(self)
-        self.failure_panel = make_failure_panel(self)
-        self.pipeline_panel = make_pipeline_panel(self, model=self.model)
-        self.export_panel = make_export_panel(self)
+        with tabs.add_tab("Pipeline", viser.Icon.ADJUSTMENTS):
+            self.pipeline_panel = make_pipeline_panel(self, model=self.model)
+        with tabs.add_tab("Filter A/B", viser.Icon.CHART_LINE):
+            self.filter_panel = make_filter_panel(self)
+        with tabs.add_tab("Failures", viser.Icon.ALERT_TRIANGLE):
+            self.failure_panel = make_failure_panel(self)
+        with tabs.add_tab("Export", viser.Icon.DOWNLOAD):
+            self.export_panel = make_export_panel(self)
+        for folder in (self.pipeline_panel.gui.folder, self.export_panel.gui.folder):
+            folder.expand_by_default = True  # alone in its tab: open
         self._image_pool = ThreadPoolExecutor(1, thread_name_prefix="mvviz-images")
         self.last_image_cpu_ms = 0.0  # CPU time of the last frame's image job
         self._stats_shown_t = -np.inf
@@ -642,6 +662,7 @@ class ViewerApp:
                 self.layers.set_visibility(lay)
                 self._applied_layers = lay
             self.layers.apply(geom, st.selection)
+            self.layers.highlight_camera(st.scene.rig.names[st.camera])
             self.timeline.label.content = frame_label(st, f)
             self.selection_panel.info.content = selection_info(st)
             t2 = time.perf_counter()

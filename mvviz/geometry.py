@@ -53,6 +53,8 @@ GT_SKELETON = np.array((40, 40, 40), np.uint8)
 # truth's near-black; an off-white would vanish on viser's white background.
 REFERENCE_SKELETON = np.array((150, 146, 132), np.uint8)
 GT_MESH = (205, 205, 200)
+# The camera panel's camera in 3D: yellow, which no track has.
+SELECTED_CAMERA = np.array((235, 190, 0), np.uint8)
 
 
 def track_color(track: int | np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ from mvviz.geometry import (
     OFFSET_FILTERED_M,
     OUTLIER,
     REFERENCE_SKELETON,
+    SELECTED_CAMERA,
     UNASSIGNED,
     UNTRACKED,
     FrameGeometry,
@@ -49,6 +50,8 @@ from mvviz.geometry import (
 from mvviz.skinned import BonePoser
 
 # --------------------------------------------------------------------------- viser nodes
+
+FRUSTUM_COLOR = (60, 60, 60)
 
 
 def _icosphere(radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -99,6 +102,7 @@ class SceneLayers:
     fast_bones: bool | None = None  # None: the bulk path when viser has its internals
     _frustum_key: dict[str, object] = field(default_factory=dict)
     _selected: tuple[int | None, int] = (None, -1)
+    highlighted: str | None = None  # the camera shown in the camera panel
 
     def _lines(self, path: str, color, thickness: float, units: str = "screen") -> None:
         """A hidden line-segments node at ``path``.
@@ -151,7 +155,7 @@ class SceneLayers:
                 scale=cam.frustum_scale,
                 thickness=1.5,
                 thickness_units="screen",
-                color=(60, 60, 60),
+                color=FRUSTUM_COLOR,
                 jpeg_quality=FRUSTUM_JPEG_QUALITY,
                 cast_shadow=False,
                 receive_shadow=False,
@@ -328,6 +332,20 @@ class SceneLayers:
             self.nodes[f"/world/cameras/{cam.name}/label"].visible = lay.camera_labels
         for k in range(self.data.num_tracks):
             self.nodes[f"/world/trails/{k}/filtered"].position = offset
+
+    def highlight_camera(self, name: str) -> None:
+        """Draw camera ``name``'s frustum (the camera panel's camera) thick and in
+        :data:`SELECTED_CAMERA`, its label marked; the others as before."""
+        if name == self.highlighted:
+            return
+        for cam in self.data.cameras:
+            on = cam.name == name
+            frustum = self.nodes[f"/world/cameras/{cam.name}/frustum"]
+            frustum.color = tuple(int(c) for c in SELECTED_CAMERA) if on else FRUSTUM_COLOR
+            frustum.thickness = 4.0 if on else 1.5
+            label = self.nodes[f"/world/cameras/{cam.name}/label"]
+            label.text = f"▶ {cam.name}" if on else cam.name
+        self.highlighted = name
 
     def set_frustum_images(self, images: dict[str, tuple[object, np.ndarray | None]]) -> None:
         """``images``: camera name -> (key, RGB image or None); re-encoded only when the key

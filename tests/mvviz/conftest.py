@@ -119,6 +119,12 @@ def page(browser, running_app):
     p.close()
 
 
+def open_tab(page, name: str) -> None:
+    """Show the right-hand panel's tab ``name`` ("Timeline", "Layers", "Failures", ...)."""
+    page.get_by_role("tab", name=name).click()
+    settle(page, 0.3)
+
+
 def settle(page, seconds: float = 2.0) -> None:
     """Give the client time to apply messages and software-render a few frames."""
     page.wait_for_timeout(int(seconds * 1000))
@@ -137,7 +143,8 @@ def wait_rendered(app: ViewerApp, page, seconds: float = 1.5) -> None:
     assert app.wait_idle(30)
     n = app.state.data.num_frames
     text = f"frame {app.state.frame} / {n - 1} "
-    page.wait_for_function("t => document.body.innerText.includes(t)", arg=text, timeout=30_000)
+    # textContent: the label may sit in a tab that is not shown (innerText skips those)
+    page.wait_for_function("t => document.body.textContent.includes(t)", arg=text, timeout=30_000)
     time.sleep(0.1)
     settle(page, seconds)
 

@@ -42,7 +42,15 @@ from pipeline.joint_sets import COCO17, SMPL24, mapping_indices
 from pipeline.results import run_pipeline
 from pipeline.scene import load_scene
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
-from tests.mvviz.conftest import CAMPUS, REPO, free_port, keep_screenshot, open_viewer, settle
+from tests.mvviz.conftest import (
+    CAMPUS,
+    REPO,
+    free_port,
+    keep_screenshot,
+    open_tab,
+    open_viewer,
+    settle,
+)
 
 NAMES = COCO17.names
 DOCS = REPO / "docs" / "screenshots"
@@ -587,6 +595,7 @@ def test_clicking_a_failure_in_the_page_moves_the_timeline(browser, app, tiny, n
     try:
         first = panel.failures[0]
         assert first.frame != 0
+        open_tab(page, "Failures")
         button = page.get_by_role("button", name=f"1. {first.head}", exact=True)
         button.scroll_into_view_if_needed()
         button.click()
@@ -621,7 +630,7 @@ def test_clicking_a_failure_in_the_page_moves_the_timeline(browser, app, tiny, n
         notes = load_notes(no_notes)
         assert [(n.frame, n.text) for n in notes] == [(first.frame, "elbow reprojects badly")]
         page.set_viewport_size({"width": 1400, "height": 1000})
-        title = page.get_by_text("Failures", exact=True)
+        title = page.get_by_text("Failures", exact=True).last  # the folder, not the tab
         title.evaluate("e => e.scrollIntoView({block: 'start'})")
         settle(page, 2.0)
         shot = tmp_path / "failures.png"

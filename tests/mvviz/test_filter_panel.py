@@ -34,7 +34,7 @@ from mvviz.trace_plot import PLAYHEAD_HEIGHT, PLOT_HEIGHT, PLOT_WIDTH
 from pipeline.config import load_config
 from pipeline.evaluate import evaluate
 from pipeline.kalman import KalmanParams, kalman_filter
-from tests.mvviz.conftest import free_port, keep_screenshot, settle, wait_rendered
+from tests.mvviz.conftest import free_port, keep_screenshot, open_tab, settle, wait_rendered
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -307,6 +307,7 @@ def test_browser_plot_follows_filter_b(browser, running_app, tmp_path):
         app.jump_to(frame=10, track=0, joint="right_wrist")
         idle(app)
         wait_rendered(app, page)
+        open_tab(page, "Filter A/B")
         plot = None
         deadline = time.monotonic() + 30
         while plot is None and time.monotonic() < deadline:
@@ -339,7 +340,7 @@ def test_browser_plot_follows_filter_b(browser, running_app, tmp_path):
             client.camera.position = target + np.array([0.0, -2.4, 0.8])
             client.camera.look_at = target
         # the whole folder in view, from its title down to the plot
-        title = page.get_by_text("Filter A/B", exact=True).first
+        title = page.get_by_text("Filter A/B", exact=True).last  # the folder, not the tab
         title.evaluate("e => e.scrollIntoView({block: 'start'})")
         if plot.bounding_box()["y"] + plot.bounding_box()["height"] > 1400:
             plot.scroll_into_view_if_needed()

@@ -37,6 +37,7 @@ from tests.mvviz.conftest import (
     canvas_image,
     free_port,
     keep_screenshot,
+    open_tab,
     open_viewer,
     settle,
     wait_rendered,
@@ -361,12 +362,7 @@ def test_switching_a_camera_off_changes_the_canvas(browser, browser_app, tmp_pat
     app, panel = browser_app, browser_app.pipeline_panel
     page = open_viewer(browser, app.url)
     try:
-        # make room: fold the timeline's neighbours, unfold the pipeline folder
-        for name in ("Selection", "Layers", "Filter A/B"):
-            folder = page.get_by_text(name, exact=True)
-            if folder.count():
-                folder.first.click()
-        page.get_by_text("Pipeline", exact=True).first.click()
+        open_tab(page, "Pipeline")  # its folder is open in its tab
         app.jump_to(frame=12, track=-1)  # no track selected: every person's rays
         wait_rendered(app, page)
         a = canvas_image(page)

@@ -1,0 +1,68 @@
+"""The viewer's layout: one tab per panel, the camera panel's camera highlighted in 3D,
+a legend for the camera panel's lines; in process and in headless chromium."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mvviz.app import CAMERA_LEGEND
+from mvviz.geometry import SELECTED_CAMERA
+from mvviz.layers import FRUSTUM_COLOR
+from tests.mvviz.conftest import open_tab, open_viewer, settle, wait_rendered
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+TABS = ("Timeline", "Layers", "Selection", "Pipeline", "Filter A/B", "Failures", "Export")
+
+
+def test_selected_camera_is_highlighted(running_app):
+    app = running_app
+    names = app.state.scene.rig.names
+    try:
+        for v in (1, 0):
+            app.jump_to(view=v)
+            assert app.wait_idle(10)
+            assert app.layers.highlighted == names[v]
+            for u, name in enumerate(names):
+                frustum = app.layers.nodes[f"/world/cameras/{name}/frustum"]
+                label = app.layers.nodes[f"/world/cameras/{name}/label"]
+                want = tuple(SELECTED_CAMERA) if u == v else FRUSTUM_COLOR
+                assert tuple(int(c) for c in frustum.color) == want
+                assert frustum.thickness == (4.0 if u == v else 1.5)
+                assert label.text == (f"▶ {name}" if u == v else name)
+    finally:
+        app.jump_to(view=0)
+        assert app.wait_idle(10)
+    assert "grey" in app.camera_panel.legend.content
+    assert app.camera_panel.legend.content == CAMERA_LEGEND
+
+
+def test_panels_are_tabs_in_the_page(browser, running_app, tmp_path):
+    """Each tab shows its own panel and hides the others'; screenshots of two tabs."""
+    app = running_app
+    page = open_viewer(browser, app.url)
+    try:
+        tabs = page.get_by_role("tab")
+        names = [tabs.nth(i).inner_text().strip() for i in range(tabs.count())]
+        assert names == ["Camera", *TABS]  # the camera panel's own tab, then the main panel
+        app.set_frame(5)
+        wait_rendered(app, page)
+        # the Timeline tab is open first: its step button shows, Failures' criterion not
+        assert page.get_by_role("button", name="+1 ▶").is_visible()
+        assert not page.get_by_text("Look at it", exact=True).is_visible()
+        page.screenshot(path=str(tmp_path / "tab_timeline.png"))
+        open_tab(page, "Failures")
+        assert page.get_by_text("Look at it", exact=True).is_visible()
+        assert not page.get_by_role("button", name="+1 ▶").is_visible()
+        open_tab(page, "Layers")
+        assert page.get_by_text("Mesh style", exact=True).is_visible()
+        assert page.get_by_text("Ground-truth skeletons", exact=True).is_visible()
+        settle(page, 1.0)
+        page.screenshot(path=str(tmp_path / "tab_layers.png"))
+        # the camera panel's legend, beside its image
+        assert page.get_by_text("reprojected", exact=False).first.is_visible()
+        print(f"\nscreenshots: {tmp_path}")
+    finally:
+        page.close()
+    assert np.isfinite(app.state.frame)
