@@ -22,7 +22,7 @@ from mvviz.bodies import Bodies
 
 DISPLAY_CELL_M = 0.03  # ~1/6 of the vertices and faces of the body model, fingers merged
 # A wireframe draws every edge as a line, which software WebGL rasterises slowly: a
-# coarser mesh for it (~1/20 of the faces).
+# coarser mesh for it (~1/16 of the faces).
 WIREFRAME_CELL_M = 0.05
 
 
