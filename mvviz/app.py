@@ -448,10 +448,10 @@ class ViewerApp:
         server.scene.set_up_direction("+z")
         self._set_initial_camera()
         self.layers = SceneLayers(server, state.data, on_joint_click=self._on_joint_click)
-        # one tab per panel: the right-hand column shows one at a time
+        # The timeline stays on top whatever tab is open (scrubbing while looking at a
+        # failure, a filter or a layer is the point); below it one tab per panel.
+        self.timeline = make_timeline_panel(server, state, self._on_change)
         self.tabs = tabs = server.gui.add_tab_group()
-        with tabs.add_tab("Timeline", viser.Icon.CLOCK):
-            self.timeline = make_timeline_panel(server, state, self._on_change)
         with tabs.add_tab("Layers", viser.Icon.STACK_2):
             self.layers_panel = make_layers_panel(server, state, self._on_change)
         with tabs.add_tab("Selection", viser.Icon.POINTER):

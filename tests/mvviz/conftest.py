@@ -120,7 +120,7 @@ def page(browser, running_app):
 
 
 def open_tab(page, name: str) -> None:
-    """Show the right-hand panel's tab ``name`` ("Timeline", "Layers", "Failures", ...)."""
+    """Show the right-hand panel's tab ``name`` ("Layers", "Failures", ...)."""
     page.get_by_role("tab", name=name).click()
     settle(page, 0.3)
 

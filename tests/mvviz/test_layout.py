@@ -13,7 +13,7 @@ from tests.mvviz.conftest import open_tab, open_viewer, settle, wait_rendered
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
-TABS = ("Timeline", "Layers", "Selection", "Pipeline", "Filter A/B", "Failures", "Export")
+TABS = ("Layers", "Selection", "Pipeline", "Filter A/B", "Failures", "Export")
 
 
 def test_selected_camera_is_highlighted(running_app):
@@ -48,13 +48,14 @@ def test_panels_are_tabs_in_the_page(browser, running_app, tmp_path):
         assert names == ["Camera", *TABS]  # the camera panel's own tab, then the main panel
         app.set_frame(5)
         wait_rendered(app, page)
-        # the Timeline tab is open first: its step button shows, Failures' criterion not
+        # the Layers tab is open first, the timeline above it; Failures' criterion hidden
         assert page.get_by_role("button", name="+1 ▶").is_visible()
         assert not page.get_by_text("Look at it", exact=True).is_visible()
-        page.screenshot(path=str(tmp_path / "tab_timeline.png"))
+        page.screenshot(path=str(tmp_path / "tab_first.png"))
         open_tab(page, "Failures")
         assert page.get_by_text("Look at it", exact=True).is_visible()
-        assert not page.get_by_role("button", name="+1 ▶").is_visible()
+        # the timeline stays visible whatever tab is open
+        assert page.get_by_role("button", name="+1 ▶").is_visible()
         open_tab(page, "Layers")
         assert page.get_by_text("Mesh style", exact=True).is_visible()
         assert page.get_by_text("Ground-truth skeletons", exact=True).is_visible()
