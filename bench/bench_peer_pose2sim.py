@@ -15,7 +15,9 @@ Reported, in one run:
  2. per camera, the reprojection error (px, median and mean over the subject's keypoints
     with confidence >= 0.3, Pose2Sim's likelihood threshold) of each result onto the same
     2D: the detections our association gave the subject in that camera;
- 3. with ``--detect`` (needs the ``[video]`` extra): the same from ``mvviz detect``
+ 3. the fitted SMPL bodies (step I and SMPL + VAE): their keypoints' reprojection error
+    as above, and their median pixel distance to the RTS joints they were fitted to;
+ 4. with ``--detect`` (needs the ``[video]`` extra): the same from ``mvviz detect``
     (BlazePose) on the trial's real videos instead of the shipped OpenPose 2D, on the
     keypoints both layouts share, and the detector's run time.
 
@@ -90,6 +92,10 @@ def compare(scene: Scene, results: PipelineResults, refs: dict[str, np.ndarray])
         "ours kalman": results.track_forward[track],
         "ours rts": results.track_smoothed[track],
     }
+    for stage in ("smpl", "smpl_vae"):  # the fitted bodies' keypoints, where there are fits
+        fit = getattr(results, stage)
+        if fit is not None:
+            ours[f"ours {stage} body"] = fit.keypoints[track]
     pairs = [
         ("ours raw", "pose2sim"),
         ("ours kalman", "pose2sim"),
@@ -104,8 +110,18 @@ def compare(scene: Scene, results: PipelineResults, refs: dict[str, np.ndarray])
             cam.name: (float(np.nanmedian(e[:, v])), float(np.nanmean(e[:, v])))
             for v, cam in enumerate(scene.rig)
         }
+    # The fitted bodies against the triangulated joints they were fitted to (RTS), in px.
+    body_vs_joints = {}
+    for name in [n for n in ours if n.endswith(" body")]:
+        per_cam = {}
+        for cam in scene.rig:
+            a = cam.project(ours[name].reshape(-1, 3))
+            b = cam.project(ours["ours rts"].reshape(-1, 3))
+            per_cam[cam.name] = float(np.nanmedian(np.linalg.norm(a - b, axis=-1)))
+        body_vs_joints[name] = per_cam
     names = scene.joint_set.names
     return {
+        "body_vs_rts_px": body_vs_joints,
         "track": track,
         "frames": int(np.isfinite(results.track_raw[track, :, :, 0]).any(1).sum()),
         "median_mm": dist,
@@ -136,6 +152,10 @@ def print_report(title: str, fig: dict) -> None:
     )
     cams = list(next(iter(fig["reprojection_px"].values())))
     print(f"\n{'reprojection px (median / mean)':<34}" + "".join(f"{c:>16}" for c in cams))
+    for name, per_cam in fig.get("body_vs_rts_px", {}).items():
+        print(
+            f"{name + ' vs rts joints':<34}" + "".join(f"{per_cam[c]:>9.1f}       " for c in cams)
+        )
     for name, per_cam in fig["reprojection_px"].items():
         print(
             f"{name:<34}" + "".join(f"{per_cam[c][0]:>9.1f} /{per_cam[c][1]:>5.1f}" for c in cams)
@@ -163,7 +183,7 @@ def main() -> int:
     warnings.simplefilter("ignore")
     scene = load_scene(TRIAL)
     model = load_body_model()
-    config = PipelineConfig(fit_smpl=False)
+    config = PipelineConfig()
     refs = {n: r.joints for n, r in scene.references.items()}
     t0 = time.perf_counter()
     results = run_pipeline(scene, config, model, progress=False)
