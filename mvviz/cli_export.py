@@ -16,9 +16,8 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from mvviz.cli_run import prepare
+from mvviz.cli_run import add_config_options, cached_results
 from mvviz.rerun_export import DEFAULT_PLOT_JOINTS, count_entities, export_rrd
-from pipeline.results import run_or_load
 
 
 def parse_frames(spec: str) -> slice:
@@ -42,15 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
     p.add_argument("-o", "--output", type=Path, required=True, help="recording to write (.rrd)")
-    p.add_argument("--config", type=Path, default=None, help="pipeline config JSON")
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="SECTION.FIELD=VALUE",
-        help="override a config value (repeatable), as for mvviz run",
-    )
-    p.add_argument("--smpl-model", default=None, help="body model file (.npz/.pkl)")
+    add_config_options(p)
     p.add_argument(
         "--frames", type=parse_frames, default=None, metavar="A:B", help="frames A..B-1 only"
     )
@@ -74,9 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    scene, config, model = prepare(args)
-    results, cached = run_or_load(scene, config, model)
-    print(f"{'reused cached' if cached else 'computed'} results: {results.num_tracks} tracks")
+    scene, results, model = cached_results(args)
     t0 = time.perf_counter()
     try:
         out = export_rrd(

@@ -24,9 +24,8 @@ import sys
 import time
 from pathlib import Path
 
-from mvviz.cli_run import prepare
+from mvviz.cli_run import add_config_options, cached_results
 from pipeline.exports import FORMATS, STAGES, ExportError, export_results
-from pipeline.results import run_or_load
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,22 +45,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="trc/c3d: one file per track (STEM_track<k>.trc) instead of prefixed names",
     )
-    p.add_argument("--config", type=Path, default=None, help="pipeline config JSON")
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="SECTION.FIELD=VALUE",
-        help="override a config value (repeatable), as for mvviz run",
-    )
-    p.add_argument("--smpl-model", default=None, help="body model file (.npz/.pkl)")
+    add_config_options(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    scene, config, model = prepare(args)
-    results, cached = run_or_load(scene, config, model)
-    print(f"{'reused cached' if cached else 'computed'} results: {results.num_tracks} tracks")
+    scene, results, _ = cached_results(args)
     t0 = time.perf_counter()
     try:
         files = export_results(

@@ -18,8 +18,8 @@ from pipeline.results import default_results_path, run_or_load
 from pipeline.scene import Scene, load_scene
 
 
-def add_pipeline_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
+def add_config_options(p: argparse.ArgumentParser) -> None:
+    """``--config``, ``--set`` and ``--smpl-model``: what :func:`prepare` reads."""
     p.add_argument("--config", type=Path, default=None, help="pipeline config JSON")
     p.add_argument(
         "--set",
@@ -28,10 +28,15 @@ def add_pipeline_options(p: argparse.ArgumentParser) -> None:
         metavar="SECTION.FIELD=VALUE",
         help="override a config value, e.g. --set kalman.q=50 --set source=smpl (repeatable)",
     )
+    p.add_argument("--smpl-model", default=None, help="body model file (.npz/.pkl)")
+
+
+def add_pipeline_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
+    add_config_options(p)
     p.add_argument(
         "--out", type=Path, default=None, help="results file (default SCENE/.mvviz/results.npz)"
     )
-    p.add_argument("--smpl-model", default=None, help="body model file (.npz/.pkl)")
     p.add_argument("--force", action="store_true", help="ignore cached results")
 
 
@@ -54,6 +59,15 @@ def prepare(args: argparse.Namespace) -> tuple[Scene, PipelineConfig, BodyModel]
     if config.fit_smpl and config.use_pose_prior:
         load_prior(config.pose_prior or None)
     return scene, config, model
+
+
+def cached_results(args: argparse.Namespace):
+    """(scene, results, model) of :func:`prepare`'s inputs, reusing the cached run (the
+    exports' way in); says whether the results were reused."""
+    scene, config, model = prepare(args)
+    results, cached = run_or_load(scene, config, model)
+    print(f"{'reused cached' if cached else 'computed'} results: {results.num_tracks} tracks")
+    return scene, results, model
 
 
 def load_and_run(args: argparse.Namespace, *, progress: bool = True):
