@@ -93,6 +93,18 @@ def recover(path: str | os.PathLike) -> None:
             _remove(p)
 
 
+def read_text_lines(path: str | os.PathLike) -> list[str]:
+    """A UTF-8 text file's lines; a missing or binary file is a :class:`SceneFormatError`
+    naming it (the line-based importers: TRC, BVH)."""
+    path = Path(path)
+    if not path.is_file():
+        raise SceneFormatError(path, None, "file not found")
+    try:
+        return path.read_text(encoding="utf-8", errors="strict").splitlines()
+    except UnicodeDecodeError as exc:
+        raise SceneFormatError(path, None, f"not a text file ({exc})") from None
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator:
     """Open a temporary file beside ``path``; it replaces ``path`` only if the block succeeds."""

@@ -60,7 +60,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.files import SceneFormatError
+from pipeline.files import SceneFormatError, read_text_lines
 
 CHANNEL_NAMES = (
     "Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation",
@@ -299,12 +299,7 @@ def _header_value(path: Path, lines: list[str], i: int, label: str) -> tuple[str
 def read_bvh(path: str | os.PathLike) -> BvhMotion:
     """Read a BVH file and run forward kinematics (see the module docstring)."""
     path = Path(path)
-    if not path.is_file():
-        raise SceneFormatError(path, None, "file not found")
-    try:
-        lines = path.read_text(encoding="utf-8", errors="strict").splitlines()
-    except UnicodeDecodeError as exc:
-        raise SceneFormatError(path, None, f"not a text file ({exc})") from None
+    lines = read_text_lines(path)
     h, motion_line = _parse_hierarchy(path, lines)
     rest = lines[motion_line].split(None, 1)
     if len(rest) > 1:

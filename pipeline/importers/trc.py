@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.files import SceneFormatError, atomic_write
+from pipeline.files import SceneFormatError, atomic_write, read_text_lines
 from pipeline.joint_sets import JointSet, get_joint_set
 from pipeline.references import ReferenceTrack, check_name
 
@@ -105,12 +105,7 @@ def _split(line: str) -> list[str]:
 def read_trc(path: str | os.PathLike) -> TrcData:
     """Read a TRC file; checks the header against the data (see the module docstring)."""
     path = Path(path)
-    if not path.is_file():
-        raise SceneFormatError(path, None, "file not found")
-    try:
-        lines = path.read_text(encoding="utf-8", errors="strict").splitlines()
-    except UnicodeDecodeError as exc:
-        raise SceneFormatError(path, None, f"not a text file ({exc})") from None
+    lines = read_text_lines(path)
     names = ("PathFileType", "header keys", "header values", "Frame#", "coordinate labels")
     for i, what in enumerate(names):
         if i >= len(lines):
