@@ -47,10 +47,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import write_json  # noqa: E402
 from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.compare import (  # noqa: E402
-    closest_track,
     per_joint_median_mm,
     reprojection_errors,
-    track_observations,
+    subject_observations,
 )
 from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.joint_sets import mapping_indices  # noqa: E402
@@ -58,22 +57,6 @@ from pipeline.results import PipelineResults, run_pipeline  # noqa: E402
 from pipeline.scene import Scene, load_scene  # noqa: E402
 
 TRIAL = Path(__file__).resolve().parents[1] / "sample_data" / "pose2sim_balancing"
-
-
-def subject(scene: Scene, results: PipelineResults, ref: np.ndarray):
-    """(track, its median distance to ``ref``, the 2D it was triangulated from)."""
-    track, dist = closest_track(results.track_raw, ref)
-    obs = track_observations(
-        results.det_joints2d,
-        scene.detections.view,
-        results.det_person,
-        results.person_frame,
-        results.person_track,
-        track,
-        num_frames=scene.num_frames,
-        num_views=len(scene.rig),
-    )
-    return track, dist, obs
 
 
 def in_joint_set(points: np.ndarray, src, dst) -> np.ndarray:
@@ -86,7 +69,7 @@ def in_joint_set(points: np.ndarray, src, dst) -> np.ndarray:
 
 def compare(scene: Scene, results: PipelineResults, refs: dict[str, np.ndarray]) -> dict:
     raw_ref = refs["pose2sim"]
-    track, dist, obs = subject(scene, results, raw_ref)
+    track, dist, obs = subject_observations(scene, results, raw_ref)
     ours = {
         "ours raw": results.track_raw[track],
         "ours kalman": results.track_forward[track],
@@ -191,7 +174,7 @@ def main() -> int:
     figures = {"openpose_2d": compare(scene, results, refs)}
     figures["openpose_2d"]["pipeline_s"] = seconds
     print_report(
-        f"shipped OpenPose BODY_25B 2D ({seconds:.2f} s, stages 1-5)", figures["openpose_2d"]
+        f"shipped OpenPose BODY_25B 2D ({seconds:.2f} s, all stages)", figures["openpose_2d"]
     )
 
     if args.detect:

@@ -95,6 +95,30 @@ def reprojection_errors(
     return err
 
 
+def subject_observations(
+    scene, results, reference: np.ndarray
+) -> tuple[int, float, TrackObservations]:
+    """The track nearest ``reference`` (:func:`closest_track`), its median distance (mm)
+    and the 2D it was triangulated from (:func:`track_observations`).
+
+    Args:
+        scene: a :class:`pipeline.scene.Scene`; results: its
+            :class:`pipeline.results.PipelineResults`; reference: (F, J, 3) mm.
+    """
+    track, dist = closest_track(results.track_raw, reference)
+    obs = track_observations(
+        results.det_joints2d,
+        scene.detections.view,
+        results.det_person,
+        results.person_frame,
+        results.person_track,
+        track,
+        num_frames=scene.num_frames,
+        num_views=len(scene.rig),
+    )
+    return track, dist, obs
+
+
 def per_joint_median_mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(J,) median over frames of |a - b| per joint (NaN where never both present).
 

@@ -9,12 +9,7 @@ import numpy as np
 import pytest
 
 from pipeline.body_model import load_body_model
-from pipeline.compare import (
-    closest_track,
-    per_joint_median_mm,
-    reprojection_errors,
-    track_observations,
-)
+from pipeline.compare import per_joint_median_mm, reprojection_errors, subject_observations
 from pipeline.config import PipelineConfig
 from pipeline.results import run_pipeline
 from pipeline.scene import load_scene
@@ -27,18 +22,7 @@ TRIAL = REPO / "sample_data" / "pose2sim_balancing"
 def trial():
     scene = load_scene(TRIAL)
     results = run_pipeline(scene, PipelineConfig(fit_smpl=False), load_body_model(), progress=False)
-    ref = scene.references["pose2sim"].joints
-    track, dist = closest_track(results.track_raw, ref)
-    obs = track_observations(
-        results.det_joints2d,
-        scene.detections.view,
-        results.det_person,
-        results.person_frame,
-        results.person_track,
-        track,
-        num_frames=scene.num_frames,
-        num_views=len(scene.rig),
-    )
+    track, dist, obs = subject_observations(scene, results, scene.references["pose2sim"].joints)
     return scene, results, track, dist, obs
 
 
