@@ -12,7 +12,7 @@ SMPL meshes), click a joint to select it; re-run the per-frame stages with other
 parameters or cameras off (Pipeline), tune a second Kalman filter side by side
 (Filter A/B), jump to the worst moments (Failures). Same as ``mvviz view SCENE``.
 With --rerun, rerun's web viewer (from the rerun-sdk package) is served too, on
---rerun-port, and logged into live (mvviz/rerun_live.py).
+--rerun-port, and logged into live (mvviz/export/rerun_live.py).
 Binds to 127.0.0.1 unless --host says otherwise. Ctrl-C stops the server.
 """
 
@@ -22,7 +22,7 @@ import argparse
 import sys
 
 from mvviz.cli import add_debug_option, run_command
-from mvviz.cli_view import add_view_options, run
+from mvviz.cli.view import add_view_options, run
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -8,7 +8,7 @@ measures from the command:
 - with Debian's chromium (playwright): to a page showing the scene, i.e. the viewer
   has loaded, the frame label has arrived and the 3D canvas is not blank.
 
-Baselines measured in the same run: ``python -c "import mvviz.cli_view"``, the imports
+Baselines measured in the same run: ``python -c "import mvviz.cli.view"``, the imports
 alone (torch, viser, scipy, matplotlib), the floor any start pays; and a bare viser
 server showing a grid and a box, opened the same way, the floor of the browser side (loading
 viser's client and software-rendering WebGL in headless chromium). Prints medians of
@@ -40,7 +40,7 @@ from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium  # noqa
 
 def time_imports() -> float:
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import mvviz.cli_view"], check=True, cwd=REPO)
+    subprocess.run([sys.executable, "-c", "import mvviz.cli.view"], check=True, cwd=REPO)
     return time.perf_counter() - t0
 
 
@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> dict:
             pw_ctx.stop()
     out = {"scene": args.scene.name, "runs": args.runs, "load_per_cpu": load}
     out["imports_s"] = statistics.median(imports)
-    print(f"imports alone (python -c 'import mvviz.cli_view'): {out['imports_s']:.2f} s")
+    print(f"imports alone (python -c 'import mvviz.cli.view'): {out['imports_s']:.2f} s")
     for key, label in (("url_s", "to the URL line"), ("page_s", "to a drawn page")):
         values = [s[key] for s in starts if key in s]
         if values:

@@ -22,8 +22,8 @@ their full vertex arrays each frame (skinned on the server with the same bone po
 and the figures and the ratio are printed. Targets with skinned meshes: median <= 20 ms
 and <= 50 KB per frame change. Then what the options and design choices cost: every
 track's rays, sharp videos (320 px frustums, 640 px panel), bones posed through viser's
-per-bone setters instead of mvviz.skinned.BonePoser, and the viewer alone (other
-panels detached). And the same frame changes with ``--rerun`` (mvviz/rerun_live.py
+per-bone setters instead of mvviz.scene.skinned.BonePoser, and the viewer alone (other
+panels detached). And the same frame changes with ``--rerun`` (mvviz/export/rerun_live.py
 logging into rerun's server): the frame-change time with and without it, the rerun
 logging time per frame, and 1x playback with it (frames logged / dropped, lag).
 
@@ -52,9 +52,10 @@ import zstandard
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import free_port, write_json  # noqa: E402
-from mvviz.app import ViewerApp, ViewerState  # noqa: E402
-from mvviz.geometry import GT_MESH, track_color  # noqa: E402
-from mvviz.images import FrameStore  # noqa: E402
+from mvviz.app import ViewerApp
+from mvviz.scene.geometry import GT_MESH, track_color  # noqa: E402
+from mvviz.scene.images import FrameStore  # noqa: E402
+from mvviz.state import ViewerState  # noqa: E402
 from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.results import run_or_load  # noqa: E402
@@ -224,16 +225,16 @@ def use_full_vertex_meshes(app: ViewerApp) -> float:
 
 def use_public_bone_setters(app: ViewerApp) -> None:
     """Pose the skinned meshes through viser's per-bone setters (``bone.wxyz = ...``)
-    instead of :class:`mvviz.skinned.BonePoser`'s bulk path: what that path saves."""
+    instead of :class:`mvviz.scene.skinned.BonePoser`'s bulk path: what that path saves."""
     app.layers.fast_bones = False
     app.layers.bone_posers.clear()
 
 
 def rerun_overhead(start, changes: np.ndarray, warm: np.ndarray) -> dict:
     """The same frame changes in one app without, with and again without ``--rerun``'s
-    live logging (mvviz/rerun_live.py into a rerun server), then 5 s of 1x playback with
+    live logging (mvviz/export/rerun_live.py into a rerun server), then 5 s of 1x playback with
     it: what the logging adds to a frame change and whether it keeps up."""
-    from mvviz.rerun_live import LiveRerun, RerunWebServer  # noqa: PLC0415
+    from mvviz.export.rerun_live import LiveRerun, RerunWebServer  # noqa: PLC0415
 
     app, tap = start()
     server = RerunWebServer(web_port=free_port())

@@ -1,7 +1,7 @@
 """The viewer: one viser server, a :class:`ViewerState`, one ``make_*_panel`` per panel.
 
 The viewer reads a scene and its :class:`~pipeline.results.PipelineResults` and never
-reaches into a stage. A frame change computes :func:`~mvviz.geometry.frame_geometry`
+reaches into a stage. A frame change computes :func:`~mvviz.scene.geometry.frame_geometry`
 and assigns it to existing scene handles; renders run on one worker thread through a
 "latest wins" slot, so scrubbing draws only the newest requested frame.
 
@@ -24,80 +24,35 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 import viser
 
-from mvviz.export_panel import make_export_panel
-from mvviz.failure_panel import make_failure_panel
-from mvviz.filter_panel import make_filter_panel
-from mvviz.geometry import (
+from mvviz.panels.export_panel import make_export_panel
+from mvviz.panels.failure_panel import make_failure_panel
+from mvviz.panels.filter_panel import make_filter_panel
+from mvviz.panels.pipeline_panel import make_pipeline_panel
+from mvviz.scene.geometry import (
     FRUSTUM_WIDTHS,
     MESH_DETAILS,
     MESH_STYLES,
     LayerToggles,
-    Selection,
-    ViewerData,
     frame_geometry,
     prepare,
 )
-from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
-from mvviz.layers import SceneLayers
-from mvviz.pipeline_panel import make_pipeline_panel
+from mvviz.scene.images import FrameStore, blank_frame, draw_overlay, image_overlay
+from mvviz.scene.layers import SceneLayers
+from mvviz.state import PANEL_WIDTHS, ViewerState
 from mvviz.workers import LatestWins
 from pipeline.body_model import BodyModel
 from pipeline.results import PipelineResults
-from pipeline.scene import Scene
 
 SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
 STEP_BACK, STEP_FORWARD = "◀ −1", "+1 ▶"
-# The camera panel's image: as wide as the panel (400 px) by default, so a frame change
-# sends ~12 kB for it; 640 px (the stored frames' width) for a sharper look.
-PANEL_WIDTHS = (400, 640)
 PANEL_JPEG_QUALITY = 65
 STATS_INTERVAL_S = 1.0  # the render-time line updates at most this often
-
-# --------------------------------------------------------------------------- state
-
-
-@dataclass
-class ViewerState:
-    """What the viewer shows: data, frame, selection, layer toggles, playback."""
-
-    data: ViewerData
-    frame: int = 0
-    selection: Selection = field(default_factory=Selection)
-    layers: LayerToggles = field(default_factory=LayerToggles)
-    camera: int = 0  # view shown in the image panel
-    panel_image_width: int = PANEL_WIDTHS[0]  # px of the image panel's picture
-    playing: bool = False
-    speed: float = 1.0
-    loop: bool = True
-
-    @property
-    def scene(self) -> Scene:
-        return self.data.scene
-
-    @property
-    def results(self) -> PipelineResults:
-        return self.data.results
-
-    @classmethod
-    def create(
-        cls, scene: Scene, results: PipelineResults, model: BodyModel | None = None
-    ) -> ViewerState:
-        data = prepare(scene, results, model)
-        names = data.joint_set.names
-        joint = next((names.index(n) for n in ("right_wrist", "left_wrist") if n in names), 0)
-        track = 0 if data.num_tracks else None
-        return cls(data=data, selection=Selection(track=track, joint=joint))
-
-    def snapshot(self) -> ViewerState:
-        """A copy safe to read while GUI callbacks keep mutating this one."""
-        return dataclasses.replace(self, layers=dataclasses.replace(self.layers))
-
 
 def selection_info(state: ViewerState) -> str:
     """Markdown about the selected track and joint in the current frame."""
@@ -366,7 +321,7 @@ class CameraPanel:
     software_notice: viser.GuiHtmlHandle
 
 
-# What the camera panel's lines are (mvviz.images.draw_overlay).
+# What the camera panel's lines are (mvviz.scene.images.draw_overlay).
 CAMERA_LEGEND = (
     "<small>**thick** lines, dots: 2D detections, coloured by the person they were "
     "associated to (**grey**: unassigned) · **thin**, rings: the filtered 3D result "

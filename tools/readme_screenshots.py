@@ -17,7 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mvviz.cli_view import add_view_options, start  # noqa: E402
+from mvviz.cli.view import add_view_options, start  # noqa: E402
 from tools.chromium import close_webgl_notice, launch_chromium  # noqa: E402
 
 

@@ -164,11 +164,11 @@ def gap_note(present: np.ndarray, what: str = "holds the last pose") -> str | No
 
 
 def track_rgb(track: int) -> tuple[int, int, int]:
-    """The viewer's colour of a track (sRGB 0-255): the palette of ``mvviz.geometry``."""
+    """The viewer's colour of a track (sRGB 0-255): the palette of ``mvviz.scene.geometry``."""
     return PALETTE[track % len(PALETTE)]
 
 
-# mvviz.geometry.PALETTE, repeated so pipeline/ does not import the viewer (a test
+# mvviz.scene.geometry.PALETTE, repeated so pipeline/ does not import the viewer (a test
 # checks they agree).
 PALETTE: tuple[tuple[int, int, int], ...] = (
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189), (23, 190, 207),

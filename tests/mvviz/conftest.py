@@ -14,8 +14,9 @@ import cv2
 import numpy as np
 import pytest
 
-from mvviz.app import ViewerApp, ViewerState
-from mvviz.images import FrameStore
+from mvviz.app import ViewerApp
+from mvviz.scene.images import FrameStore
+from mvviz.state import ViewerState
 from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.importers.calibration import read_voxelpose_calibration

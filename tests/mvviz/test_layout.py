@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from mvviz.app import CAMERA_LEGEND
-from mvviz.geometry import SELECTED_CAMERA
-from mvviz.layers import FRUSTUM_COLOR
+from mvviz.scene.geometry import SELECTED_CAMERA
+from mvviz.scene.layers import FRUSTUM_COLOR
 from tests.mvviz.conftest import open_tab, open_viewer, settle, wait_rendered
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")

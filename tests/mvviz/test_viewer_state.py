@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from mvviz.app import PANEL_WIDTHS, LatestWins, ViewerApp, ViewerState
-from mvviz.geometry import (
+from mvviz.app import LatestWins, ViewerApp
+from mvviz.scene.geometry import (
     FRUSTUM_WIDTHS,
     MM,
     OUTLIER,
@@ -22,7 +22,8 @@ from mvviz.geometry import (
     frame_geometry,
     track_color,
 )
-from mvviz.images import FrameStore, blank_frame, draw_overlay, image_overlay
+from mvviz.scene.images import FrameStore, blank_frame, draw_overlay, image_overlay
+from mvviz.state import PANEL_WIDTHS, ViewerState
 from pipeline.config import PipelineConfig
 from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.results import run_pipeline
@@ -418,7 +419,7 @@ def test_server_survives_odd_scenes(viewer_scene, blind_camera_scene):
 
 def test_cli_view_starts_and_stops(viewer_scene):
     from mvviz.cli import build_parser
-    from mvviz.cli_view import start
+    from mvviz.cli.view import start
 
     scene = viewer_scene[0]
     args = build_parser().parse_args(["view", str(scene.root), "--port", str(free_port())])

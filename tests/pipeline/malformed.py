@@ -2,7 +2,7 @@
 bad value per declared field of scene.json, cameras.json, detections.npz, gt.npz, the
 pipeline config and --set, and per field of the importers' files. Each case names the
 file and the field its error must name (tests/pipeline/test_malformed_inputs.py loads
-them; tests/mvviz/test_cli_errors.py runs them through the command line)."""
+them; tests/mvviz/cli/test_errors.py runs them through the command line)."""
 
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ import pytest
 import pipeline.detect.blazepose as bp
 import pipeline.detect.video as vid
 from mvviz.cli import main
-from mvviz.images import FrameStore
+from mvviz.scene.images import FrameStore
 from pipeline.cameras import Camera, CameraRig, save_cameras
 from pipeline.scene import load_scene
 from pipeline.video_crop import (

@@ -43,7 +43,7 @@ def test_per_track_paths(tmp_path):
 
 
 def test_palette_is_the_viewers():
-    from mvviz.geometry import PALETTE as VIEWER  # noqa: PLC0415
+    from mvviz.scene.geometry import PALETTE as VIEWER  # noqa: PLC0415
 
     assert np.array_equal(np.array(PALETTE), VIEWER)
 

@@ -1,0 +1,93 @@
+"""The ``mvviz`` command line: one subcommand per job, each registered by its module.
+
+One module per subcommand group (``convert``, ``reference``, ``synth`` /
+``synth_mocap``, ``detect``, ``run`` (also ``eval``), ``export_rrd``, ``export_formats``,
+``view``, ``prior``). The command line is the top of the import graph: it may import
+everything; nothing in :mod:`mvviz` outside this package imports it (``app.py`` at the
+repository root does).
+
+Each ``register(subparsers)`` adds a parser whose ``func(args) -> int`` runs the job.
+Errors: bad input (:class:`~pipeline.files.SceneFormatError`, and OS errors such as a
+missing file or a full disk) is one line on stderr and exit code 2; anything else is a
+bug, reported in one line with exit code 1 (``--debug`` prints its traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+from collections.abc import Callable
+
+from pipeline.files import SceneFormatError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from mvviz.cli import (  # noqa: PLC0415  (keeps --help fast)
+        convert,
+        detect,
+        export_formats,
+        export_rrd,
+        prior,
+        reference,
+        run,
+        synth,
+        view,
+    )
+
+    parser = argparse.ArgumentParser(
+        prog="mvviz",
+        description="Multi-view, multi-person 3D pose and SMPL reconstruction, and its debugger.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for module in (
+        convert,
+        reference,
+        synth,
+        detect,
+        run,
+        export_rrd,
+        export_formats,
+        view,
+        prior,
+    ):
+        module.register(sub)
+    add_debug_option(parser)
+    for p in sub.choices.values():
+        add_debug_option(p, default=argparse.SUPPRESS)  # also after the subcommand
+    return parser
+
+
+INPUT_ERRORS = (SceneFormatError, OSError)
+"""What bad input raises: exit code 2 and one line, never a traceback."""
+
+
+def add_debug_option(parser: argparse.ArgumentParser, default=False) -> None:
+    parser.add_argument(
+        "--debug", action="store_true", default=default,
+        help="print the traceback of an unexpected error",
+    )  # fmt: skip
+
+
+def run_command(prog: str, func: Callable[[argparse.Namespace], int | None], args) -> int:
+    """``func(args)``'s exit code; input errors -> 2, other exceptions -> 1 (see above)."""
+    try:
+        return int(func(args) or 0)
+    except INPUT_ERRORS as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if getattr(args, "debug", False):
+            traceback.print_exc()
+        hint = "" if getattr(args, "debug", False) else " (run with --debug for the traceback)"
+        print(f"{prog}: internal error: {type(exc).__name__}: {exc}{hint}", file=sys.stderr)
+        return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(f"mvviz {args.command}", args.func, args)
+

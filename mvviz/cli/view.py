@@ -1,0 +1,119 @@
+"""``mvviz view``: the interactive 3D debugger in the browser (see mvviz/app.py)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from mvviz.app import ViewerApp
+from mvviz.scene.images import FrameStore
+from mvviz.state import ViewerState
+from pipeline.results import run_or_load
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_SCENE = REPO_ROOT / "sample_data" / "shelf_synth"
+
+
+def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False) -> None:
+    if scene_optional:
+        p.add_argument(
+            "scene", type=Path, nargs="?", default=DEFAULT_SCENE,
+            help=f"scene directory (default: {DEFAULT_SCENE.relative_to(REPO_ROOT)})",
+        )  # fmt: skip
+    else:
+        p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
+    p.add_argument("--port", type=int, default=8080, help="HTTP/websocket port (default 8080)")
+    p.add_argument(
+        "--host", default="127.0.0.1", help="address to bind (default 127.0.0.1; 0.0.0.0 = all)"
+    )
+    p.add_argument("--smpl-model", default=None, help="body model file (.npz/.pkl)")
+    p.add_argument("--config", type=Path, default=None, help="pipeline config JSON")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+        help="override a pipeline config value (repeatable)",
+    )  # fmt: skip
+    p.add_argument(
+        "--out", type=Path, default=None, help="results file (default SCENE/.mvviz/results.npz)"
+    )
+    p.add_argument("--force", action="store_true", help="re-run the pipeline, ignore the cache")
+    p.add_argument(
+        "--rerun", action="store_true",
+        help="also serve rerun's web viewer and log into it live (mvviz/export/rerun_live.py)",
+    )  # fmt: skip
+    p.add_argument(
+        "--rerun-port", type=int, default=9090,
+        help="port of rerun's web viewer, its gRPC server on the next one (default 9090)",
+    )  # fmt: skip
+    p.add_argument(
+        "--rerun-save", type=Path, default=None, metavar="RRD",
+        help="with --rerun: also write the live stream to this .rrd file",
+    )  # fmt: skip
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "view",
+        help="open the interactive 3D debugger for a scene in the browser",
+        description=(
+            "Loads SCENE, runs the pipeline (or reuses cached results) and serves a viser "
+            "viewer: timeline, cameras with their video, 2D detections, rays, raw / filtered "
+            "/ ground-truth skeletons, trails, ground-truth and fitted meshes, and the pipeline, "
+            "filter A/B and failure panels. Blocks until Ctrl-C."
+        ),
+    )
+    add_view_options(p)
+    p.set_defaults(func=run)
+
+
+def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
+    """Load, run or load results, start the server; returns the running app."""
+    from mvviz.cli.run import prepare  # noqa: PLC0415  (shares --config/--set)
+
+    t0 = time.perf_counter()
+    scene, config, model = prepare(args)
+    print(f"scene {scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames")
+    results, cached = run_or_load(
+        scene, config, model, out=args.out, progress=progress, force=args.force
+    )
+    print(f"{'cached' if cached else 'computed'} results: {results.num_tracks} tracks")
+    frames = FrameStore(scene, cache_dir=scene.root / ".mvviz" / "frames").start()
+    state = ViewerState.create(scene, results, model)
+    app = ViewerApp(state, host=args.host, port=args.port, frames=frames, model=model)
+    app.wait_idle(30)
+    if app.server.get_port() != args.port:  # viser moves to the next free port
+        print(f"port {args.port} is taken: serving on port {app.server.get_port()} instead")
+    app.rerun_live = None
+    if getattr(args, "rerun", False):
+        # rerun (~0.3 s to import) loads only with --rerun
+        from mvviz.export.rerun_live import LiveRerun, RerunWebServer  # noqa: PLC0415
+
+        server = RerunWebServer(host=args.host, web_port=args.rerun_port)
+        app.rerun_live = LiveRerun(app, server=server, save=args.rerun_save)
+        print(f"rerun web viewer: {server.url}")
+    print(f"ready in {time.perf_counter() - t0:.1f} s: {app.url}")
+    if frames.sources and not frames.ready:
+        print("(decoding videos in the background; frames appear as they are ready)")
+    return app
+
+
+def run(args: argparse.Namespace) -> int:
+    app = start(args)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        print("\nstopping")
+    finally:
+        stop(app)
+    return 0
+
+
+def stop(app: ViewerApp) -> None:
+    """Stop the viewer and, with --rerun, the live logging and rerun's server."""
+    live = getattr(app, "rerun_live", None)
+    app.stop()
+    if live is not None:
+        live.close()
+        if live.server is not None:
+            live.server.stop()

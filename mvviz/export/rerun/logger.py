@@ -1,0 +1,328 @@
+"""SceneLogger: one scene and its results into a recording, static context, frames
+and columns, with the layout of :mod:`mvviz.export.rerun`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+import rerun as rr
+import torch
+
+from mvviz.export.rerun.frames import (
+    _FrameLogger,
+    _group,
+    _log_cameras,
+    _log_detections,
+    _log_gt,
+    _log_rays,
+    _log_skeletons,
+    _points3d,
+    _send_mesh_column,
+    encode_jpeg,
+)
+from mvviz.export.rerun.layout import (
+    BODY_STAGES,
+    DEFAULT_PLOT_JOINTS,
+    GT_COLOR,
+    MM_TO_M,
+    ClassLayout,
+    MeshSequence,
+    _pool_sizes,
+    annotation_context,
+    body_color,
+    check_inputs,
+    make_blueprint,
+    resolve_plot_joint,
+    scaled_intrinsics,
+)
+from mvviz.export.rerun.meshes import display_mesh, skin_subset
+from mvviz.export.rerun.series import _log_plots
+from pipeline.body_model import BodyModel
+from pipeline.joint_sets import get_joint_set
+from pipeline.results import PipelineResults
+from pipeline.scene import Scene
+from pipeline.smpl_fit import SmplFit
+
+ImageLike = bytes | np.ndarray  # JPEG bytes, or a BGR uint8 image (h, w, 3)
+
+
+class SceneLogger:
+    """Logs one scene and its results into a recording: static context, frames, columns.
+
+    Built once per results (the class layout, detection groups and GT mesh vertices are
+    precomputed here); :func:`log_scene`, the export and the live viewer call its methods.
+
+    Args:
+        recording: where to log (None: rerun's global recording, as ``rr.log`` does).
+        body_model: skins the GT meshes (None or ``meshes=False``: no GT meshes).
+        bodies: log the fitted SMPL bodies of ``results.smpl`` / ``results.smpl_vae`` at
+            ``world/bodies/<stage>/<track>`` (each fit skins with its own body model).
+        image_width: width of the logged images, px (never more than the camera's); the
+            pinholes match it. ``images=False``: pinholes at the camera's resolution.
+        mesh_cell_mm: the GT meshes are decimated with :func:`decimate_mesh` at this cell
+            size (25 mm keeps ~1/4 of the vertices); None keeps them all. The fitted
+            bodies are decimated the same way.
+        extra_meshes: name -> :class:`MeshSequence`, logged at ``world/meshes/<name>``.
+        plot_joints: joints plotted per track (aliases such as ``pelvis`` resolve per set).
+        sparse: frames come in any order (a viewer's visits): a frame clears every entity
+            logged before that it lacks, not only those of the previous frame.
+        pause: called before each per-frame log call (the live viewer yields there).
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        results: PipelineResults,
+        recording: rr.RecordingStream | None = None,
+        *,
+        body_model: BodyModel | None = None,
+        images: bool = True,
+        image_width: int = 480,
+        jpeg_quality: int = 80,
+        meshes: bool = True,
+        bodies: bool = True,
+        mesh_cell_mm: float | None = 25.0,
+        extra_meshes: Mapping[str, MeshSequence] | None = None,
+        plot_joints: Sequence[str] = DEFAULT_PLOT_JOINTS,
+        sparse: bool = False,
+        pause: Callable[[], None] | None = None,
+    ) -> None:
+        check_inputs(scene, results)
+        self.scene, self.results, self.body_model = scene, results, body_model
+        self.rec = recording if recording is not None else rr.get_global_data_recording()
+        if self.rec is None:
+            raise ValueError("no recording: pass recording= or call rr.init(...) first")
+        self.images, self.jpeg_quality = images, jpeg_quality
+        self.joint_set = get_joint_set(results.joint_set)
+        self.plot_idx = {name: resolve_plot_joint(self.joint_set, name) for name in plot_joints}
+        det, gt = scene.detections, scene.gt
+        n_unassigned, n_untracked = _pool_sizes(results, det.frame, det.view)
+        self.layout = ClassLayout(
+            num_tracks=results.num_tracks,
+            gt_people=tuple(int(p) for p in np.unique(gt.person_id)) if gt is not None else (),
+            num_unassigned=n_unassigned,
+            num_untracked=n_untracked,
+        )
+        widths = {c.name: (min(image_width, c.width) if images else c.width) for c in scene.rig}
+        self.cam_size = {}  # camera name -> (width, height, s) of its pinhole and images
+        for cam in scene.rig:
+            _, w, h, s = scaled_intrinsics(cam, widths[cam.name])
+            self.cam_size[cam.name] = (w, h, s)
+        self._widths = widths
+        self.rows_by_frame = _group(det.frame)
+        self.person_by_frame = _group(results.person_frame)
+        self.gt_by_frame = _group(gt.frame) if gt is not None else {}
+        self.extra = dict(extra_meshes or {})
+        self._extra_rows = {
+            name: {int(f): i for i, f in enumerate(np.asarray(seq.frames))}
+            for name, seq in self.extra.items()
+        }
+        self.mesh_faces = self.mesh_keep = None
+        has_smpl = gt is not None and all(
+            a is not None for a in (gt.smpl_pose, gt.smpl_betas, gt.transl)
+        )
+        if meshes and body_model is not None and has_smpl:
+            self.mesh_keep, self.mesh_faces = display_mesh(body_model, mesh_cell_mm)
+        self._mesh_vertices: np.ndarray | None = None
+        # the fitted bodies: stage -> SmplFit, and (keep, faces) of its display mesh
+        self.fits: dict[str, SmplFit] = {}
+        self.body_meshes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        for stage in BODY_STAGES if bodies else ():
+            fit = getattr(results, stage, None)
+            if fit is not None and fit.present.any():
+                self.fits[stage] = fit
+                self.body_meshes[stage] = display_mesh(fit.model, mesh_cell_mm)
+        self._frames = _FrameLogger(self.rec, sparse=sparse, pause=pause)
+
+    @property
+    def has_meshes(self) -> bool:
+        return self.mesh_faces is not None
+
+    # ------------------------------------------------------------------ static
+
+    def log_static(self, *, blueprint: bool = False) -> None:
+        """View coordinates, annotation context, cameras, mesh faces (and the blueprint)."""
+        rec, scene = self.rec, self.scene
+        if blueprint:
+            rec.send_blueprint(make_blueprint(scene.rig.names), make_active=False)
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log("world", annotation_context(self.layout, self.joint_set), static=True)
+        _log_cameras(rec, scene, self._widths)
+        if self.has_meshes:
+            for p in self.layout.gt_people:
+                rec.log(
+                    f"world/meshes/gt/{p}",
+                    rr.Mesh3D.from_fields(triangle_indices=self.mesh_faces, albedo_factor=GT_COLOR),
+                    static=True,
+                )
+        for stage, fit in self.fits.items():
+            faces = self.body_meshes[stage][1]
+            for k in np.flatnonzero(fit.present.any(1)):
+                rec.log(
+                    f"world/bodies/{stage}/{k}",
+                    rr.Mesh3D.from_fields(
+                        triangle_indices=faces, albedo_factor=body_color(stage, int(k))
+                    ),
+                    static=True,
+                )
+        for name, seq in self.extra.items():
+            rec.log(
+                f"world/meshes/{name}",
+                rr.Mesh3D.from_fields(
+                    triangle_indices=np.asarray(seq.faces, np.uint32), albedo_factor=seq.color
+                ),
+                static=True,
+            )
+
+    # ------------------------------------------------------------------ frames
+
+    def gt_mesh_vertices(self) -> np.ndarray | None:
+        """(num_gt_rows, V', 3) float32 world METRES of every GT row's decimated mesh,
+        skinned in batches on first use (None without meshes)."""
+        if not self.has_meshes:
+            return None
+        if self._mesh_vertices is None:
+            gt, keep = self.scene.gt, self.mesh_keep
+            out = np.empty((len(gt.frame), len(keep), 3), np.float32)
+            with torch.no_grad():
+                for a in range(0, len(out), 128):
+                    b = min(a + 128, len(out))
+                    v = skin_subset(self.body_model, gt.smpl_pose[a:b], gt.smpl_betas[a:b], keep)
+                    out[a:b] = v + gt.transl[a:b, None, :] * MM_TO_M
+            self._mesh_vertices = out
+        return self._mesh_vertices
+
+    def body_vertices(self, stage: str, tracks: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """(N, V', 3) float32 world METRES: the display mesh of the ``stage`` fit of
+        ``tracks[i]`` at ``frames[i]`` (present person-frames), skinned in batches."""
+        fit, (keep, _) = self.fits[stage], self.body_meshes[stage]
+        out = np.empty((len(tracks), len(keep), 3), np.float32)
+        with torch.no_grad():
+            for a in range(0, len(out), 128):
+                k, f = tracks[a : a + 128], frames[a : a + 128]
+                v = skin_subset(fit.model, fit.pose_rotvecs[k, f], fit.betas[k], keep)
+                out[a : a + len(k)] = v + fit.transl[k, f][:, None, :] * MM_TO_M
+        return out
+
+    def set_time(self, frame: int) -> None:
+        self.rec.set_time("frame", sequence=int(frame))
+        self.rec.set_time("time", duration=int(frame) / self.scene.fps)
+
+    def log_frame(
+        self,
+        frame: int,
+        *,
+        images: Mapping[str, ImageLike | None] | None = None,
+        gt_meshes: bool = True,
+        bodies: bool = True,
+        filter_b: np.ndarray | None = None,
+    ) -> None:
+        """Set the time to ``frame`` and log its per-frame entities.
+
+        Args:
+            images: camera name -> JPEG bytes already at the pinhole's size, or a BGR
+                image (resized and encoded here); cameras left out log no image.
+            gt_meshes: log the GT meshes' vertices (the export sends them as columns).
+            bodies: log the fitted bodies' vertices (the export sends them as columns).
+            filter_b: (K, F, J, 3) mm, a second filter's tracks, logged at
+                ``world/skeletons/filter_b/<track>``.
+        """
+        f, logger, res, layout = int(frame), self._frames, self.results, self.layout
+        self.set_time(f)
+        for name, img in (images or {}).items():
+            if img is None:
+                continue
+            if not isinstance(img, bytes | bytearray | memoryview):
+                w, h, _ = self.cam_size[name]
+                img = encode_jpeg(img, w, h, quality=self.jpeg_quality)
+            logger.log(
+                f"world/cameras/{name}/image",
+                rr.EncodedImage(contents=bytes(img), media_type="image/jpeg"),
+            )
+        _log_detections(logger, self.scene, res, layout, self.cam_size, self.rows_by_frame.get(f))
+        _log_skeletons(logger, res, layout, res.track_filtered, f)
+        if filter_b is not None:
+            for k in range(res.num_tracks):
+                pts = _points3d(filter_b[k, f], layout.filtered(k), 0.016)
+                if pts is not None:
+                    logger.log(f"world/skeletons/filter_b/{k}", pts)
+        _log_rays(logger, self.scene, res, self.person_by_frame.get(f))
+        gt = self.scene.gt
+        if gt is not None and f in self.gt_by_frame:
+            verts = self.gt_mesh_vertices() if gt_meshes else None
+            _log_gt(logger, gt, layout, self.gt_by_frame[f], verts)
+        for stage, fit in self.fits.items() if bodies else ():
+            ks = np.flatnonzero(fit.present[:, f])
+            if ks.size:
+                verts = self.body_vertices(stage, ks, np.full(ks.size, f))
+                for k, v in zip(ks, verts, strict=True):
+                    logger.log(
+                        f"world/bodies/{stage}/{k}", rr.Mesh3D.from_fields(vertex_positions=v)
+                    )
+        for name, seq in self.extra.items():
+            i = self._extra_rows[name].get(f)
+            if i is not None:
+                logger.log(
+                    f"world/meshes/{name}",
+                    rr.Mesh3D.from_fields(vertex_positions=np.asarray(seq.vertices[i])),
+                )
+        logger.end_frame()
+
+    # ------------------------------------------------------------------ columns
+
+    def send_gt_meshes(self, frame_ids: np.ndarray) -> None:
+        """Every GT mesh's vertices over ``frame_ids`` as one column per person
+        (``send_columns``); a frame where the person is absent gets an empty mesh."""
+        verts = self.gt_mesh_vertices()
+        gt = self.scene.gt
+        if verts is None:
+            return
+        fps = self.scene.fps
+        for p in self.layout.gt_people:
+            row_of = {int(gt.frame[i]): i for i in np.flatnonzero(gt.person_id == p)}
+            present = np.array([int(f) in row_of for f in frame_ids])
+            if not present.any():
+                continue
+            # from the first frame with the person: empty partitions where it is absent
+            fr = np.asarray(frame_ids)[int(np.argmax(present)) :]
+            rows = [row_of[int(f)] for f in fr if int(f) in row_of]
+            lengths = np.array([verts.shape[1] if int(f) in row_of else 0 for f in fr])
+            _send_mesh_column(self.rec, f"world/meshes/gt/{p}", fr, verts[rows], lengths, fps)
+
+    def send_bodies(self, frame_ids: np.ndarray) -> None:
+        """Every fitted body's vertices over ``frame_ids`` as one column per (stage,
+        track), as :meth:`send_gt_meshes`."""
+        frame_ids = np.asarray(frame_ids, np.int64)
+        for stage, fit in self.fits.items():
+            present = fit.present[:, frame_ids]  # (K, F')
+            ks, cols = np.nonzero(present)
+            if ks.size == 0:
+                continue
+            verts = self.body_vertices(stage, ks, frame_ids[cols])
+            n = verts.shape[1]
+            for k in np.unique(ks):
+                pk = present[k]
+                fr = frame_ids[int(np.argmax(pk)) :]
+                lengths = np.where(pk[int(np.argmax(pk)) :], n, 0)
+                _send_mesh_column(self.rec, f"world/bodies/{stage}/{k}", fr, verts[ks == k],
+                                  lengths, self.scene.fps)  # fmt: skip
+
+    def send_plots(
+        self,
+        frame_ids: np.ndarray | None = None,
+        *,
+        branch: str = "",
+        filtered: np.ndarray | None = None,
+        mahalanobis: np.ndarray | None = None,
+    ) -> None:
+        """The time series (see the module docstring) as columns; a ``branch`` with
+        ``filtered`` (K, F, J, 3) mm and ``mahalanobis`` (K, F, J) is a second filter
+        (its raw input and counts are the results' own and are left out)."""
+        frame_ids = np.arange(self.scene.num_frames) if frame_ids is None else frame_ids
+        other_filter = filtered is not None
+        _log_plots(
+            self.rec, self.scene, self.results, frame_ids, self.plot_idx,
+            self.person_by_frame, self.gt_by_frame, branch=branch, filtered=filtered,
+            mahalanobis=mahalanobis, raw=not other_filter, counts=not other_filter,
+        )  # fmt: skip

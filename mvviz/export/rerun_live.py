@@ -1,0 +1,338 @@
+"""Rerun live beside viser: ``python app.py --rerun [--rerun-port P]``.
+
+:class:`RerunWebServer` starts rerun's own web viewer and gRPC server from the
+rerun-sdk package (``python -m rerun --serve-web``, nothing downloaded), bound to
+127.0.0.1 like viser: the web viewer on port P, the gRPC proxy on P + 1.
+:class:`LiveRerun` logs the viewer's state into it with the layout of :mod:`mvviz.export.rerun`:
+
+- at start the static context (cameras as Pinhole + Transform3D, the skeleton
+  AnnotationContext, the blueprint) and the time series of the results;
+- each frame the timeline visits: images (the viewer's stored JPEGs, not re-encoded),
+  2D joints, rays, raw / filtered / GT skeletons, GT meshes, the fitted SMPL bodies
+  (step I and SMPL + VAE, decimated), filter B's skeletons;
+- every re-run of the Pipeline panel (new results) as a branch ``_run<n>`` and every
+  filter B change as a branch ``_b<n>`` of the time series (see :mod:`mvviz.export.rerun`).
+
+The logging runs on its own thread through a "latest wins" slot: the render thread only
+stores the newest frame (``state_changed`` callback, microseconds), frames visited while
+one is being logged are dropped, never queued; and the logger waits while the viewer
+renders, so it does not hold the GIL against a frame change; it and rerun's server run
+at a lower CPU priority (nice 10) than the viewer.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+from urllib.parse import quote
+
+import numpy as np
+import rerun as rr
+import torch
+
+from mvviz.export.rerun import APP_ID, SceneLogger, make_blueprint
+
+if TYPE_CHECKING:
+    from mvviz.app import ViewerApp
+
+DEFAULT_WEB_PORT = 9090
+POLL_S = 0.25  # how often the logger looks at filter B and the stop flag
+NICE = 10  # the logging thread and rerun's server yield the CPU to the viewer
+SERVER_MEMORY_LIMIT = "1GiB"  # the gRPC server's buffer for late viewers (oldest dropped)
+
+
+def _lower_priority() -> None:
+    os.nice(NICE)  # the viewer's frame changes first
+
+
+def port_is_free(host: str, port: int) -> bool:
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+class RerunWebServer:
+    """rerun's web viewer (``web_port``) and gRPC server (``web_port + 1``) in a child
+    process (``python -m rerun --serve-web --bind HOST``); a taken port moves both to
+    free ones. :meth:`stop` ends the child."""
+
+    def __init__(self, *, host: str = "127.0.0.1", web_port: int = DEFAULT_WEB_PORT) -> None:
+        self.host = host
+        if not (port_is_free(host, web_port) and port_is_free(host, web_port + 1)):
+            web_port, grpc_port = free_port(host), free_port(host)
+        else:
+            grpc_port = web_port + 1
+        self.web_port, self.grpc_port = web_port, grpc_port
+        cmd = [
+            sys.executable, "-m", "rerun", "--serve-web", "--bind", host,
+            "--web-viewer-port", str(web_port), "--port", str(grpc_port),
+            "--server-memory-limit", SERVER_MEMORY_LIMIT, "--hide-welcome-screen",
+        ]  # fmt: skip
+        self.process = subprocess.Popen(
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+            preexec_fn=_lower_priority if os.name == "posix" else None,
+        )  # fmt: skip
+        self._wait_listening(30.0)
+
+    def _wait_listening(self, timeout: float) -> None:
+        end = time.monotonic() + timeout
+        for port in (self.grpc_port, self.web_port):
+            while True:
+                if self.process.poll() is not None:
+                    raise RuntimeError(f"rerun server exited with code {self.process.returncode}")
+                try:
+                    with socket.create_connection((self._connect_host, port), timeout=0.5):
+                        break
+                except OSError:
+                    if time.monotonic() > end:
+                        self.stop()
+                        raise TimeoutError(f"rerun server not listening on port {port}") from None
+                    time.sleep(0.1)
+
+    @property
+    def _connect_host(self) -> str:
+        return "127.0.0.1" if self.host in ("0.0.0.0", "::", "") else self.host
+
+    @property
+    def grpc_uri(self) -> str:
+        return f"rerun+http://{self._connect_host}:{self.grpc_port}/proxy"
+
+    @property
+    def url(self) -> str:
+        """The web viewer, connected to the gRPC server."""
+        return f"http://{self._connect_host}:{self.web_port}/?url={quote(self.grpc_uri, safe='')}"
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(5)
+
+
+class LiveRerun:
+    """Logs what a :class:`~mvviz.app.ViewerApp` shows into a rerun recording, live.
+
+    Args:
+        app: the running viewer.
+        server: where the recording streams (None: no gRPC sink).
+        save: also write the same stream to this ``.rrd`` file.
+        recording: log into this stream instead of a new one (its sinks are kept when
+            neither ``server`` nor ``save`` is given).
+
+    Attributes (for tests and the benchmark): ``logged`` frames logged, ``dropped``
+    frames visited but skipped, ``last_frame`` the last one logged, ``branches`` the
+    branch names logged, ``log_ms`` the last frame's logging time, ``errors``.
+    """
+
+    def __init__(
+        self,
+        app: ViewerApp,
+        *,
+        server: RerunWebServer | None = None,
+        save: str | Path | None = None,
+        recording: rr.RecordingStream | None = None,
+    ) -> None:
+        self.app, self.server = app, server
+        self._sink_args = (recording, save)
+        self.rec: rr.RecordingStream | None = None
+        self._ready = threading.Event()
+        self.logged = self.dropped = 0
+        self.branches: list[str] = []
+        self.log_ms = 0.0
+        self.last_frame: int | None = None
+        self.errors: list[str] = []
+        self._cv = threading.Condition()
+        self._want: tuple[int, object] | None = None  # (frame, ViewerData) to log next
+        self._new_results = False
+        self._busy = False
+        self._closed = threading.Event()
+        self._logger: SceneLogger | None = None
+        self._results = None
+        self._runs = self._b_runs = 0
+        self._b_seen = None
+        self._b_shown: np.ndarray | None = None
+        st = app.state
+        self._want = (st.frame, st.data)
+        self._thread = threading.Thread(target=self._loop, name="mvviz-rerun", daemon=True)
+        self._thread.start()
+        self._ready.wait(30)
+        app.state_changed.append(self._on_state_changed)
+
+    # ------------------------------------------------------------------ public
+
+    def wait_idle(self, timeout: float = 30.0) -> bool:
+        """Block until the newest visited frame and results are logged."""
+        end = time.monotonic() + timeout
+        with self._cv:
+            while self._want is not None or self._busy or self._new_results:
+                left = end - time.monotonic()
+                if left <= 0 or self._closed.is_set():
+                    return False
+                self._cv.wait(min(left, 0.05))
+        return True
+
+    def close(self) -> None:
+        """Stop logging, flush and close the sinks (the file gets its footer)."""
+        if self.on_state_changed_attached:
+            self.app.state_changed.remove(self._on_state_changed)
+        self._closed.set()
+        with self._cv:
+            self._cv.notify_all()
+        self._thread.join(timeout=10)
+        if self.rec is not None:
+            self.rec.flush()
+            self.rec.disconnect()
+
+    @property
+    def on_state_changed_attached(self) -> bool:
+        return self._on_state_changed in self.app.state_changed
+
+    # ------------------------------------------------------------------ render thread
+
+    def _on_state_changed(self, st, reason: str) -> None:
+        """Render thread: remember the newest frame (and new results); nothing else."""
+        with self._cv:
+            if self._want is not None:
+                self.dropped += 1
+            self._want = (st.frame, st.data)
+            if "results" in reason.split(","):
+                self._new_results = True
+            self._cv.notify_all()
+
+    # ------------------------------------------------------------------ logging thread
+
+    def _pause(self) -> None:
+        """Wait while the viewer renders a frame (its render lock is held)."""
+        lock = self.app._render_lock
+        t0 = time.monotonic()
+        while lock.locked() and time.monotonic() - t0 < 0.5:
+            time.sleep(0.001)
+
+    def _open(self) -> None:
+        """On the logging thread, at a lower CPU priority (Linux nice is per thread): so
+        are the encoder and sink threads rerun starts here, which inherit it."""
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICE)
+        except (AttributeError, OSError):
+            pass
+        # One intra-op thread for this thread's skinning (GT meshes, fitted bodies): on 2
+        # busy cores two spinning threads made a frame's bodies up to ~30x slower (230 vs
+        # 8 ms). With torch's OpenMP backend the setting is mostly per thread; where it
+        # is not, the viewer's other torch work (skinning on load, the Pipeline panel's
+        # re-runs, whose fits set their own threads) runs on one thread as well.
+        torch.set_num_threads(1)
+        recording, save = self._sink_args
+        try:
+            self.rec = recording if recording is not None else rr.RecordingStream(APP_ID)
+            sinks = []
+            if self.server is not None:
+                sinks.append(rr.GrpcSink(self.server.grpc_uri))
+            if save is not None:
+                sinks.append(rr.FileSink(str(save)))
+            if sinks:
+                self.rec.set_sinks(*sinks)
+        finally:
+            self._ready.set()
+
+    def _loop(self) -> None:
+        self._open()
+        try:
+            self.rec.send_blueprint(make_blueprint(self.app.state.scene.rig.names))
+        except Exception as exc:
+            self.errors.append(f"blueprint: {exc}")
+        while not self._closed.is_set() and not self.app._stopped.is_set():
+            with self._cv:
+                if self._want is None and not self._new_results:
+                    self._cv.wait(POLL_S)
+                want, self._want = self._want, None
+                new_results, self._new_results = self._new_results, False
+                self._busy = True
+            try:
+                if want is not None:
+                    self._log(want[0], want[1], new_results)
+                self._check_filter_b()
+            except Exception as exc:  # keep logging the next frames
+                self.errors.append(f"{type(exc).__name__}: {exc}")
+                print(f"mvviz view: rerun logging failed: {self.errors[-1]}")
+            finally:
+                with self._cv:
+                    self._busy = False
+                    self._cv.notify_all()
+
+    def _log(self, frame: int, data, new_results: bool) -> None:
+        results = data.results
+        if results is not self._results:
+            first = self._results is None
+            model = getattr(self.app, "model", None) if data.bodies is not None else None
+            self._logger = SceneLogger(
+                data.scene, results, self.rec, body_model=model,
+                image_width=self._image_width(), sparse=True, pause=self._pause,
+            )  # fmt: skip
+            self._logger.log_static()
+            self._results = results
+            if first or new_results:
+                branch = "" if first else f"_run{self._runs + 1}"
+                self._runs += 0 if first else 1
+                self._logger.send_plots(branch=branch)
+                self.branches.append(branch or "base")
+            self._b_seen = None  # B re-filters on the new results
+            self._b_shown = None
+        t0 = time.perf_counter()
+        frames = self.app.frames
+        images = {}
+        if frames is not None:
+            for cam in data.scene.rig.names:
+                jpeg = frames.jpeg(cam, frame)
+                if jpeg is None:
+                    rgb = frames.frame(cam, frame)
+                    jpeg = None if rgb is None else np.ascontiguousarray(rgb[..., ::-1])
+                images[cam] = jpeg
+        self._logger.log_frame(frame, images=images, filter_b=self._b_shown)
+        self.log_ms = (time.perf_counter() - t0) * 1e3
+        self.logged += 1
+        self.last_frame = frame
+
+    def _image_width(self) -> int:
+        frames = self.app.frames
+        return frames.width if frames is not None else 640
+
+    def _check_filter_b(self) -> None:
+        """A new filter B run (not equal to A): its filtered tracks as a branch."""
+        fp = getattr(self.app, "filter_panel", None)
+        logger = self._logger
+        if fp is None or logger is None:
+            return
+        run_b, run_a = fp.run_b, fp.run_a
+        if run_b is None or run_b is self._b_seen:
+            return
+        self._b_seen = run_b
+        if run_b.params == run_a.params or run_b.shown.shape != self._results.track_raw.shape:
+            self._b_shown = None
+            return
+        self._b_runs += 1
+        branch = f"_b{self._b_runs}"
+        logger.send_plots(branch=branch, filtered=run_b.shown, mahalanobis=run_b.mahalanobis)
+        self._b_shown = run_b.shown
+        self.branches.append(branch)
+        with self._cv:  # redraw the current frame with B's skeletons
+            if self._want is None:
+                st = self.app.state
+                self._want = (st.frame, st.data)

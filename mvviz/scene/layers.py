@@ -1,0 +1,426 @@
+"""The viser scene nodes of every layer, created once; a frame change assigns a
+:class:`~mvviz.scene.geometry.FrameGeometry` to them.
+
+The scene tree is the layer system (hiding a parent hides its children)::
+
+    /world/grid
+    /world/cameras/<name>/frustum       current video frame on the image plane
+    /world/cameras/<name>/label
+    /world/detections2d/<name>          2D joints drawn on that frustum's image plane
+    /world/rays                         camera centre -> used 2D joint (outliers in red)
+    /world/skeletons/raw/<track>        triangulated, before filtering (thin, pale)
+    /world/skeletons/filtered/<track>   Kalman output (solid, clickable joints)
+    /world/skeletons/gt/<person>        ground truth (neutral colour)
+    /world/skeletons/reference/<name>/{bones,joints}  another tool's result (grey)
+    /world/trails/<track>/{raw,filtered}  selected joint over +-N frames
+    /world/meshes/gt/<person>           ground-truth body, skinned in the browser
+    /world/meshes/fit/<track>           fitted SMPL body (SMPL + VAE), skinned likewise
+
+Metres, like :mod:`mvviz.scene.geometry`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+import viser
+
+from mvviz.scene.decimate import DISPLAY_CELL_M, WIREFRAME_CELL_M, decimate_bodies
+from mvviz.scene.geometry import (
+    FRUSTUM_JPEG_QUALITY,
+    GT_MESH,
+    GT_SKELETON,
+    MESH_OPACITY,
+    OFFSET_FILTERED_M,
+    OUTLIER,
+    REFERENCE_SKELETON,
+    SELECTED_CAMERA,
+    UNASSIGNED,
+    UNTRACKED,
+    FrameGeometry,
+    LayerToggles,
+    Selection,
+    ViewerData,
+    pale,
+    track_color,
+)
+from mvviz.scene.skinned import BonePoser
+
+# --------------------------------------------------------------------------- viser nodes
+
+FRUSTUM_COLOR = (60, 60, 60)
+
+
+def _icosphere(radius: float) -> tuple[np.ndarray, np.ndarray]:
+    s = trimesh.creation.icosphere(subdivisions=1, radius=radius)
+    return np.asarray(s.vertices, np.float32), np.asarray(s.faces, np.uint32)
+
+
+def _set_segments(
+    handle: viser.LineSegmentsHandle, segments: np.ndarray, colors: np.ndarray | None
+) -> None:
+    """Show ``segments`` (S, 2, 3) coloured by ``colors`` ((3,), (S, 3) or (S, 2, 3), sent
+    per vertex; None keeps the node's uniform colour); hide the node when there are none.
+    """
+    if len(segments) == 0:
+        handle.visible = False
+        return
+    handle.points = segments.astype(np.float32)
+    if colors is not None:
+        c = np.asarray(colors, np.uint8)
+        if c.shape == (len(segments), 3):
+            c = c[:, None]
+        handle.colors = np.ascontiguousarray(np.broadcast_to(c, segments.shape))
+    handle.visible = True
+
+
+_EMPTY_SEG = np.zeros((1, 2, 3), np.float32)  # placeholder until the first frame
+_EMPTY_COLORS = np.zeros((1, 2, 3), np.uint8)
+_NO_SEG = np.zeros((0, 2, 3))
+
+
+@dataclass
+class SceneLayers:
+    """The viser scene nodes of every layer, created once; a frame change only assigns
+    properties (points, colours, bone poses, images, visibility)."""
+
+    server: viser.ViserServer
+    data: ViewerData
+    on_joint_click: Callable[[int, int], None] | None = None
+    groups: dict[str, viser.SceneNodeHandle] = field(default_factory=dict)
+    nodes: dict[str, viser.SceneNodeHandle] = field(default_factory=dict)
+    colors: dict[str, np.ndarray | None] = field(default_factory=dict)  # single-colour lines
+    gt_ids: list[int] = field(default_factory=list)
+    meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
+    fit_meshes: dict[int, viser.MeshSkinnedHandle] = field(default_factory=dict)
+    bone_posers: dict[str, BonePoser] = field(default_factory=dict)  # by mesh name
+    mesh_detail: dict[str, str] = field(default_factory=dict)  # kind -> detail drawn
+    _display_bodies: dict[tuple[str, str], object] = field(default_factory=dict)
+    fast_bones: bool | None = None  # None: the bulk path when viser has its internals
+    _frustum_key: dict[str, object] = field(default_factory=dict)
+    _selected: tuple[int | None, int] = (None, -1)
+    highlighted: str | None = None  # the camera shown in the camera panel
+
+    def _lines(self, path: str, color, thickness: float, units: str = "screen") -> None:
+        """A hidden line-segments node at ``path``.
+
+        viser 1.1's client shares line shaders between lines that differ only in having
+        per-vertex colours, so one kind per thickness unit: screen-space lines are always
+        coloured per vertex, world-unit lines (with their antialiasing fringe pass)
+        always uniformly; otherwise some lines come out white or washed out.
+        """
+        world = units == "world"
+        self.nodes[path] = self.server.scene.add_line_segments(
+            path, _EMPTY_SEG, color if world else _EMPTY_COLORS, thickness=thickness,
+            thickness_units=units, visible=False,
+        )  # fmt: skip
+        self.colors[path] = None if world else np.asarray(color, np.uint8)
+
+    def __post_init__(self) -> None:
+        scene, data = self.server.scene, self.data
+        group = lambda path: self.groups.setdefault(  # noqa: E731
+            path, scene.add_frame(path, show_axes=False)
+        )
+        group("/world")
+        r = max(6.0, 2.5 * data.extent)
+        self.groups["/world/grid"] = scene.add_grid(
+            "/world/grid", width=r, height=r, cell_size=0.5, section_size=1.0, plane="xy"
+        )
+        for path in (
+            "/world/cameras",
+            "/world/detections2d",
+            "/world/skeletons",
+            "/world/skeletons/raw",
+            "/world/skeletons/filtered",
+            "/world/skeletons/gt",
+            "/world/skeletons/reference",
+            "/world/trails",
+            "/world/meshes",
+            "/world/meshes/gt",
+            "/world/meshes/fit",
+        ):
+            group(path)
+        for cam in data.cameras:
+            base = f"/world/cameras/{cam.name}"
+            self.groups[base] = scene.add_frame(
+                base, show_axes=False, wxyz=cam.wxyz, position=cam.position
+            )
+            self.nodes[f"{base}/frustum"] = scene.add_camera_frustum(
+                f"{base}/frustum",
+                fov=cam.fov,
+                aspect=cam.aspect,
+                scale=cam.frustum_scale,
+                thickness=1.5,
+                thickness_units="screen",
+                color=FRUSTUM_COLOR,
+                jpeg_quality=FRUSTUM_JPEG_QUALITY,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+            self.nodes[f"{base}/label"] = scene.add_label(
+                f"{base}/label", cam.name, anchor="bottom-center"
+            )
+            d2 = f"/world/detections2d/{cam.name}"
+            self.groups[d2] = scene.add_frame(
+                d2, show_axes=False, wxyz=cam.wxyz, position=cam.position
+            )
+            self.nodes[f"{d2}/joints"] = scene.add_point_cloud(
+                f"{d2}/joints",
+                np.zeros((1, 3), np.float32),
+                np.zeros((1, 3), np.uint8),
+                point_size=0.008,
+                point_shape="circle",
+                # camera-frame metres on a plane 0.6 m ahead: float16 steps stay under a pixel
+                precision="float16",
+                visible=False,
+            )
+            self._lines(f"{d2}/bones", UNASSIGNED, 1.5)
+        group("/world/rays")
+        self._lines("/world/rays/used", UNTRACKED, 1.6)
+        self._lines("/world/rays/outliers", OUTLIER, 2.5)
+        J = data.joint_set.num_joints
+        sv, sf = _icosphere(0.025)
+        for k in range(data.num_tracks):
+            col = track_color(k)
+            raw = f"/world/skeletons/raw/{k}"
+            self._lines(f"{raw}/bones", pale(col, 0.45), 2.0)
+            self.nodes[f"{raw}/joints"] = scene.add_point_cloud(
+                f"{raw}/joints", np.zeros((1, 3), np.float32), pale(col, 0.45),
+                point_size=0.03, point_shape="circle", precision="float32", visible=False,
+            )  # fmt: skip
+            filt = f"/world/skeletons/filtered/{k}"
+            self._lines(f"{filt}/bones", col, 0.022, "world")
+            joints = scene.add_batched_meshes_simple(
+                f"{filt}/joints",
+                sv,
+                sf,
+                batched_wxyzs=np.tile([1.0, 0, 0, 0], (max(J, 1), 1)),
+                batched_positions=np.zeros((max(J, 1), 3)),
+                batched_colors=col,
+                lod="off",
+                cast_shadow=False,
+                visible=False,
+            )
+            self.nodes[f"{filt}/joints"] = joints
+            joints.on_click(self._click_handler(k))
+            self._lines(f"/world/trails/{k}/raw", pale(col, 0.45), 2.0)
+            self._lines(f"/world/trails/{k}/filtered", col, 3.5)
+        if data.gt_points is not None:
+            self.gt_ids = [int(p) for p in np.unique(data.scene.gt.person_id)]
+        for pid in self.gt_ids:
+            self._lines(f"/world/skeletons/gt/{pid}", GT_SKELETON, 0.012, "world")
+        for name in data.scene.references:
+            ref = group(f"/world/skeletons/reference/{name}")
+            self._lines(f"{ref.name}/bones", REFERENCE_SKELETON, 0.014, "world")
+            self.nodes[f"{ref.name}/joints"] = scene.add_point_cloud(
+                f"{ref.name}/joints", np.zeros((1, 3), np.float32), REFERENCE_SKELETON,
+                point_size=0.03, point_shape="circle", precision="float32", visible=False,
+            )  # fmt: skip
+
+    @staticmethod
+    def mesh_version(lay: LayerToggles, kind: str) -> str:
+        """Which mesh ``kind`` is drawn with under ``lay``: "full", "decimated" or
+        "coarse" (decimated for a wireframe, which software WebGL draws slowly)."""
+        if lay.mesh_detail == "full":
+            return "full"
+        return "coarse" if SceneLayers.mesh_style(lay, kind) == "wireframe" else "decimated"
+
+    @staticmethod
+    def mesh_style(lay: LayerToggles, kind: str) -> str:
+        """The style of ``kind``'s bodies: the chosen one, but with both mesh layers on
+        and solid the ground truth is translucent (two opaque bodies in one place
+        z-fight into speckle)."""
+        if kind == "gt" and lay.mesh_style == "solid" and lay.meshes and lay.fit_meshes:
+            return "translucent"
+        return lay.mesh_style
+
+    def display_bodies(self, kind: str, version: str):
+        """The bodies of ``kind`` ("gt" or "fit") as drawn: ``version`` "full", or
+        "decimated" / "coarse" (:func:`mvviz.scene.decimate.decimate_bodies`, computed once)."""
+        b = self.data.bodies if kind == "gt" else self.data.fit_bodies
+        if b is None or version == "full":
+            return b
+        key = (kind, version)
+        if key not in self._display_bodies:
+            cell = WIREFRAME_CELL_M if version == "coarse" else DISPLAY_CELL_M
+            self._display_bodies[key] = decimate_bodies(b, cell=cell)
+        return self._display_bodies[key]
+
+    def _ensure_meshes(self, kind: str, detail: str = "decimated") -> None:
+        """Create the skinned meshes of ``kind`` ("gt" or "fit") the first time their
+        layer is shown, or again at another ``detail``: each full body is ~0.8 MB to the
+        browser (vertices, faces, skin weights; decimated ~0.15 MB), so a page whose
+        mesh layers are off loads that much less. A re-creation reuses the names, so
+        viser replaces the nodes in place."""
+        b = self.display_bodies(kind, detail)
+        store = self.meshes if kind == "gt" else self.fit_meshes
+        if b is None or (store and self.mesh_detail.get(kind) == detail):
+            return
+        self.mesh_detail[kind] = detail
+        ident = np.tile([1.0, 0, 0, 0], (24, 1))
+        for i, pid in enumerate(b.ids):
+            color = GT_MESH if kind == "gt" else tuple(int(c) for c in track_color(int(pid)))
+            store[int(pid)] = self.server.scene.add_mesh_skinned(
+                f"/world/meshes/{kind}/{pid}",
+                b.vertices[i],
+                b.faces,
+                bone_wxyzs=ident,
+                bone_positions=b.rest_joints[i],
+                skin_weights=b.weights,
+                color=color,
+                # Opaque unless asked ("translucent": see set_mesh_style)
+                opacity=None,
+                cast_shadow=False,
+                receive_shadow=False,
+                visible=False,
+            )
+
+    def remove(self) -> None:
+        """Remove every node this object created (children before parents)."""
+        handles = list(self.meshes.values()) + list(self.fit_meshes.values())
+        handles += list(self.nodes.values())
+        handles += sorted(self.groups.values(), key=lambda h: -h.name.count("/"))
+        for h in handles:
+            h.remove()
+
+    def _click_handler(self, track: int):
+        def handler(event: viser.SceneNodePointerEvent) -> None:
+            if self.on_joint_click is not None and event.instance_index is not None:
+                self.on_joint_click(track, int(event.instance_index))
+
+        return handler
+
+    # ------------------------------------------------------------------ updates
+
+    def _update(self, path: str, segments: np.ndarray) -> None:
+        _set_segments(self.nodes[path], segments, self.colors[path])
+
+    def set_mesh_style(self, lay: LayerToggles) -> None:
+        """Solid, translucent or wireframe bodies (see :meth:`mesh_style`)."""
+        for kind, store in (("gt", self.meshes), ("fit", self.fit_meshes)):
+            style = self.mesh_style(lay, kind)
+            for mesh in store.values():
+                mesh.wireframe = style == "wireframe"
+                mesh.opacity = MESH_OPACITY if style == "translucent" else None
+
+    def set_visibility(self, lay: LayerToggles) -> None:
+        if lay.meshes:
+            self._ensure_meshes("gt", self.mesh_version(lay, "gt"))
+        if lay.fit_meshes:
+            self._ensure_meshes("fit", self.mesh_version(lay, "fit"))
+        self.set_mesh_style(lay)
+        g = self.groups
+        g["/world/grid"].visible = lay.grid
+        g["/world/cameras"].visible = lay.cameras
+        g["/world/detections2d"].visible = lay.detections2d
+        g["/world/rays"].visible = lay.rays
+        g["/world/skeletons/raw"].visible = lay.raw
+        g["/world/skeletons/filtered"].visible = lay.filtered
+        g["/world/skeletons/gt"].visible = lay.gt
+        for name in self.data.scene.references:
+            g[f"/world/skeletons/reference/{name}"].visible = name not in lay.references_off
+        g["/world/trails"].visible = lay.trails
+        g["/world/meshes"].visible = lay.meshes or lay.fit_meshes
+        g["/world/meshes/gt"].visible = lay.meshes
+        g["/world/meshes/fit"].visible = lay.fit_meshes
+        offset = OFFSET_FILTERED_M if lay.offset_filtered else np.zeros(3)
+        g["/world/skeletons/filtered"].position = offset
+        for cam in self.data.cameras:
+            self.nodes[f"/world/cameras/{cam.name}/label"].visible = lay.camera_labels
+        for k in range(self.data.num_tracks):
+            self.nodes[f"/world/trails/{k}/filtered"].position = offset
+
+    def highlight_camera(self, name: str) -> None:
+        """Draw camera ``name``'s frustum (the camera panel's camera) thick and in
+        :data:`SELECTED_CAMERA`, its label marked; the others as before."""
+        if name == self.highlighted:
+            return
+        for cam in self.data.cameras:
+            on = cam.name == name
+            frustum = self.nodes[f"/world/cameras/{cam.name}/frustum"]
+            frustum.color = tuple(int(c) for c in SELECTED_CAMERA) if on else FRUSTUM_COLOR
+            frustum.thickness = 4.0 if on else 1.5
+            label = self.nodes[f"/world/cameras/{cam.name}/label"]
+            label.text = f"▶ {cam.name}" if on else cam.name
+        self.highlighted = name
+
+    def set_frustum_images(self, images: dict[str, tuple[object, np.ndarray | None]]) -> None:
+        """``images``: camera name -> (key, RGB image or None); re-encoded only when the key
+        (e.g. ``(frame, width)``) changes."""
+        for name, (key, img) in images.items():
+            if self._frustum_key.get(name) == key:
+                continue
+            self._frustum_key[name] = key
+            self.nodes[f"/world/cameras/{name}/frustum"].image = img
+
+    def apply(self, geom: FrameGeometry, selection: Selection) -> None:
+        """Assign one frame's geometry to the nodes (call inside ``server.atomic()``)."""
+        data, nodes = self.data, self.nodes
+        for cam in data.cameras:
+            d = geom.detections2d.get(cam.name)
+            pc = nodes[f"/world/detections2d/{cam.name}/joints"]
+            if d is None or len(d.points) == 0:
+                pc.visible = False
+            else:
+                pc.points = d.points.astype(np.float16)
+                pc.colors = d.colors
+                pc.visible = True
+            seg = d.segments if d is not None else _NO_SEG
+            cols = d.segment_colors if d is not None else UNASSIGNED
+            _set_segments(nodes[f"/world/detections2d/{cam.name}/bones"], seg, cols)
+        if geom.rays is not None:
+            r = geom.rays
+            used = ~r.outlier
+            _set_segments(nodes["/world/rays/used"], r.segments[used], r.colors[used])
+            _set_segments(nodes["/world/rays/outliers"], r.segments[r.outlier], OUTLIER)
+        J = data.joint_set.num_joints
+        for k in range(data.num_tracks):
+            raw, filt = f"/world/skeletons/raw/{k}", f"/world/skeletons/filtered/{k}"
+            s = geom.raw.get(k)
+            self._update(f"{raw}/bones", s.segments if s else _NO_SEG)
+            pc = nodes[f"{raw}/joints"]
+            pts = s.joints[np.isfinite(s.joints).all(1)] if s else np.zeros((0, 3))
+            if len(pts):
+                pc.points = pts.astype(np.float32)
+            pc.visible = len(pts) > 0
+            s = geom.filtered.get(k)
+            self._update(f"{filt}/bones", s.segments if s else _NO_SEG)
+            jm = nodes[f"{filt}/joints"]
+            if s is None or J == 0:
+                jm.visible = False
+            else:
+                ok = np.isfinite(s.joints).all(1)
+                scales = np.where(ok, 1.0, 0.0)
+                if selection.track == k and 0 <= selection.joint < J:
+                    scales[selection.joint] *= 1.8
+                jm.batched_positions = np.where(ok[:, None], s.joints, 0.0).astype(np.float32)
+                jm.batched_scales = scales.astype(np.float32)
+                jm.visible = True
+            t = geom.trails.get(k)
+            for kind in ("raw", "filtered"):
+                seg = getattr(t, kind) if t is not None else _NO_SEG
+                self._update(f"/world/trails/{k}/{kind}", seg)
+        for pid in self.gt_ids:
+            s = geom.gt.get(pid)
+            self._update(f"/world/skeletons/gt/{pid}", s.segments if s else _NO_SEG)
+        for name in data.scene.references:
+            s, base = geom.references.get(name), f"/world/skeletons/reference/{name}"
+            self._update(f"{base}/bones", s.segments if s else _NO_SEG)
+            pts = s.joints[np.isfinite(s.joints).all(1)] if s else np.zeros((0, 3))
+            if len(pts):
+                nodes[f"{base}/joints"].points = pts.astype(np.float32)
+            nodes[f"{base}/joints"].visible = len(pts) > 0
+        for store, poses in ((self.meshes, geom.meshes), (self.fit_meshes, geom.fit_meshes)):
+            for pid, mesh in store.items():
+                bp = poses.get(pid)
+                if bp is None:
+                    mesh.visible = False
+                    continue
+                poser = self.bone_posers.get(mesh.name)
+                if poser is None or poser.mesh is not mesh:
+                    poser = self.bone_posers[mesh.name] = BonePoser(mesh, fast=self.fast_bones)
+                poser.pose(bp.wxyz, bp.position)
+                mesh.visible = True

@@ -1,0 +1,55 @@
+"""What the viewer shows, as one value: :class:`ViewerState` (data, frame, selection,
+layer toggles, camera, playback). The app and every panel read and change it; it holds
+no GUI handle and no server, so it can be built and checked without a browser.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from mvviz.scene.geometry import LayerToggles, Selection, ViewerData, prepare
+from pipeline.body_model import BodyModel
+from pipeline.results import PipelineResults
+from pipeline.scene import Scene
+
+# The camera panel's image: as wide as the panel (400 px) by default, so a frame change
+# sends ~12 kB for it; 640 px (the stored frames' width) for a sharper look.
+PANEL_WIDTHS = (400, 640)
+
+
+@dataclass
+class ViewerState:
+    """What the viewer shows: data, frame, selection, layer toggles, playback."""
+
+    data: ViewerData
+    frame: int = 0
+    selection: Selection = field(default_factory=Selection)
+    layers: LayerToggles = field(default_factory=LayerToggles)
+    camera: int = 0  # view shown in the image panel
+    panel_image_width: int = PANEL_WIDTHS[0]  # px of the image panel's picture
+    playing: bool = False
+    speed: float = 1.0
+    loop: bool = True
+
+    @property
+    def scene(self) -> Scene:
+        return self.data.scene
+
+    @property
+    def results(self) -> PipelineResults:
+        return self.data.results
+
+    @classmethod
+    def create(
+        cls, scene: Scene, results: PipelineResults, model: BodyModel | None = None
+    ) -> ViewerState:
+        data = prepare(scene, results, model)
+        names = data.joint_set.names
+        joint = next((names.index(n) for n in ("right_wrist", "left_wrist") if n in names), 0)
+        track = 0 if data.num_tracks else None
+        return cls(data=data, selection=Selection(track=track, joint=joint))
+
+    def snapshot(self) -> ViewerState:
+        """A copy safe to read while GUI callbacks keep mutating this one."""
+        return dataclasses.replace(self, layers=dataclasses.replace(self.layers))

@@ -1,0 +1,84 @@
+"""Every malformed input of the corpus (tests/pipeline/malformed.py) through the command
+line: exit code 2, one line naming the file and the field, no traceback, nothing
+written. And the other side of the rule: an unexpected error is one line, exit code 1,
+its traceback only with --debug."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mvviz import cli
+from mvviz.cli import main
+from tests.conftest import REPO
+from tests.pipeline.malformed import copy_scene, scene_cases, write_tiny_scene
+
+CASES = scene_cases()
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> Path:
+    return write_tiny_scene(tmp_path_factory.mktemp("tiny") / "scene")
+
+
+def _listing(root: Path) -> dict[str, float]:
+    return {str(p.relative_to(root)): p.stat().st_mtime for p in root.rglob("*")}
+
+
+def test_the_corpus_is_large_enough():
+    files = {c.file for c in CASES}
+    assert {"scene.json", "cameras.json", "detections.npz", "gt.npz", "--set"} <= files
+    assert len(CASES) >= 200
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+def test_malformed_input_is_one_line_exit_2_and_writes_nothing(case, tiny, tmp_path, capsys):
+    scene = copy_scene(tiny, tmp_path / "scene")
+    case.mutate(scene)
+    before = _listing(tmp_path)
+    args = [a.replace("{scene}", str(scene)) for a in case.args]
+    code = main(["run", str(scene), *args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert err.startswith("mvviz run: error: ") and case.file in err, err
+    if case.field is not None:
+        assert f"field '{case.field}" in err, err
+    assert _listing(tmp_path) == before  # nothing written, nothing touched
+
+
+def test_the_valid_tiny_scene_runs(tiny, tmp_path, capsys):
+    scene = copy_scene(tiny, tmp_path / "scene")
+    assert main(["run", str(scene), "--set", "fit_smpl=false"]) == 0
+    assert main(["run", str(scene), "--set", "disabled_views=0,1", "--set", "fit_smpl=false"]) == 0
+
+
+def test_an_unexpected_error_is_one_line_and_its_traceback_is_behind_debug(
+    tiny, monkeypatch, capsys
+):
+    def boom(scene):
+        raise TypeError("a bug")
+
+    monkeypatch.setattr("mvviz.cli.run.load_scene", boom)
+    assert main(["run", str(tiny)]) == 1
+    err = capsys.readouterr().err
+    assert err.strip() == (
+        "mvviz run: internal error: TypeError: a bug (run with --debug for the traceback)"
+    )
+    assert main(["run", str(tiny), "--debug"]) == 1
+    assert "Traceback" in capsys.readouterr().err
+    assert cli.INPUT_ERRORS  # documented in mvviz/cli/__init__.py
+
+
+def test_app_py_and_mvviz_exit_2_on_a_bad_scene(tmp_path):
+    """Real processes: the exit code and stderr a user sees."""
+    for argv in (["app.py", str(tmp_path)], ["-m", "mvviz.cli", "view", str(tmp_path)]):
+        proc = subprocess.run(
+            [sys.executable, *argv], cwd=REPO, capture_output=True, text=True, timeout=120
+        )
+        assert proc.returncode == 2, proc.stderr
+        assert "Traceback" not in proc.stderr
+        assert "scene.json: file not found" in proc.stderr

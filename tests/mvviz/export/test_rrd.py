@@ -1,0 +1,410 @@
+"""mvviz.export.rrd: a tiny synthetic scene exported to .rrd and read back."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from rerun.chunk import RrdReader
+
+from mvviz.cli import main
+from mvviz.export import rrd as rerun_export
+from mvviz.export.rrd import (
+    DEFAULT_PLOT_JOINTS,
+    ClassLayout,
+    decimate_mesh,
+    export_rrd,
+    read_rrd_summary,
+    resolve_plot_joint,
+    select_frames,
+)
+from pipeline.body_model import load_body_model
+from pipeline.joint_sets import COCO17
+from tests.mvviz.conftest import synth_campus_scene
+
+REPO = Path(__file__).resolve().parents[3]
+CAMPUS = REPO / "sample_data" / "rigs" / "campus_voxelpose.json"
+NUM_FRAMES = 10
+
+
+@pytest.fixture(scope="session")
+def tiny(tmp_path_factory):
+    """(scene, results, model): 2 people, 10 frames on the campus rig, with videos."""
+    return synth_campus_scene(tmp_path_factory.mktemp("rrd") / "scene", NUM_FRAMES)
+
+
+@pytest.fixture(scope="session")
+def exported(tiny, tmp_path_factory):
+    scene, results, model = tiny
+    path = tmp_path_factory.mktemp("out") / "tiny.rrd"
+    export_rrd(scene, results, model, path, image_width=240, progress=False)
+    return path, read_rrd_summary(path)
+
+
+def rerun_cli() -> str | None:
+    beside = Path(sys.executable).parent / "rerun"
+    return str(beside) if beside.is_file() else shutil.which("rerun")
+
+
+def one(rows: list) -> np.ndarray:
+    """The value of a component logged once, with one instance."""
+    ((_, batch),) = rows
+    (value,) = batch
+    return np.asarray(value, float)
+
+
+def rows_of(path: Path, entity: str, component: str) -> list:
+    """``(frame, batch)`` of every row of ``component`` at ``entity`` (frame None if static);
+    a batch is the list of the row's instances."""
+    out = []
+    for chunk in RrdReader(str(path)).stream():
+        if str(chunk.entity_path) == entity:
+            batch = chunk.to_record_batch()
+            if component in batch.schema.names:
+                frames = (
+                    batch.column("frame").to_pylist()
+                    if "frame" in batch.schema.names
+                    else [None] * batch.num_rows
+                )
+                out += list(zip(frames, batch.column(component).to_pylist(), strict=True))
+    return out
+
+
+# --------------------------------------------------------------------------- the file
+
+
+def test_export_writes_a_file_that_rerun_verifies(exported):
+    path, _ = exported
+    assert path.stat().st_size > 10_000
+    exe = rerun_cli()
+    if exe is None:
+        pytest.skip("the rerun CLI (shipped in the rerun-sdk wheel) is not on this machine")
+    proc = subprocess.run(
+        [exe, "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "verified without error" in proc.stdout + proc.stderr
+
+
+def test_entities_cover_cameras_skeletons_meshes_and_plots(tiny, exported):
+    scene, results, _ = tiny
+    _, summary = exported
+    comp = summary.components
+    for cam in scene.rig.names:
+        base = f"/world/cameras/{cam}"
+        assert {"Pinhole:image_from_camera", "Transform3D:translation"} <= comp[base]
+        assert base in summary.static_entities
+        assert "EncodedImage:blob" in comp[f"{base}/image"]
+        assert summary.rows[f"{base}/image"] == NUM_FRAMES
+        assert "Points2D:keypoint_ids" in comp[f"{base}/detections"]
+    assert results.num_tracks >= 2
+    for k in range(results.num_tracks):
+        for stage in ("raw", "filtered"):
+            assert "Points3D:keypoint_ids" in comp[f"/world/skeletons/{stage}/{k}"]
+            for joint in DEFAULT_PLOT_JOINTS:
+                for axis in "xyz":
+                    path = f"/plots/joints/{k}/{joint}/{stage}/{axis}"
+                    assert "Scalars:scalars" in comp[path], path
+        assert "Scalars:scalars" in comp[f"/plots/metrics/mahalanobis/{k}"]
+        assert "LineStrips3D:strips" in comp[f"/world/rays/{k}"]
+    for p in np.unique(scene.gt.person_id):
+        assert {"Mesh3D:triangle_indices", "Mesh3D:vertex_positions"} <= comp[
+            f"/world/meshes/gt/{p}"
+        ]
+        assert "Points3D:positions" in comp[f"/world/skeletons/gt/{p}"]
+    for name in ("people", "tracks", "gt_people"):
+        assert summary.rows[f"/plots/metrics/{name}"] >= NUM_FRAMES
+    assert {"AnnotationContext:context", "ViewCoordinates:xyz"} <= comp["/world"]
+
+
+def test_blueprint_has_a_3d_view_one_2d_view_per_camera_and_two_plots(tiny, exported):
+    scene, _, _ = tiny
+    path, _ = exported
+    reader = RrdReader(str(path))
+    (blueprint,) = reader.blueprints()
+    views = {
+        str(c.entity_path)
+        for c in reader.stream(store=blueprint)
+        if str(c.entity_path).startswith("/view/") and str(c.entity_path).count("/") == 2
+    }
+    assert len(views) == 1 + len(scene.rig) + 2
+
+
+def test_frame_timeline_has_every_scene_frame(tiny, exported):
+    scene, _, _ = tiny
+    _, summary = exported
+    assert scene.num_frames == NUM_FRAMES
+    np.testing.assert_array_equal(summary.frames, np.arange(scene.num_frames))
+
+
+def test_logged_numbers_match_the_scene_and_results(tiny, exported):
+    scene, results, model = tiny
+    path, _ = exported
+    cam = scene.rig[1]
+    # Camera pose in metres; pinhole scaled to the 240 px wide image.
+    t = one(rows_of(path, f"/world/cameras/{cam.name}", "Transform3D:translation"))
+    np.testing.assert_allclose(t, cam.center / 1000, atol=1e-5)
+    R = one(rows_of(path, f"/world/cameras/{cam.name}", "Transform3D:mat3x3"))
+    np.testing.assert_allclose(np.reshape(R, (3, 3), order="F"), cam.R.T, atol=1e-6)
+    K = one(rows_of(path, f"/world/cameras/{cam.name}", "Pinhole:image_from_camera"))
+    K = np.reshape(K, (3, 3), order="F")
+    s = 240 / cam.width
+    np.testing.assert_allclose(K[0, 0], s * cam.K[0, 0], rtol=1e-6)
+    np.testing.assert_allclose(K[:2, 2], s * (cam.K[:2, 2] + 0.5), rtol=1e-6)
+    res = one(rows_of(path, f"/world/cameras/{cam.name}", "Pinhole:resolution"))
+    np.testing.assert_array_equal(res, [240, round(cam.height * s)])
+    # Images decode to that size.
+    _, (blob,) = rows_of(path, f"/world/cameras/{cam.name}/image", "EncodedImage:blob")[3]
+    img = cv2.imdecode(np.frombuffer(bytes(blob), np.uint8), cv2.IMREAD_COLOR)
+    assert img.shape[:2] == (int(res[1]), int(res[0]))
+    # The filtered skeleton of track 0 at frame 4 in metres, joints kept by keypoint id.
+    pos = dict(rows_of(path, "/world/skeletons/filtered/0", "Points3D:positions"))[4]
+    ids = dict(rows_of(path, "/world/skeletons/filtered/0", "Points3D:keypoint_ids"))[4]
+    want = results.track_filtered[0, 4]
+    np.testing.assert_array_equal(ids, np.flatnonzero(np.isfinite(want).all(1)))
+    np.testing.assert_allclose(pos, want[ids] / 1000, atol=1e-6)
+    # 2D detections: s * (pixel + 0.5) of the rows of that view and frame with confidence.
+    rows = np.flatnonzero((scene.detections.frame == 4) & (scene.detections.view == 1))
+    kp = results.det_joints2d[rows]
+    kp = kp[kp[..., 2] > 0]
+    pts = dict(rows_of(path, f"/world/cameras/{cam.name}/detections", "Points2D:positions"))[4]
+    np.testing.assert_allclose(
+        np.sort(np.asarray(pts), 0), np.sort(s * (kp[:, :2] + 0.5), 0), atol=1e-3
+    )
+    # Pelvis plot of track 0 (COCO-17: mean of the hips), mm.
+    hips = [COCO17.index["left_hip"], COCO17.index["right_hip"]]
+    z = dict(rows_of(path, "/plots/joints/0/pelvis/raw/z", "Scalars:scalars"))
+    assert len(z) >= NUM_FRAMES - 2
+    for f, (v,) in z.items():
+        np.testing.assert_allclose(v, results.track_raw[0, f, hips, 2].mean(), rtol=1e-9)
+    # GT mesh: the body model's vertices (decimated at 25 mm) plus transl, metres.
+    mesh = np.asarray(dict(rows_of(path, "/world/meshes/gt/0", "Mesh3D:vertex_positions"))[2])
+    row = np.flatnonzero((scene.gt.frame == 2) & (scene.gt.person_id == 0))[0]
+    keep, faces = decimate_mesh(
+        model.v_template.numpy(), model.faces.numpy(), model.weights.numpy(), 0.025
+    )
+    with torch.no_grad():
+        verts = model(
+            torch.as_tensor(scene.gt.smpl_pose[row : row + 1], dtype=torch.float32),
+            torch.as_tensor(scene.gt.smpl_betas[row : row + 1], dtype=torch.float32),
+        ).vertices.numpy()[0]
+    np.testing.assert_allclose(mesh, verts[keep] + scene.gt.transl[row] / 1000, atol=1e-5)
+    assert np.linalg.norm(mesh.mean(0) - scene.gt.joints3d[row, 0] / 1000) < 0.3
+    ((_, logged_faces),) = rows_of(path, "/world/meshes/gt/0", "Mesh3D:triangle_indices")
+    np.testing.assert_array_equal(logged_faces, faces)
+    assert len(mesh) < model.num_vertices / 3
+
+
+def body_stages(results) -> list[str]:
+    """The fits the results hold (step I, and with the VAE prior when it is shipped)."""
+    stages = [s for s in ("smpl", "smpl_vae") if getattr(results, s) is not None]
+    assert "smpl" in stages
+    return stages
+
+
+def test_fitted_bodies_are_decimated_meshes_per_track_and_frame(tiny, exported):
+    """world/bodies/<stage>/<track>: static faces in the track colour, one decimated mesh
+    (the fit's vertices at the kept indices) per frame the track is fitted, empty where not."""
+    scene, results, _ = tiny
+    path, summary = exported
+    for stage in body_stages(results):
+        fit = getattr(results, stage)
+        model = fit.model
+        keep, faces = decimate_mesh(
+            model.v_template.numpy(), model.faces.numpy(), model.weights.numpy(), 0.025
+        )
+        for k in range(results.num_tracks):
+            ent = f"/world/bodies/{stage}/{k}"
+            assert ent in summary.static_entities, ent
+            ((_, logged_faces),) = rows_of(path, ent, "Mesh3D:triangle_indices")
+            np.testing.assert_array_equal(logged_faces, faces)
+            (color,) = one(rows_of(path, ent, "Mesh3D:albedo_factor")).reshape(1)
+            want_color = rerun_export.track_color(k, raw=stage == "smpl")
+            assert int(color) == int.from_bytes(bytes([*want_color, 255]), "big")
+            meshes = dict(rows_of(path, ent, "Mesh3D:vertex_positions"))
+            fitted = {f for f in range(NUM_FRAMES) if fit.present[k, f]}
+            assert fitted, (stage, k)
+            assert {f for f, v in meshes.items() if len(v)} == fitted
+            assert all(len(v) == len(keep) for f, v in meshes.items() if f in fitted)
+            f = min(fitted)
+            np.testing.assert_allclose(
+                np.asarray(meshes[f]), fit.vertices(k, f)[keep] / 1000, atol=1e-5
+            )
+
+
+def test_full_body_meshes_without_decimation(tiny, tmp_path):
+    scene, results, model = tiny
+    path = tmp_path / "full.rrd"
+    export_rrd(scene, results, model, path, frames=range(3, 5), images=False, meshes=False,
+               mesh_cell_mm=None, progress=False)  # fmt: skip
+    summary = read_rrd_summary(path)
+    assert not any(e.startswith("/world/meshes") for e in summary.rows)
+    for stage in body_stages(results):
+        fit = getattr(results, stage)
+        k = int(np.flatnonzero(fit.present[:, 3])[0])
+        meshes = dict(rows_of(path, f"/world/bodies/{stage}/{k}", "Mesh3D:vertex_positions"))
+        assert len(meshes[3]) == fit.model.num_vertices
+        np.testing.assert_allclose(np.asarray(meshes[3]), fit.vertices(k, 3) / 1000, atol=1e-5)
+    exe = rerun_cli()
+    if exe is not None:
+        proc = subprocess.run([exe, "rrd", "verify", str(path)], capture_output=True, text=True,
+                              timeout=120)  # fmt: skip
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+    path2 = tmp_path / "none.rrd"
+    export_rrd(scene, results, model, path2, frames=range(3, 5), images=False, bodies=False,
+               progress=False)  # fmt: skip
+    assert not any(e.startswith("/world/bodies") for e in read_rrd_summary(path2).rows)
+
+
+def test_rays_end_on_the_triangulated_joints(tiny, exported):
+    """Each ray starts at a camera centre and ends within a few cm of a raw joint."""
+    scene, results, _ = tiny
+    path, _ = exported
+    strips = dict(rows_of(path, "/world/rays/0", "LineStrips3D:strips"))[5]
+    strips = np.asarray(strips, float)  # (n, 2, 3) metres
+    centres = scene.rig.centers / 1000
+    d_start = np.linalg.norm(strips[:, None, 0] - centres[None], axis=-1).min(1)
+    assert d_start.max() < 1e-4
+    q = np.flatnonzero((results.person_frame == 5) & (results.person_track == 0))[0]
+    joints = results.person_joints[q] / 1000
+    d_end = np.linalg.norm(strips[:, None, 1] - joints[None], axis=-1).min(1)
+    assert np.median(d_end) < 0.02
+    assert len(strips) == results.person_used[q].sum()
+
+
+def test_frame_subset_without_images(tiny, tmp_path):
+    scene, results, model = tiny
+    path = tmp_path / "part.rrd"
+    export_rrd(
+        scene, results, model, path, frames=range(2, 5), images=False, meshes=False, progress=False
+    )
+    summary = read_rrd_summary(path)
+    np.testing.assert_array_equal(summary.frames, [2, 3, 4])
+    assert not any(e.endswith("/image") for e in summary.rows)
+    assert not any(e.startswith("/world/meshes") for e in summary.rows)
+    cam = scene.rig[0]
+    res = one(rows_of(path, f"/world/cameras/{cam.name}", "Pinhole:resolution"))
+    np.testing.assert_array_equal(res, [cam.width, cam.height])
+
+
+# --------------------------------------------------------------------------- failures
+
+
+def test_unwritable_path_raises_and_writes_nothing(tiny, tmp_path):
+    scene, results, model = tiny
+    (tmp_path / "a_file").write_text("not a directory")
+    target = tmp_path / "a_file" / "run.rrd"
+    with pytest.raises(OSError):
+        export_rrd(scene, results, model, target, progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+    # Missing parent directories are created, and the file gets the usual mode.
+    target = tmp_path / "new" / "dir" / "run.rrd"
+    export_rrd(scene, results, model, target, frames=[0], images=False, progress=False)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~_umask()
+    assert [p.name for p in target.parent.iterdir()] == ["run.rrd"]
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def test_failure_midway_leaves_no_partial_file(tiny, tmp_path, monkeypatch):
+    scene, results, model = tiny
+    calls = {"n": 0}
+    real = rerun_export.encode_jpeg
+
+    def flaky(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] > 7:
+            raise RuntimeError("disk on fire")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(rerun_export, "encode_jpeg", flaky)
+    target = tmp_path / "run.rrd"
+    threads = torch.get_num_threads()
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        export_rrd(scene, results, model, target, progress=False)
+    assert list(tmp_path.iterdir()) == []
+    assert torch.get_num_threads() == threads  # the export pins torch to 1 thread meanwhile
+    # An existing recording survives a failed re-export untouched.
+    target.write_bytes(b"old recording")
+    calls["n"] = 0
+    with pytest.raises(RuntimeError):
+        export_rrd(scene, results, model, target, progress=False)
+    assert target.read_bytes() == b"old recording"
+    assert list(tmp_path.iterdir()) == [target]
+
+
+def test_results_of_another_scene_are_refused(tiny, tmp_path):
+    scene, results, model = tiny
+    other = dataclasses.replace(results, num_views=results.num_views + 1)
+    with pytest.raises(ValueError, match="do not match"):
+        export_rrd(scene, other, model, tmp_path / "x.rrd", progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def test_decimate_mesh_keeps_a_subset_and_valid_faces():
+    model = load_body_model()
+    rest = model.v_template.numpy()
+    faces = model.faces.numpy()
+    weights = model.weights.numpy()
+    keep, f = decimate_mesh(rest, faces, weights, 1e-6)
+    np.testing.assert_array_equal(np.sort(keep), np.arange(len(rest)))
+    assert len(f) == len(np.unique(np.sort(faces, 1), axis=0))
+    keep, f = decimate_mesh(rest, faces, weights, 0.025)
+    assert len(np.unique(keep)) == len(keep) and len(keep) < len(rest) / 3
+    assert f.min() >= 0 and f.max() < len(keep)
+    assert (f[:, 0] != f[:, 1]).all() and (f[:, 1] != f[:, 2]).all() and (f[:, 0] != f[:, 2]).all()
+    # Clusters never mix vertices of different dominant joints.
+    group_joint = weights.argmax(1)[keep]
+    assert len(np.unique(group_joint)) == len(np.unique(weights.argmax(1)))
+
+
+def test_class_layout_ids_are_disjoint_and_dense():
+    layout = ClassLayout(num_tracks=3, gt_people=(4, 9), num_unassigned=2, num_untracked=1)
+    ids = (
+        [layout.filtered(k) for k in range(3)]
+        + [layout.raw(k) for k in range(3)]
+        + [layout.gt(p) for p in (4, 9)]
+        + [layout.unassigned(i) for i in range(2)]
+        + [layout.untracked(0)]
+    )
+    assert sorted(ids) == list(range(layout.num_classes)) == list(range(11))
+
+
+def test_select_frames_and_plot_joints():
+    np.testing.assert_array_equal(select_frames(None, 4), [0, 1, 2, 3])
+    np.testing.assert_array_equal(select_frames(slice(2, None), 4), [2, 3])
+    np.testing.assert_array_equal(select_frames(range(3, 10), 5), [3, 4])
+    np.testing.assert_array_equal(select_frames([3, 1, 3], 5), [1, 3])
+    with pytest.raises(ValueError, match="outside"):
+        select_frames([7], 5)
+    np.testing.assert_array_equal(
+        resolve_plot_joint(COCO17, "pelvis"), [COCO17.index["left_hip"], COCO17.index["right_hip"]]
+    )
+    with pytest.raises(ValueError, match="not in joint set coco17"):
+        resolve_plot_joint(COCO17, "tail")
+
+
+def test_cli_export_rrd(tiny, tmp_path, capsys):
+    scene, _, _ = tiny
+    out = tmp_path / "cli.rrd"
+    code = main(["export-rrd", str(scene.root), "-o", str(out), "--frames", "1:4", "--no-images"])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "reused cached results" in text and "MB" in text and "world/skeletons" in text
+    np.testing.assert_array_equal(read_rrd_summary(out).frames, [1, 2, 3])
+    assert main(["export-rrd", str(scene.root), "-o", str(out), "--plot-joints", "tail"]) == 2
