@@ -76,7 +76,9 @@ both agree.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -183,8 +185,181 @@ def _check_measurements(measurements: np.ndarray) -> np.ndarray:
     return z
 
 
+class Belief(NamedTuple):
+    """Gaussian belief of N trajectories, elementwise per axis (one 2x2 or 1x1 filter per axis).
+
+    Attributes:
+        x: (N, 3) position mean, mm; NaN where the trajectory is not alive.
+        v: (N, 3) velocity mean, mm/frame (stays 0 for the random walk).
+        Ppp: (N,) position variance, mm^2, shared by the three axes; NaN where not alive.
+        Ppv: (N,) position-velocity covariance, mm^2/frame (0 for the random walk).
+        Pvv: (N,) velocity variance, (mm/frame)^2 (constant velocity only).
+    """
+
+    x: np.ndarray
+    v: np.ndarray
+    Ppp: np.ndarray
+    Ppv: np.ndarray
+    Pvv: np.ndarray
+
+
+def predict(b: Belief, u: np.ndarray, *, cv: bool, q: float, B: float) -> Belief:
+    """Prior of the next frame: x = F x + B u, P = F P F' + Q.
+
+    Constant velocity: ``F = [[1, 1], [0, 1]]``, ``Q = q [[1/4, 1/2], [1/2, 1]]``, no
+    control. Random walk: ``F = 1``, ``Q = q``, ``u`` (N, 3) the last posterior step, mm.
+    """
+    if cv:
+        return Belief(
+            b.x + b.v,  # x = x + v dt
+            b.v,
+            b.Ppp + (2.0 * b.Ppv + b.Pvv + 0.25 * q),  # P_pp = P_pp + 2 P_pv + P_vv + q/4
+            b.Ppv + (b.Pvv + 0.5 * q),  # P_pv = P_pv + P_vv + q/2
+            b.Pvv + q,  # P_vv = P_vv + q
+        )
+    x = b.x + B * u if B != 0.0 else b.x  # x = x + B u,  u = x_{t-1|t-1} - x_{t-2|t-2}
+    return b._replace(x=x, Ppp=b.Ppp + q)  # P = P + Q
+
+
+def initialise(
+    b: Belief, z: np.ndarray, new: np.ndarray, *, p0: float, p0_velocity: float
+) -> Belief:
+    """(Re)start the trajectories flagged ``new`` (N,) at their measurement ``z`` (N, 3), mm.
+
+    x = z, v = 0, P = diag(p0, p0_velocity); the other trajectories are unchanged.
+    """
+    new3 = new[:, None]
+    return Belief(
+        np.where(new3, z, b.x),  # x = z
+        np.where(new3, 0.0, b.v),
+        np.where(new, p0, b.Ppp),  # P = P0
+        np.where(new, 0.0, b.Ppv),
+        np.where(new, p0_velocity, b.Pvv),
+    )
+
+
+def gate_measurements(
+    y: np.ndarray, S: np.ndarray, observed: np.ndarray, new: np.ndarray, gate: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Accept a measurement when sqrt(y' S^-1 y) <= gate or it (re)starts its trajectory.
+
+    Args:
+        y: (N, 3) innovation z - H x, mm. S: (N,) innovation variance per axis, mm^2.
+        observed, new: (N,) bool, measured / (re)initialised at this frame.
+
+    Returns:
+        (N,) 1.0 where the measurement updates, else 0.0; (N,) bool rejected by the gate.
+    """
+    d = np.sqrt((y * y).sum(axis=-1) / S)  # sqrt(y' S^-1 y)
+    accept = observed & ((d <= gate) | new)
+    return accept.astype(np.float64), observed & ~accept
+
+
+def update(b: Belief, y: np.ndarray, S: np.ndarray, m: np.ndarray, *, cv: bool) -> Belief:
+    """Posterior: K = P H' S^-1, x = x + K y, P = P - K S K' (H = [1, 0] or 1).
+
+    Args:
+        y: (N, 3) innovation z - H x, mm. S: (N,) H P H' + R, mm^2.
+        m: (N,) 1.0 where the measurement is used, 0.0 where not (K = 0: posterior = prior).
+    """
+    Kp = b.Ppp / S * m  # K_p = P_pp / S
+    x = b.x + Kp[:, None] * y  # x = x + K y
+    if not cv:
+        return b._replace(x=x, Ppp=b.Ppp - Kp * b.Ppp)  # P = P - K S K'
+    Kv = b.Ppv / S * m  # K_v = P_pv / S
+    return Belief(
+        x,
+        b.v + Kv[:, None] * y,  # v = v + K_v y
+        b.Ppp - Kp * b.Ppp,  # P = P - K S K'  (pp)
+        b.Ppv - Kp * b.Ppv,  # (pv)
+        b.Pvv - Kv * b.Ppv,  # (vv)
+    )
+
+
+def drop_lost(b: Belief, lost: np.ndarray) -> Belief:
+    """Mark the trajectories flagged ``lost`` (N,) as not alive (NaN mean and variance)."""
+    return b._replace(x=np.where(lost[:, None], np.nan, b.x), Ppp=np.where(lost, np.nan, b.Ppp))
+
+
+class _Steps(NamedTuple):
+    """Per-frame record of the forward pass: means (T, N, 3), variances and flags (T, N)."""
+
+    prior_mean: np.ndarray
+    prior_pp: np.ndarray
+    post_mean: np.ndarray
+    post_pp: np.ndarray
+    post_vel: np.ndarray
+    post_pv: np.ndarray
+    post_vv: np.ndarray
+    innovation: np.ndarray
+    rejected: np.ndarray
+    started: np.ndarray
+
+
+def _forward_pass(z_all: np.ndarray, observed: np.ndarray, params: KalmanParams) -> _Steps:
+    """The loop over frames: predict, (re)initialise, gate, update, drop.
+
+    ``z_all`` (T, N, 3) mm with NaN rows where ``observed`` (T, N) is False.
+    """
+    T, N = observed.shape
+    cv = params.model == "constant_velocity"
+    shape3, shape1 = (T, N, 3), (T, N)
+    nan3, nan1 = (lambda: np.full(shape3, np.nan)), (lambda: np.full(shape1, np.nan))
+    s = _Steps(
+        prior_mean=nan3(), prior_pp=nan1(), post_mean=nan3(), post_pp=nan1(),
+        post_vel=nan3(), post_pv=nan1(), post_vv=nan1(), innovation=nan3(),
+        rejected=np.zeros(shape1, dtype=bool), started=np.zeros(shape1, dtype=bool),
+    )  # fmt: skip
+    z_fill = np.where(observed[..., None], z_all, 0.0)  # NaN-free; missing rows get K = 0
+    observed_f = observed.astype(np.float64)
+    q, r, B = float(params.q), float(params.r), float(params.control_gain)
+    gate, max_gap = params.gate, params.max_gap
+    # NaN in x / Ppp marks a trajectory that is not alive; it stays NaN through the steps.
+    b = Belief(
+        np.full((N, 3), np.nan), np.zeros((N, 3)), np.full(N, np.nan), np.zeros(N), np.zeros(N)
+    )
+    x_last = np.full((N, 3), np.nan)  # previous posterior mean (random-walk control)
+    u = np.zeros((N, 3))
+    alive = np.zeros(N, dtype=bool)
+    gap = np.zeros(N)
+    for t in range(T):
+        b = predict(b, u, cv=cv, q=q, B=B)  # 1. x = F x + B u, P = F P F' + Q
+        new = observed[t] & ~alive  # 2. (re)initialise: first measurement since start/drop
+        if new.any():
+            b = initialise(b, z_all[t], new, p0=params.p0, p0_velocity=params.p0_velocity)
+            x_last = np.where(new[:, None], z_all[t], x_last)  # so that u = 0 on the next step
+            alive = alive | new
+            s.started[t] = new
+        s.prior_mean[t], s.prior_pp[t] = b.x, b.Ppp
+        y = z_fill[t] - b.x  # 3. y = z - H x
+        S = b.Ppp + r  # S = H P H' + R
+        s.innovation[t] = y
+        if gate is None:
+            m = observed_f[t]
+        else:
+            m, s.rejected[t] = gate_measurements(y, S, observed[t], new, gate)
+        b = update(b, y, S, m, cv=cv)  # K = 0 without an accepted measurement
+        gap = (gap + 1.0) * (1.0 - m)  # 4. drop trajectories that coasted > max_gap frames
+        if max_gap is not None:
+            lost = alive & (gap > max_gap)
+            if lost.any():
+                b = drop_lost(b, lost)
+                alive = alive & ~lost
+        s.post_mean[t], s.post_pp[t] = b.x, b.Ppp
+        if cv:
+            s.post_vel[t], s.post_pv[t], s.post_vv[t] = b.v, b.Ppv, b.Pvv
+        else:
+            u = b.x - x_last  # u_{t+1} = x_{t|t} - x_{t-1|t-1}
+            x_last = b.x
+    return s
+
+
 def kalman_filter(measurements: np.ndarray, params: KalmanParams | None = None) -> FilterResult:
     """Filter every trajectory in ``measurements`` at once (loop over time only).
+
+    The steps are the pure functions :func:`predict`, :func:`initialise`,
+    :func:`gate_measurements`, :func:`update`, :func:`drop_lost` (loop in
+    ``_forward_pass``) and the smoother ``_rts``.
 
     Args:
         measurements: (num_frames, ..., 3) joint positions, mm; NaN = missing.
@@ -199,108 +374,30 @@ def kalman_filter(measurements: np.ndarray, params: KalmanParams | None = None) 
     N = int(np.prod(lead, dtype=np.int64))
     z_all = z_all.reshape(T, N, 3)
     cv = params.model == "constant_velocity"
-
-    # Per-frame outputs; variances are per joint (identical across the 3 axes).
-    shape3, shape1 = (T, N, 3), (T, N)
-    prior_mean, post_mean = np.full(shape3, np.nan), np.full(shape3, np.nan)
-    innovation, post_vel = np.full(shape3, np.nan), np.full(shape3, np.nan)
-    prior_pp, post_pp = np.full(shape1, np.nan), np.full(shape1, np.nan)
-    post_pv, post_vv = np.full(shape1, np.nan), np.full(shape1, np.nan)
-    rejected = np.zeros(shape1, dtype=bool)
-    started = np.zeros(shape1, dtype=bool)
-
     observed = np.isfinite(z_all).all(axis=-1)  # (T, N)
-    z_fill = np.where(observed[..., None], z_all, 0.0)  # NaN-free; missing rows get K = 0
-    observed_f = observed.astype(np.float64)
-    q, r, B = float(params.q), float(params.r), float(params.control_gain)
-    gate, max_gap = params.gate, params.max_gap
-
-    # State: position x (N, 3), velocity v (N, 3), covariance Ppp, Ppv, Pvv (N,).
-    # NaN in x / Ppp marks a trajectory that is not alive; it stays NaN through the steps.
-    x = np.full((N, 3), np.nan)
-    v = np.zeros((N, 3))
-    x_last = np.full((N, 3), np.nan)  # previous posterior mean (random-walk control)
-    Ppp, Ppv, Pvv = np.full(N, np.nan), np.zeros(N), np.zeros(N)
-    alive = np.zeros(N, dtype=bool)
-    gap = np.zeros(N)
-    u = np.zeros((N, 3))
-    for t in range(T):
-        # 1. Predict: x = F x + B u, P = F P F' + Q.
-        if cv:
-            x += v  # x = x + v dt
-            Ppp += 2.0 * Ppv + Pvv + 0.25 * q  # P_pp = P_pp + 2 P_pv + P_vv + q/4
-            Ppv += Pvv + 0.5 * q  # P_pv = P_pv + P_vv + q/2
-            Pvv += q  # P_vv = P_vv + q
-        else:
-            if B != 0.0:
-                x += B * u  # x = x + B u,  u = x_{t-1|t-1} - x_{t-2|t-2}
-            Ppp += q  # P = P + Q
-        # 2. (Re)initialise trajectories measured for the first time since their start/drop.
-        new = observed[t] & ~alive
-        if new.any():
-            x[new] = z_all[t, new]  # x = z
-            Ppp[new] = params.p0  # P = P0
-            v[new] = 0.0
-            Ppv[new] = 0.0
-            Pvv[new] = params.p0_velocity
-            x_last[new] = z_all[t, new]  # so that u = 0 on the next step
-            alive |= new
-            started[t] = new
-        prior_mean[t] = x
-        prior_pp[t] = Ppp
-        # 3. Update: y = z - H x, S = H P H' + R, K = P H' S^-1; K = 0 without a measurement.
-        y = z_fill[t] - x  # y = z - H x
-        innovation[t] = y
-        S = Ppp + r  # S = H P H' + R
-        if gate is None:
-            m = observed_f[t]
-        else:
-            d = np.sqrt((y * y).sum(axis=-1) / S)  # sqrt(y' S^-1 y)
-            accept = observed[t] & ((d <= gate) | new)
-            rejected[t] = observed[t] & ~accept
-            m = accept.astype(np.float64)
-        Kp = Ppp / S * m  # K_p = P_pp / S
-        x += Kp[:, None] * y  # x = x + K y
-        if cv:
-            Kv = Ppv / S * m  # K_v = P_pv / S
-            v += Kv[:, None] * y  # v = v + K_v y
-            Pvv -= Kv * Ppv  # P = P - K S K'  (vv)
-            Ppv -= Kp * Ppv  # (pv)
-        Ppp -= Kp * Ppp  # (pp)
-        # 4. Drop trajectories that coasted more than max_gap frames.
-        gap = (gap + 1.0) * (1.0 - m)
-        if max_gap is not None:
-            lost = alive & (gap > max_gap)
-            if lost.any():
-                x[lost] = np.nan
-                Ppp[lost] = np.nan
-                alive &= ~lost
-        post_mean[t] = x
-        post_pp[t] = Ppp
-        if cv:
-            post_vel[t], post_pv[t], post_vv[t] = v, Ppv, Pvv
-        else:
-            u = x - x_last  # u_{t+1} = x_{t|t} - x_{t-1|t-1}
-            x_last = x.copy()
+    s = _forward_pass(z_all, observed, params)
 
     # Outputs derived from the stored steps; blank frames where the trajectory is not
     # alive (before its start, or on/after a drop) and innovations without a measurement.
-    dead = ~np.isfinite(post_pp)
+    dead = ~np.isfinite(s.post_pp)
+    innovation = s.innovation
     innovation[~observed] = np.nan
-    innov_var = prior_pp + r  # S = H P H' + R
+    innov_var = s.prior_pp + params.r  # S = H P H' + R
     maha = np.sqrt((innovation * innovation).sum(axis=-1) / innov_var)  # sqrt(y' S^-1 y)
-    for a in (prior_mean, innovation, post_vel, prior_pp, innov_var, maha, post_pv, post_vv):
+    blanked = (s.prior_mean, innovation, s.post_vel, s.prior_pp, innov_var, maha, s.post_pv)
+    for a in (*blanked, s.post_vv):
         a[dead] = np.nan
-    rejected &= ~dead
+    rejected = s.rejected & ~dead
 
-    filt_mean, filt_pp, filt_vel = post_mean, post_pp, post_vel
+    filt_mean, filt_pp, filt_vel = s.post_mean, s.post_pp, s.post_vel
     if params.smoother and T > 0:
         # Step k+1 continues step k's trajectory: the smoother may link them.
-        link = np.zeros(shape1, dtype=bool)
-        link[1:] = ~dead[:-1] & ~dead[1:] & ~started[1:]
+        link = np.zeros((T, N), dtype=bool)
+        link[1:] = ~dead[:-1] & ~dead[1:] & ~s.started[1:]
         filt_mean, filt_pp, filt_vel = _rts(
-            cv, q, link, post_mean, post_pp, post_pv, post_vv, post_vel, prior_mean, prior_pp
-        )
+            cv, float(params.q), link, s.post_mean, s.post_pp, s.post_pv, s.post_vv, s.post_vel,
+            s.prior_mean, s.prior_pp,
+        )  # fmt: skip
         filt_mean[dead] = np.nan
 
     def out3(a: np.ndarray) -> np.ndarray:
@@ -313,20 +410,20 @@ def kalman_filter(measurements: np.ndarray, params: KalmanParams | None = None) 
         return out3(np.repeat(a[..., None], 3, axis=-1))
 
     if not cv:
-        filt_vel = np.full(shape3, np.nan)
+        filt_vel = np.full((T, N, 3), np.nan)
     return FilterResult(
         filtered=out3(filt_mean),
         filtered_var=var3(filt_pp),
-        forward=out3(post_mean),
-        posterior_var=var3(post_pp),
-        prior_mean=out3(prior_mean),
-        prior_var=var3(prior_pp),
+        forward=out3(s.post_mean),
+        posterior_var=var3(s.post_pp),
+        prior_mean=out3(s.prior_mean),
+        prior_var=var3(s.prior_pp),
         innovation=out3(innovation),
         innovation_var=var3(innov_var),
         mahalanobis=out1(maha),
         velocity=out3(filt_vel),
         rejected=out1(rejected),
-        started=out1(started),
+        started=out1(s.started),
     )
 
 
@@ -410,6 +507,136 @@ def _rts(
     return xs, Ps, np.full_like(xs, np.nan)
 
 
+def _filterpy_factory(params: KalmanParams) -> Callable[[], Any]:
+    """A function returning a fresh ``filterpy.kalman.KalmanFilter`` of the model, before x."""
+    cv = params.model == "constant_velocity"
+    I3 = np.eye(3)
+    # imported here: filterpy pulls scipy.stats (~0.4 s), which nothing else at start needs
+    from filterpy.common import Q_discrete_white_noise  # noqa: PLC0415
+    from filterpy.kalman import KalmanFilter  # noqa: PLC0415
+
+    def new_filter() -> KalmanFilter:
+        kf = KalmanFilter(dim_x=6 if cv else 3, dim_z=3)
+        if cv:  # state [x, y, z, vx, vy, vz]
+            kf.F = np.block([[I3, I3], [0 * I3, I3]])
+            kf.H = np.hstack([I3, 0 * I3])
+            kf.Q = Q_discrete_white_noise(2, dt=1.0, var=params.q, block_size=3, order_by_dim=False)
+            kf.P = np.diag([params.p0] * 3 + [params.p0_velocity] * 3)
+        else:
+            kf.F, kf.H, kf.Q = I3.copy(), I3.copy(), params.q * I3
+            kf.B = params.control_gain * I3
+            kf.P = params.p0 * I3
+        kf.R = params.r * I3
+        return kf
+
+    return new_filter
+
+
+def _filterpy_forward(
+    zs: np.ndarray, params: KalmanParams, new_filter: Callable[[], Any]
+) -> tuple[dict[str, np.ndarray], list[dict[str, list]]]:
+    """The reference loop over frames with filterpy's ``predict(u)`` / ``update(z)``.
+
+    Returns the per-frame outputs (``prior``, ``post``, ``prior_var``, ``post_var``,
+    ``y``, ``S``, ``vel``: (T, 3); ``maha``: (T,); ``rejected``, ``started``: (T,) bool)
+    and the initialised segments (per segment: frames, x, P, Bu) for the smoother.
+    """
+    T = zs.shape[0]
+    cv = params.model == "constant_velocity"
+    dim_x = 6 if cv else 3
+    nan3 = np.full((T, 3), np.nan)
+    out = {k: nan3.copy() for k in ("prior", "post", "prior_var", "post_var", "y", "S", "vel")}
+    out["maha"] = np.full(T, np.nan)
+    out["rejected"], out["started"] = np.zeros(T, dtype=bool), np.zeros(T, dtype=bool)
+    segments: list[dict[str, list]] = []
+    kf = None
+    gap = 0
+    u = np.zeros((3, 1))
+    x_last = None
+    for t in range(T):
+        z = zs[t]
+        has_z = bool(np.isfinite(z).all())
+        Bu = np.zeros((dim_x, 1))
+        if kf is not None:
+            kf.predict(u=u if not cv else None)  # x = F x + B u ; P = F P F' + Q
+            if not cv:
+                Bu = kf.B @ u
+        elif has_z:
+            kf = new_filter()
+            kf.x = np.zeros((dim_x, 1))
+            kf.x[:3, 0] = z  # x = z (velocity 0)
+            out["started"][t] = True
+            gap = 0
+            x_last = kf.x.copy()
+            segments.append({"frames": [], "x": [], "P": [], "Bu": []})
+        if kf is None:
+            continue
+        x_prior, P_prior = kf.x.copy(), kf.P.copy()
+        accepted = False
+        if has_z:
+            kf.update(z)  # y = z - H x ; S = H P H' + R ; K = P H' S^-1 ; x = x + K y
+            d = kf.mahalanobis
+            out["y"][t], out["S"][t], out["maha"][t] = kf.y[:, 0], np.diag(kf.S), d
+            accepted = params.gate is None or out["started"][t] or d <= params.gate
+            if not accepted:  # rejected by the gate: posterior = prior
+                kf.x, kf.P = x_prior.copy(), P_prior.copy()
+                out["rejected"][t] = True
+        else:
+            out["S"][t] = np.diag(kf.H @ kf.P @ kf.H.T + kf.R)  # S = H P H' + R
+            kf.update(None)  # no measurement: posterior = prior
+        gap = 0 if accepted else gap + 1
+        if params.max_gap is not None and gap > params.max_gap:
+            kf = None  # dropped: outputs stay NaN at this frame
+            out["y"][t], out["S"][t], out["maha"][t], out["rejected"][t] = (
+                np.nan,
+                np.nan,
+                np.nan,
+                False,
+            )
+            continue
+        out["prior"][t], out["prior_var"][t] = x_prior[:3, 0], np.diag(P_prior)[:3]
+        out["post"][t], out["post_var"][t] = kf.x[:3, 0], np.diag(kf.P)[:3]
+        if cv:
+            out["vel"][t] = kf.x[3:, 0]
+        seg = segments[-1]
+        seg["frames"].append(t)
+        seg["x"].append(kf.x[:, 0].copy())
+        seg["P"].append(kf.P.copy())
+        seg["Bu"].append(Bu[:, 0])
+        u = kf.x - x_last  # u = x_{t|t} - x_{t-1|t-1}
+        x_last = kf.x.copy()
+    return out, segments
+
+
+def _filterpy_smooth(
+    out: dict[str, np.ndarray],
+    segments: list[dict[str, list]],
+    params: KalmanParams,
+    new_filter: Callable[[], Any],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """filterpy's ``rts_smoother`` on each segment: (T, 3) position, variance, velocity.
+
+    The random walk runs in coordinates shifted by ``D_k = F D_{k-1} + B u_k``.
+    """
+    filtered, filtered_var, filt_vel = out["post"].copy(), out["post_var"].copy(), out["vel"].copy()
+    F = new_filter().F
+    for seg in segments:
+        if not seg["frames"]:
+            continue
+        Xs, Ps = np.array(seg["x"]), np.array(seg["P"])
+        D = np.zeros_like(Xs)  # D_k = F D_{k-1} + B u_k
+        for k in range(1, len(D)):
+            D[k] = F @ D[k - 1] + seg["Bu"][k]
+        xs, Pss, _, _ = new_filter().rts_smoother(Xs - D, Ps)
+        xs = xs + D
+        f = seg["frames"]
+        filtered[f] = xs[:, :3]
+        filtered_var[f] = np.diagonal(Pss, axis1=1, axis2=2)[:, :3]
+        if params.model == "constant_velocity":
+            filt_vel[f] = xs[:, 3:]
+    return filtered, filtered_var, filt_vel
+
+
 def kalman_filter_filterpy(
     measurements: np.ndarray, params: KalmanParams | None = None
 ) -> FilterResult:
@@ -433,104 +660,11 @@ def kalman_filter_filterpy(
     zs = _check_measurements(measurements)
     if zs.ndim != 2:
         raise ValueError(f"measurements must be (num_frames, 3), got shape {zs.shape}")
-    T = zs.shape[0]
-    cv = params.model == "constant_velocity"
-    dim_x = 6 if cv else 3
-    I3 = np.eye(3)
-    # imported here: filterpy pulls scipy.stats (~0.4 s), which nothing else at start needs
-    from filterpy.common import Q_discrete_white_noise  # noqa: PLC0415
-    from filterpy.kalman import KalmanFilter  # noqa: PLC0415
-
-    def new_filter() -> KalmanFilter:
-        kf = KalmanFilter(dim_x=dim_x, dim_z=3)
-        if cv:  # state [x, y, z, vx, vy, vz]
-            kf.F = np.block([[I3, I3], [0 * I3, I3]])
-            kf.H = np.hstack([I3, 0 * I3])
-            kf.Q = Q_discrete_white_noise(2, dt=1.0, var=params.q, block_size=3, order_by_dim=False)
-            kf.P = np.diag([params.p0] * 3 + [params.p0_velocity] * 3)
-        else:
-            kf.F, kf.H, kf.Q = I3.copy(), I3.copy(), params.q * I3
-            kf.B = params.control_gain * I3
-            kf.P = params.p0 * I3
-        kf.R = params.r * I3
-        return kf
-
-    nan3 = np.full((T, 3), np.nan)
-    out = {k: nan3.copy() for k in ("prior", "post", "prior_var", "post_var", "y", "S", "vel")}
-    maha = np.full(T, np.nan)
-    rejected = np.zeros(T, dtype=bool)
-    started = np.zeros(T, dtype=bool)
-    segments: list[dict[str, list]] = []  # per segment: frames, x, P, Bu
-    kf = None
-    gap = 0
-    u = np.zeros((3, 1))
-    x_last = None
-    for t in range(T):
-        z = zs[t]
-        has_z = bool(np.isfinite(z).all())
-        Bu = np.zeros((dim_x, 1))
-        if kf is not None:
-            kf.predict(u=u if not cv else None)  # x = F x + B u ; P = F P F' + Q
-            if not cv:
-                Bu = kf.B @ u
-        elif has_z:
-            kf = new_filter()
-            kf.x = np.zeros((dim_x, 1))
-            kf.x[:3, 0] = z  # x = z (velocity 0)
-            started[t] = True
-            gap = 0
-            x_last = kf.x.copy()
-            segments.append({"frames": [], "x": [], "P": [], "Bu": []})
-        if kf is None:
-            continue
-        x_prior, P_prior = kf.x.copy(), kf.P.copy()
-        accepted = False
-        if has_z:
-            kf.update(z)  # y = z - H x ; S = H P H' + R ; K = P H' S^-1 ; x = x + K y
-            d = kf.mahalanobis
-            out["y"][t], out["S"][t], maha[t] = kf.y[:, 0], np.diag(kf.S), d
-            accepted = params.gate is None or started[t] or d <= params.gate
-            if not accepted:  # rejected by the gate: posterior = prior
-                kf.x, kf.P = x_prior.copy(), P_prior.copy()
-                rejected[t] = True
-        else:
-            out["S"][t] = np.diag(kf.H @ kf.P @ kf.H.T + kf.R)  # S = H P H' + R
-            kf.update(None)  # no measurement: posterior = prior
-        gap = 0 if accepted else gap + 1
-        if params.max_gap is not None and gap > params.max_gap:
-            kf = None  # dropped: outputs stay NaN at this frame
-            out["y"][t], out["S"][t], maha[t], rejected[t] = np.nan, np.nan, np.nan, False
-            continue
-        out["prior"][t], out["prior_var"][t] = x_prior[:3, 0], np.diag(P_prior)[:3]
-        out["post"][t], out["post_var"][t] = kf.x[:3, 0], np.diag(kf.P)[:3]
-        if cv:
-            out["vel"][t] = kf.x[3:, 0]
-        seg = segments[-1]
-        seg["frames"].append(t)
-        seg["x"].append(kf.x[:, 0].copy())
-        seg["P"].append(kf.P.copy())
-        seg["Bu"].append(Bu[:, 0])
-        u = kf.x - x_last  # u = x_{t|t} - x_{t-1|t-1}
-        x_last = kf.x.copy()
-
+    new_filter = _filterpy_factory(params)
+    out, segments = _filterpy_forward(zs, params, new_filter)
     filtered, filtered_var, filt_vel = out["post"].copy(), out["post_var"].copy(), out["vel"].copy()
     if params.smoother:
-        F = new_filter().F
-        for seg in segments:
-            if not seg["frames"]:
-                continue
-            Xs, Ps = np.array(seg["x"]), np.array(seg["P"])
-            D = np.zeros_like(Xs)  # D_k = F D_{k-1} + B u_k
-            for k in range(1, len(D)):
-                D[k] = F @ D[k - 1] + seg["Bu"][k]
-            kf_s = new_filter()
-            xs, Pss, _, _ = kf_s.rts_smoother(Xs - D, Ps)
-            xs = xs + D
-            f = seg["frames"]
-            filtered[f] = xs[:, :3]
-            filtered_var[f] = np.diagonal(Pss, axis1=1, axis2=2)[:, :3]
-            if cv:
-                filt_vel[f] = xs[:, 3:]
+        filtered, filtered_var, filt_vel = _filterpy_smooth(out, segments, params, new_filter)
     return FilterResult(
         filtered=filtered,
         filtered_var=filtered_var,
@@ -540,8 +674,8 @@ def kalman_filter_filterpy(
         prior_var=out["prior_var"],
         innovation=out["y"],
         innovation_var=out["S"],
-        mahalanobis=maha,
+        mahalanobis=out["maha"],
         velocity=filt_vel,
-        rejected=rejected,
-        started=started,
+        rejected=out["rejected"],
+        started=out["started"],
     )
