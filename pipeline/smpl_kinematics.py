@@ -40,6 +40,13 @@ keypoints at the ends of a torso bone (hips, shoulders, face points). A limb key
 (knee, ankle, elbow, wrist) with its own offset lets the body's limb joints drift from
 the observed ones (on the noisy Shelf scene the ankles' SMPL joints moved 45 mm), so
 limb proportions are left to the betas."""
+FOOT_OFFSET_FRAMES = ("left_ankle", "right_ankle", "left_foot", "right_foot")
+"""Frames that may carry the offset of a foot point that is not a joint (no anchor: heels,
+big and small toes, landmark vertices of the rest mesh). A detector's toes and heels are
+not the model's landmark vertices: on Pose2Sim's balancing trial (OpenPose BODY_25B) the
+offsets the fit learns are 30-55 mm, and with them the fitted body's keypoints land a
+median 16.2 mm from the RTS joints instead of 21.2 mm. The ankle keypoint itself keeps no
+offset, so it still pins the SMPL ankle."""
 
 
 # --------------------------------------------------------------------------- rotations
@@ -110,14 +117,18 @@ class KeypointBuffers:
     fitted: np.ndarray  # (T,) bool: targets the model gives (others get weight 0)
     anchors: dict[str, int]  # SMPL-24 joint -> target anchored there (analytic init)
     offset_joint: torch.Tensor  # (T,) the joint whose frame carries a target's offset
-    offset_mask: torch.Tensor  # (T,) 1 where a target may have an offset (OFFSET_FRAMES)
+    offset_mask: torch.Tensor  # (T,) 1 where a target may have an offset (see below)
+    foot_offset: torch.Tensor  # (T,) 1 for the foot points among them (FOOT_OFFSET_FRAMES)
 
     @property
     def num_targets(self) -> int:
         return get_joint_set(self.joint_set).num_joints
 
 
-_BUFFER_CACHE: dict[tuple[int, str], KeypointBuffers] = {}
+_BUFFER_CACHE: dict[tuple[str, str], KeypointBuffers] = {}
+"""(model fingerprint, joint set) -> buffers. Keyed by what the model is, not by
+``id(model)``: a freed model's id is reused by the next one, which then got the old
+model's buffers (a test of two tiny models failed that way, depending on order)."""
 
 
 def _fold_regressor(model: BodyModel, Rv: torch.Tensor, Rj: torch.Tensor):
@@ -147,7 +158,7 @@ def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
     js = get_joint_set(joint_set)
     if js.name not in SUPPORTED_JOINT_SETS:
         raise ValueError(f"SMPL fit targets must be one of {SUPPORTED_JOINT_SETS}, got {js.name!r}")
-    key = (id(model), js.name)
+    key = (model.fingerprint, js.name)
     if key in _BUFFER_CACHE:
         return _BUFFER_CACHE[key]
     parents = model.parents
@@ -181,6 +192,11 @@ def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
         max(int(parents[_J[a]]), 0) if a is not None and a in _J else int(d)
         for a, d in zip(reg.anchor, dominant, strict=True)
     ]
+    # Offsets: keypoints in a trunk or head frame, and foot points that are not joints.
+    names = [SMPL24.names[j] for j in offset_joint]
+    foot = [
+        float(a is None and n in FOOT_OFFSET_FRAMES) for n, a in zip(names, reg.anchor, strict=True)
+    ]
     buf = KeypointBuffers(
         joint_set=js.name,
         parents=np.asarray(parents),
@@ -200,8 +216,9 @@ def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
         anchors=reg.anchors,
         offset_joint=torch.as_tensor(offset_joint, dtype=torch.long),
         offset_mask=torch.as_tensor(
-            [float(SMPL24.names[j] in OFFSET_FRAMES) for j in offset_joint]
+            [max(float(n in OFFSET_FRAMES), f) for n, f in zip(names, foot, strict=True)]
         ),
+        foot_offset=torch.as_tensor(foot),
     )
     _BUFFER_CACHE[key] = buf
     return buf
