@@ -1,0 +1,446 @@
+"""One finder per criterion of :data:`~mvviz.analysis.failures.entries.CRITERIA`: each
+returns the unmerged :class:`~mvviz.analysis.failures.entries.Failure` entries of a run
+(one per frame, or per span for gaps); :mod:`.review` merges and ranks them."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from mvviz.analysis.failures.entries import (
+    AFFINITY_THRESHOLD,
+    LIMIT_SCALE_DEG,
+    MAHALANOBIS_THRESHOLD,
+    MATCH_GATE_MM,
+    RELATIVE_LEVEL,
+    RESIDUAL_FLOOR_MM,
+    SWITCH_SCORE,
+    UNASSIGNED_CONFIDENCE,
+    USUAL_FLOOR_PX,
+    Failure,
+    joint_names,
+    present,
+    track_or_none,
+    usual_level,
+    where_label,
+)
+from pipeline import metrics, pose_limits
+from pipeline.evaluate import evaluate, ground_truth_slots, gt_per_frame, to_smpl_slots
+from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
+from pipeline.label_check import check_results
+from pipeline.results import PipelineResults
+from pipeline.scene import Scene
+
+
+def reprojection_failures(
+    scene: Scene, results: PipelineResults, *, level: float = RELATIVE_LEVEL
+) -> list[Failure]:
+    """Each (person-frame, joint, view) triangulation used whose reprojection error is at
+    least ``level`` times that joint's usual error in that camera (the median over the
+    run, at least :data:`USUAL_FLOOR_PX`); score = error / usual. Ranking by the ratio
+    keeps a camera that always reprojects at 18 px (far away, blurry) from filling the
+    list just under the outlier threshold, while an error twice its usual stands out."""
+    reproj = np.where(results.person_used, results.person_reproj, np.nan)  # (Q, J, V)
+    if reproj.shape[0] == 0:
+        return []
+    usual = usual_level(reproj, 0, floor=USUAL_FLOOR_PX)  # (J, V)
+    ratio = reproj / usual
+    names, cams = joint_names(results), scene.rig.names
+    out = []
+    with np.errstate(invalid="ignore"):
+        hits = np.argwhere(ratio >= level)
+    for q, j, v in hits:
+        f, k = int(results.person_frame[q]), track_or_none(results.person_track[q])
+        e, r = float(reproj[q, j, v]), float(ratio[q, j, v])
+        detail = f"{e:.1f} px, {r:.1f}× its usual {usual[j, v]:.1f} px"
+        detail += " (untracked person)" if k is None else ""
+        out.append(
+            Failure(
+                "reprojection", r, f, k, int(j), int(v), where_label(k, names[j], cams[v]),
+                detail, kind="reprojection", value=e,
+            )
+        )  # fmt: skip
+    return out
+
+
+def _slot_to_joint(joint_set: str) -> dict[int, int]:
+    """SMPL-24 slot -> index in ``joint_set`` (for the joints both name alike)."""
+    js = get_joint_set(joint_set)
+    src, dst = mapping_indices(js, SMPL24)
+    return {int(d): int(s) for s, d in zip(src, dst, strict=True)}
+
+
+def mpjpe_failures(
+    scene: Scene,
+    results: PipelineResults,
+    *,
+    gate_mm: float = MATCH_GATE_MM,
+    level: float = RELATIVE_LEVEL,
+) -> list[Failure]:
+    """Per frame, match the filtered tracks to ground truth (Hungarian on MPJPE, as
+    :func:`pipeline.evaluate.evaluate` does); list every matched (frame, track) whose
+    MPJPE is at least ``level`` times the run's median MPJPE (score = that ratio), with
+    its worst joint. A ground-truth person or a track left unmatched is one entry per
+    run of frames, scored as ``gate_mm`` / median (above any matched pair)."""
+    if scene.gt is None or results.num_tracks == 0:
+        return []
+    gt_slots, _ = ground_truth_slots(scene.gt, results.joint_set)
+    gt_dense, gt_ids = gt_per_frame(scene.gt, gt_slots, results.num_frames)  # (F, G, 24, 3)
+    pred = to_smpl_slots(results.track_filtered, results.joint_set)  # (K, F, 24, 3)
+    slot_joint = _slot_to_joint(results.joint_set)
+    slots = np.array(sorted(slot_joint))
+    names = joint_names(results)
+    matched, unmatched = [], []
+    for f in range(results.num_frames):
+        p, g = pred[:, f], gt_dense[f]
+        p_ok = np.isfinite(p).all(-1).any(-1)
+        g_ok = np.isfinite(g).all(-1).any(-1)
+        pairs = metrics.match_people(p, g, max_mpjpe=gate_mm) if p_ok.any() and g_ok.any() else []
+        for k, gi in pairs:
+            err = metrics.joint_errors(p[k], g[gi])  # (24,) mm
+            e = err[slots]
+            if np.isfinite(e).any():
+                matched.append((f, int(k), int(gi), float(np.nanmean(err)), e))
+        matched_p = {k for k, _ in pairs}
+        matched_g = {gi for _, gi in pairs}
+        for gi in np.flatnonzero(g_ok):
+            if int(gi) not in matched_g:
+                unmatched.append((f, None, int(gi)))
+        for k in np.flatnonzero(p_ok):
+            if int(k) not in matched_p:
+                unmatched.append((f, int(k), None))
+    usual = float(usual_level(np.array([m[3] for m in matched] or [np.nan]), floor=10.0))
+    out = []
+    for f, k, gi, score, e in matched:
+        if score < level * usual:
+            continue
+        j = slot_joint[int(slots[np.nanargmax(e)])]
+        detail = (
+            f"MPJPE {score:.0f} mm, {score / usual:.1f}× the run's {usual:.0f} mm "
+            f"(worst joint {np.nanmax(e):.0f} mm, GT {gt_ids[gi]})"
+        )
+        out.append(
+            Failure(
+                "mpjpe", score / usual, f, k, j, None, where_label(k, names[j]), detail,
+                kind="MPJPE", value=score,
+            )
+        )  # fmt: skip
+    for f, k, gi in unmatched:
+        if k is None:
+            where, detail, kind = "", f"GT person {gt_ids[gi]} matched by no track", "no track"
+        else:
+            where, detail, kind = where_label(k), "matches no GT person", "no GT"
+        # one problem per GT person (or track): the kind and the person make the key
+        out.append(
+            Failure(
+                "mpjpe", gate_mm / usual, f, k, None, None, where, detail,
+                kind=kind if gi is None else f"{kind}|{gt_ids[gi]}", value=gate_mm,
+            )
+        )  # fmt: skip
+    return out
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) of the runs of True in a 1D bool array."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+def association_failures(
+    scene: Scene,
+    results: PipelineResults,
+    *,
+    affinity_threshold: float = AFFINITY_THRESHOLD,
+    unassigned_confidence: float = UNASSIGNED_CONFIDENCE,
+) -> list[Failure]:
+    """Association conflicts and gaps (kinds in quotes).
+
+    1. "close to two": a detection of person p whose affinity to a detection of another
+       person p' of the frame is ``>= affinity_threshold``; per (frame, p, p'), naming
+       the more doubtful detection (the one whose mean affinity to its own person's
+       detections is lower); score = that affinity.
+    2. "one view": a person triangulated from fewer than 2 views (score 1).
+    3. "missing in raw": a track present before and after but missing from the raw
+       triangulation: one entry per gap (score 1 + gap length / clip length).
+    4. "unassigned": an unassigned detection with mean joint confidence
+       ``>= unassigned_confidence`` (score = that confidence), per frame and camera.
+    """
+    return [
+        *_close_to_two(scene, results, affinity_threshold),
+        *_one_view(scene, results),
+        *_raw_gaps(results),
+        *_unassigned(scene, results, unassigned_confidence),
+    ]
+
+
+def _own_affinity(results: PipelineResults) -> np.ndarray:
+    """(D,) each detection's mean affinity to its own person's detections; NaN for none."""
+    det_person = results.det_person
+    a, b, aff = results.edge_a, results.edge_b, results.edge_affinity
+    pa = det_person[a] if len(a) else np.zeros(0, int)
+    pb = det_person[b] if len(b) else np.zeros(0, int)
+    same = (pa >= 0) & (pa == pb)
+    own_sum = np.zeros(len(det_person))
+    own_n = np.zeros(len(det_person))
+    np.add.at(own_sum, a[same], aff[same])
+    np.add.at(own_sum, b[same], aff[same])
+    np.add.at(own_n, a[same], 1)
+    np.add.at(own_n, b[same], 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(own_n > 0, own_sum / np.maximum(own_n, 1), np.nan)
+
+
+def _close_to_two(
+    scene: Scene, results: PipelineResults, affinity_threshold: float
+) -> list[Failure]:
+    """1. conflicts, from the affinity edges of each frame."""
+    cams, det_person, view = scene.rig.names, results.det_person, scene.detections.view
+    ptrack = results.person_track
+
+    def who(q: int) -> str:
+        k = int(ptrack[q])
+        return f"track {k}" if k >= 0 else "an untracked person"
+
+    a, b, aff = results.edge_a, results.edge_b, results.edge_affinity
+    pa = det_person[a] if len(a) else np.zeros(0, int)
+    pb = det_person[b] if len(b) else np.zeros(0, int)
+    own = _own_affinity(results)
+    own_rank = np.where(np.isfinite(own), own, -np.inf)  # no own affinity: most doubtful
+    worst: dict[tuple[int, int], tuple[float, int, int]] = {}
+    for e in np.flatnonzero((pa >= 0) & (pb >= 0) & (pa != pb) & (aff >= affinity_threshold)):
+        da, db = int(a[e]), int(b[e])
+        d, other = (da, db) if own_rank[da] <= own_rank[db] else (db, da)
+        key = (min(pa[e], pb[e]), max(pa[e], pb[e]))
+        if key not in worst or aff[e] > worst[key][0]:
+            worst[key] = (float(aff[e]), d, other)
+    out = []
+    for score, d, other in worst.values():
+        q, q2 = int(det_person[d]), int(det_person[other])
+        f = int(results.person_frame[q])
+        own_txt = f", own {own[d]:.2f}" if np.isfinite(own[d]) else ""
+        detail = f"close to {who(q2)} too (affinity {score:.2f}{own_txt})"
+        k = track_or_none(ptrack[q])
+        out.append(
+            Failure(
+                "association", score, f, k, None, int(view[d]),
+                where_label(k, None, cams[int(view[d])]), detail,
+                kind=f"close to two|{who(q2)}", value=score,
+            )
+        )  # fmt: skip
+    return out
+
+
+def _one_view(scene: Scene, results: PipelineResults) -> list[Failure]:
+    """2. people seen by fewer than two views."""
+    cams, out = scene.rig.names, []
+    nviews = (results.person_members >= 0).sum(1)
+    for q in np.flatnonzero(nviews < 2):
+        f, k = int(results.person_frame[q]), track_or_none(results.person_track[q])
+        v = int(np.flatnonzero(results.person_members[q] >= 0)[0]) if nviews[q] else None
+        detail = f"seen by {nviews[q]} view" + ("s" if nviews[q] != 1 else "")
+        where = where_label(k, None, None if v is None else cams[v])
+        out.append(
+            Failure("association", 1.0, f, k, None, v, where, detail, kind="one view", value=1)
+        )
+    return out
+
+
+def _raw_gaps(results: PipelineResults) -> list[Failure]:
+    """3. gaps in a track's raw triangulation."""
+    pres = present(results)
+    F = max(results.num_frames, 1)
+    out = []
+    for k in range(results.num_tracks):
+        seen = np.flatnonzero(pres[k])
+        if len(seen) < 2:
+            continue
+        inside = np.zeros(results.num_frames, bool)
+        inside[seen[0] : seen[-1] + 1] = True
+        for start, stop in _runs(inside & ~pres[k]):
+            n = stop - start
+            out.append(
+                Failure(
+                    "association", 1.0 + n / F, start, k, None, None, where_label(k),
+                    "missing in raw", kind="missing in raw", first=start, last=stop - 1,
+                    frames=n, value=n,
+                )
+            )  # fmt: skip
+    return out
+
+
+def _unassigned(
+    scene: Scene, results: PipelineResults, unassigned_confidence: float
+) -> list[Failure]:
+    """4. confident detections nobody took, per frame and camera."""
+    cams, view = scene.rig.names, scene.detections.view
+    conf = results.det_joints2d[..., 2]
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean_conf = np.nanmean(np.where(np.isfinite(conf), conf, np.nan), axis=1)
+    frames = scene.detections.frame
+    best: dict[tuple[int, int], int] = {}
+    for d in np.flatnonzero((results.det_person < 0) & (mean_conf >= unassigned_confidence)):
+        key = (int(frames[d]), int(view[d]))
+        if key not in best or mean_conf[d] > mean_conf[best[key]]:
+            best[key] = int(d)
+    out = []
+    for (f, v), d in best.items():
+        detail = f"unassigned detection (confidence {mean_conf[d]:.2f})"
+        out.append(
+            Failure(
+                "association", float(mean_conf[d]), f, None, None, v,
+                where_label(None, None, cams[v]), detail, kind="unassigned",
+                value=float(mean_conf[d]),
+            )
+        )  # fmt: skip
+    return out
+
+
+def id_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
+    """Track births after the first frame and deaths before the last (score 1 to 2,
+    higher for shorter tracks), and ID switches of :func:`pipeline.evaluate.evaluate`
+    when the scene has ground truth (score :data:`SWITCH_SCORE`)."""
+    F = results.num_frames
+    pres = present(results)
+    out = []
+    for k in range(results.num_tracks):
+        seen = np.flatnonzero(pres[k])
+        if len(seen) == 0:
+            continue
+        first, last = int(seen[0]), int(seen[-1])
+        score = 1.0 + (1.0 - (last - first + 1) / F)
+        life = f"lives f {first}–{last}"
+        if first > 0:
+            out.append(
+                Failure("id", score, first, k, None, None, where_label(k), f"born ({life})",
+                        kind="birth")
+            )  # fmt: skip
+        if last < F - 1:
+            out.append(
+                Failure("id", score, last, k, None, None, where_label(k), f"last seen ({life})",
+                        kind="death")
+            )  # fmt: skip
+    if scene.gt is not None and results.num_tracks:
+        for f, gt_id, old, new in evaluate(scene, results).id_switch_events:
+            detail = f"ID switch: GT {gt_id} was track {old}"
+            out.append(
+                Failure("id", SWITCH_SCORE, f, new, None, None, where_label(new), detail,
+                        kind="ID switch")
+            )  # fmt: skip
+    return out
+
+
+def kalman_failures(
+    scene: Scene, results: PipelineResults, *, threshold: float = MAHALANOBIS_THRESHOLD
+) -> list[Failure]:
+    """Per (frame, track) whose worst joint's Mahalanobis distance exceeds ``threshold``:
+    that joint, scored by the distance (already relative: the innovation over its
+    expected spread)."""
+    del scene
+    m = np.where(np.isfinite(results.track_mahalanobis), results.track_mahalanobis, -np.inf)
+    if m.size == 0:
+        return []
+    j_best = m.argmax(-1)  # (K, F)
+    worst = np.take_along_axis(m, j_best[..., None], -1)[..., 0]
+    names = joint_names(results)
+    out = []
+    for k, f in zip(*np.nonzero(worst > threshold), strict=True):
+        j, s = int(j_best[k, f]), float(worst[k, f])
+        out.append(
+            Failure(
+                "kalman", s, int(f), int(k), j, None, where_label(int(k), names[j]),
+                f"Mahalanobis {s:.1f}", kind="Mahalanobis", value=s,
+            )
+        )  # fmt: skip
+    return out  # a span merges whichever joint is worst frame by frame: MERGE_IGNORES
+
+
+def smpl_failures(
+    scene: Scene,
+    results: PipelineResults,
+    *,
+    tol_deg: float = pose_limits.DEFAULT_TOL_DEG,
+    level: float = RELATIVE_LEVEL,
+) -> list[Failure]:
+    """The VAE-corrected fit if present, else step I: each (frame, track, joint) whose fit
+    residual is at least ``level`` times that joint's usual residual (median over the
+    run, at least :data:`RESIDUAL_FLOOR_MM`; score = the ratio), and each joint rotation
+    outside its limits by more than ``tol_deg`` (score excess / :data:`LIMIT_SCALE_DEG`)."""
+    del scene
+    fit = results.smpl_vae if results.smpl_vae is not None else results.smpl
+    if fit is None:
+        return []
+    names = joint_names(results)
+    index = {n: i for i, n in enumerate(names)}
+    fit_names = get_joint_set(fit.joint_set).names
+    out = []
+    res = np.asarray(fit.residual, float)  # (K, F, T) mm
+    if res.size:
+        K, F, T = res.shape
+        usual = usual_level(res.reshape(K * F, T), 0, floor=RESIDUAL_FLOOR_MM)  # (T,)
+        with np.errstate(invalid="ignore"):
+            hits = np.argwhere(res >= level * usual)
+        for k, f, t in hits:
+            name, r = fit_names[t], float(res[k, f, t])
+            detail = f"{fit.stage} residual {r:.0f} mm, {r / usual[t]:.1f}× its usual"
+            out.append(
+                Failure(
+                    "smpl", r / usual[t], int(f), int(k), index.get(name), None,
+                    where_label(int(k), name), detail, kind=f"residual|{name}", value=r,
+                )
+            )  # fmt: skip
+    with np.errstate(invalid="ignore"):
+        excess = pose_limits.limit_excess(fit.pose_rotvecs)  # (K, F, 24) deg
+        excess = np.where(np.isfinite(excess), excess, 0.0)
+    if excess.size:
+        angles = np.rad2deg(pose_limits.swing_twist(fit.pose_rotvecs))
+        for k, f, j in np.argwhere(excess > tol_deg):
+            name = SMPL24.names[j]
+            detail = _limit_detail(name, angles[k, f, j], float(excess[k, f, j]))
+            out.append(
+                Failure(
+                    "smpl", float(excess[k, f, j]) / LIMIT_SCALE_DEG, int(f), int(k),
+                    index.get(name), None, where_label(int(k), name), detail,
+                    kind=f"joint limit|{name}", value=float(excess[k, f, j]),
+                )
+            )  # fmt: skip
+    # kinds carry the joint: a joint the results' set lacks (index None) still merges
+    # with itself only
+    return out
+
+
+def label_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
+    """One entry per finding of :func:`pipeline.label_check.check_results` (raw tracks,
+    and each camera's associated 2D against the triangulation), spanning the frames that
+    show it, naming its track (None for the scene) and camera; score = measured value /
+    threshold (threshold / value for a ratio below its lower bound)."""
+    cams = scene.rig.names
+    out = []
+    for f in check_results(results, scene.rig).findings:
+        frame = f.frames[0] if f.frames else 0
+        low = f.kind == "proportion" and f.value < f.threshold
+        score = f.threshold / f.value if low and f.value > 0 else f.value / f.threshold
+        named = f.track is not None or f.camera is not None  # where_label() names them
+        detail = f.message.split(": ", 1)[1] if named else f.message
+        detail += f" ({len(f.frames)} frames)"
+        view = None if f.camera is None else cams[f.camera]
+        out.append(
+            Failure(
+                "labels", float(score), frame, f.track, None, f.camera,
+                where_label(f.track, None, view), detail, kind=f.kind,
+                value=float(f.value),
+            )
+        )  # fmt: skip
+    return out
+
+
+def _limit_detail(name: str, angles_deg: np.ndarray, excess_deg: float) -> str:
+    """E.g. ``"flexion −143° outside [0°, 150°] (143° over)"`` for the worst axis."""
+    lim = pose_limits.LIMITS[name.replace("right_", "left_", 1)]
+    over = np.maximum(angles_deg - lim.high, 0.0) + np.maximum(np.array(lim.low) - angles_deg, 0)
+    a = int(np.argmax(over))
+    return (
+        f"{lim.names[a]} {angles_deg[a]:.0f}° outside [{lim.low[a]}°, {lim.high[a]}°] "
+        f"({excess_deg:.0f}° over)"
+    )
