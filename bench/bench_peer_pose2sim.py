@@ -16,7 +16,12 @@ Reported, in one run:
     with confidence >= 0.3, Pose2Sim's likelihood threshold) of each result onto the same
     2D: the detections our association gave the subject in that camera;
  3. the fitted SMPL bodies (step I and SMPL + VAE): their keypoints' reprojection error
-    as above, and their median pixel distance to the RTS joints they were fitted to;
+    as above, their median pixel distance (per camera) and millimetre distance (per
+    keypoint) to the RTS joints they were fitted to; and two floors for any body of
+    constant proportions: the same fit with its regularisers off (no smoothness, pose,
+    free-joint or limit terms) and 600 iterations, the best such body we found, and the
+    rigid-head floor (the face points and head top of the RTS track fitted by one rigid
+    shape per track, any shape: what a rigid head cannot get under);
  4. with ``--detect`` (needs the ``[video]`` extra): the same from ``mvviz detect``
     (BlazePose) on the trial's real videos instead of the shipped OpenPose 2D, on the
     keypoints both layouts share, and the detector's run time.
@@ -55,6 +60,12 @@ from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.joint_sets import mapping_indices  # noqa: E402
 from pipeline.results import PipelineResults, run_pipeline  # noqa: E402
 from pipeline.scene import Scene, load_scene  # noqa: E402
+from pipeline.smpl_fit import FitParams, fit_sequence  # noqa: E402
+
+UNREGULARISED = FitParams(iters=600, w_smooth=0.0, w_pose=0.0, w_free=0.0, w_limit=0.0)
+"""The fit with nothing but the data term (betas and offsets still L2-regularised) and
+5x the iterations: the closest body of constant proportions we found."""
+HEAD_POINTS = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "head_top")
 
 TRIAL = Path(__file__).resolve().parents[1] / "sample_data" / "pose2sim_balancing"
 
@@ -64,6 +75,55 @@ def in_joint_set(points: np.ndarray, src, dst) -> np.ndarray:
     s, d = mapping_indices(src, dst)
     out = np.full(points.shape[:-2] + (dst.num_joints, 3), np.nan)
     out[..., d, :] = points[..., s, :]
+    return out
+
+
+def rigid_floor_mm(points: np.ndarray, iters: int = 50) -> np.ndarray:
+    """(F, P) distances (mm) of ``points`` (F, P, 3) to the best rigid motion of one
+    shape (generalised Procrustes: any constant shape, a rotation and translation per
+    frame); frames with a missing point are left out (NaN)."""
+    out = np.full(points.shape[:2], np.nan)
+    ok = np.isfinite(points).all((1, 2))
+    X = points[ok]
+    shape = X[0] - X[0].mean(0)
+    for _ in range(iters):
+        c = X.mean(1, keepdims=True)
+        H = np.einsum("pa,fpb->fab", shape, X - c)  # Kabsch of the shape onto each frame
+        U, _, Vt = np.linalg.svd(H)
+        d = np.sign(np.linalg.det(np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)))
+        S = np.tile(np.eye(3), (len(X), 1, 1))
+        S[:, 2, 2] = d
+        R = np.swapaxes(Vt, 1, 2) @ S @ np.swapaxes(U, 1, 2)  # (F, 3, 3)
+        fit = np.einsum("fab,pb->fpa", R, shape) + c
+        shape = np.einsum("fba,fpb->fpa", R, X - c).mean(0)  # the shape, re-estimated
+    out[ok] = np.linalg.norm(fit - X, axis=-1)
+    return out
+
+
+def px_to(scene: Scene, a: np.ndarray, b: np.ndarray) -> dict[str, float]:
+    """Per camera: median pixel distance between the projections of (F, J, 3) a and b."""
+    out = {}
+    for cam in scene.rig:
+        d = cam.project(a.reshape(-1, 3)) - cam.project(b.reshape(-1, 3))
+        out[cam.name] = float(np.nanmedian(np.linalg.norm(d, axis=-1)))
+    return out
+
+
+def floors(scene: Scene, results: PipelineResults, track: int, model) -> dict:
+    """How close a body of constant proportions gets to the subject's RTS joints."""
+    rts = results.track_smoothed[track]
+    fit, _ = fit_sequence(rts[None], results.joint_set, model, params=UNREGULARISED,
+                          progress=False)  # fmt: skip
+    names = scene.joint_set.names
+    head = [names.index(n) for n in HEAD_POINTS if n in names]
+    out = {
+        "unregularised_px": px_to(scene, fit.keypoints[0], rts),
+        "unregularised_mm": float(np.nanmedian(fit.residual)),
+        "unregularised_seconds": fit.seconds,
+    }
+    if len(head) >= 3:
+        r = rigid_floor_mm(rts[:, head])
+        out["rigid_head_mm"] = {names[i]: float(np.nanmedian(r[:, k])) for k, i in enumerate(head)}
     return out
 
 
@@ -94,17 +154,19 @@ def compare(scene: Scene, results: PipelineResults, refs: dict[str, np.ndarray])
             for v, cam in enumerate(scene.rig)
         }
     # The fitted bodies against the triangulated joints they were fitted to (RTS), in px.
-    body_vs_joints = {}
-    for name in [n for n in ours if n.endswith(" body")]:
-        per_cam = {}
-        for cam in scene.rig:
-            a = cam.project(ours[name].reshape(-1, 3))
-            b = cam.project(ours["ours rts"].reshape(-1, 3))
-            per_cam[cam.name] = float(np.nanmedian(np.linalg.norm(a - b, axis=-1)))
-        body_vs_joints[name] = per_cam
+    bodies = [n for n in ours if n.endswith(" body")]
+    body_vs_joints = {name: px_to(scene, ours[name], ours["ours rts"]) for name in bodies}
     names = scene.joint_set.names
+    body_mm = {
+        name: np.nanmedian(np.linalg.norm(ours[name] - ours["ours rts"], axis=-1), 0)
+        for name in bodies
+    }
     return {
         "body_vs_rts_px": body_vs_joints,
+        "body_vs_rts_mm": {
+            name: {n: float(v[j]) for j, n in enumerate(names) if np.isfinite(v[j])}
+            for name, v in body_mm.items()
+        },
         "track": track,
         "frames": int(np.isfinite(results.track_raw[track, :, :, 0]).any(1).sum()),
         "median_mm": dist,
@@ -139,9 +201,34 @@ def print_report(title: str, fig: dict) -> None:
         print(
             f"{name + ' vs rts joints':<34}" + "".join(f"{per_cam[c]:>9.1f}       " for c in cams)
         )
+    fl = fig.get("floors")
+    if fl:
+        per_cam = fl["unregularised_px"]
+        print(
+            f"{'unregularised body vs rts joints':<34}"
+            + "".join(f"{per_cam[c]:>9.1f}       " for c in cams)
+        )
     for name, per_cam in fig["reprojection_px"].items():
         print(
             f"{name:<34}" + "".join(f"{per_cam[c][0]:>9.1f} /{per_cam[c][1]:>5.1f}" for c in cams)
+        )
+    if fig.get("body_vs_rts_mm"):
+        bodies = list(fig["body_vs_rts_mm"])
+        print(f"\n{'body keypoint vs rts (mm)':<26}" + "".join(f"{b:>20}" for b in bodies)
+              + f"{'rigid-head floor':>20}")  # fmt: skip
+        head = (fl or {}).get("rigid_head_mm", {})
+        for n in fig["body_vs_rts_mm"][bodies[0]]:
+            row = "".join(f"{fig['body_vs_rts_mm'][b].get(n, np.nan):>20.1f}" for b in bodies)
+            print(f"{n:<26}" + row + (f"{head[n]:>20.1f}" if n in head else ""))
+        meds = "".join(
+            f"{np.median(list(fig['body_vs_rts_mm'][b].values())):>20.1f}" for b in bodies
+        )
+        print(f"{'median':<26}" + meds)
+    if fl:
+        print(
+            f"unregularised fit ({UNREGULARISED.iters} iterations, "
+            f"{fl['unregularised_seconds']:.1f} s): median {fl['unregularised_mm']:.1f} mm "
+            "from the rts joints"
         )
 
 
@@ -173,6 +260,10 @@ def main() -> int:
     seconds = time.perf_counter() - t0
     figures = {"openpose_2d": compare(scene, results, refs)}
     figures["openpose_2d"]["pipeline_s"] = seconds
+    if results.smpl is not None:
+        figures["openpose_2d"]["floors"] = floors(
+            scene, results, figures["openpose_2d"]["track"], model
+        )
     print_report(
         f"shipped OpenPose BODY_25B 2D ({seconds:.2f} s, all stages)", figures["openpose_2d"]
     )
