@@ -9,6 +9,8 @@ backwards. Every check here is a pure function of the 3D joints (and, for camera
 the 2D they were triangulated from), by joint *name*, so it works for any
 :class:`~pipeline.joint_sets.JointSet` that has the joints a check needs (a check whose
 joints a set lacks is skipped and not listed in :attr:`LabelCheck.checked`).
+The measures themselves (body axes, facing offsets, hinge angles, bone lengths) are
+in :mod:`pipeline.body_measures`.
 
 Checks (kinds of :class:`LabelFinding`), per track and pooled over the scene:
 
@@ -58,11 +60,22 @@ Conventions: world millimetres, z up; pixels; degrees. NaN marks a missing joint
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.body_measures import (
+    LIMBS,
+    SIDES,
+    body_axes,
+    bone_lengths,
+    dot,
+    facing_offsets,
+    hinge_angles,
+    joint_pair,
+    nanmean_last,
+)
 from pipeline.cameras import Camera
 from pipeline.joint_sets import JointSet, get_joint_set
 from pipeline.results import PipelineResults
@@ -79,18 +92,6 @@ KINDS = (
 )
 # Scene-wide findings of these kinds point at the joint order, not at one body.
 ORDER_KINDS = ("left_right", "symmetry", "proportion")
-SIDES = ("left", "right")
-
-# Limbs whose left and right lengths should agree: name -> (proximal, distal) joint
-# names without the side prefix.
-LIMBS: dict[str, tuple[str, str]] = {
-    "upper_arm": ("shoulder", "elbow"),
-    "forearm": ("elbow", "wrist"),
-    "thigh": ("hip", "knee"),
-    "shin": ("knee", "ankle"),
-    "flank": ("shoulder", "hip"),
-    "foot": ("heel", "big_toe"),
-}
 # Plausible ratios of median lengths: (name, numerator parts, denominator parts, low,
 # high). A part is a limb of LIMBS (mean of both sides) or a width ("shoulder_width",
 # "hip_width"). Anthropometry (Drillis & Contini; Winter's segment table) gives thigh
@@ -276,157 +277,6 @@ class ViewObservations:
             raise ValueError(f"frame and track: expected ({P},), got {self.frame.shape}")
 
 
-# --------------------------------------------------------------------------- geometry
-
-
-def _joint(joints: np.ndarray, js: JointSet, name: str) -> np.ndarray | None:
-    """(..., 3) the joint called ``name``, or None if the set lacks it."""
-    i = js.index.get(name)
-    return None if i is None else joints[..., i, :]
-
-
-def _pair(joints: np.ndarray, js: JointSet, name: str):
-    """(left, right) (..., 3) of ``left_<name>`` / ``right_<name>``, or None."""
-    a, b = _joint(joints, js, f"left_{name}"), _joint(joints, js, f"right_{name}")
-    return None if a is None or b is None else (a, b)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
-def _horizontal_unit(v: np.ndarray, *, min_share: float = 0.5) -> np.ndarray:
-    """(..., 3) -> (..., 3) unit horizontal part (z = 0); NaN where the vector is
-    mostly vertical (a body lying down or a degenerate pair)."""
-    h = v.copy()
-    h[..., 2] = 0.0
-    with np.errstate(invalid="ignore"):
-        keep = np.linalg.norm(h, axis=-1) >= min_share * np.linalg.norm(v, axis=-1)
-    return np.where(keep[..., None], _unit(h), np.nan)
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("...c,...c->...", a, b)
-
-
-def body_axes(joints: np.ndarray, joint_set: JointSet) -> dict[str, np.ndarray]:
-    """The body's horizontal left axes and facing direction.
-
-    Args:
-        joints: (..., num_joints, 3) world mm, z up.
-    Returns:
-        ``"shoulders"``, ``"hips"``: (..., 3) unit horizontal left-pointing axes
-        (``left_x - right_x``), NaN where the set lacks the pair or it is mostly
-        vertical; ``"left"``: their normalised sum (either alone where the other is
-        missing); ``"forward"``: (..., 3) ``left x up``, the direction the torso faces.
-    """
-    nan = np.full(joints.shape[:-2] + (3,), np.nan)
-    out = {}
-    for name, joint in (("shoulders", "shoulder"), ("hips", "hip")):
-        pair = _pair(joints, joint_set, joint)
-        out[name] = nan if pair is None else _horizontal_unit(pair[0] - pair[1])
-    s, h = out["shoulders"], out["hips"]
-    both = np.where(np.isfinite(s), s, 0.0) + np.where(np.isfinite(h), h, 0.0)
-    left = _unit(both)
-    left[~(np.isfinite(s).all(-1) | np.isfinite(h).all(-1))] = np.nan
-    out["left"] = left
-    out["forward"] = np.cross(left, np.array([0.0, 0.0, 1.0]))
-    return out
-
-
-def facing_offsets(joints: np.ndarray, joint_set: JointSet) -> dict[str, np.ndarray]:
-    """Signed distances (mm) ahead of the torso of the cues the set has.
-
-    ``"nose"``: nose minus the shoulders' midpoint; ``"eyes"``: the eyes' midpoint
-    minus the ears' midpoint; ``"toes"``: big toes minus heels (mean of both feet,
-    either alone); each along :func:`body_axes`' ``forward``. Positive = ahead.
-
-    Args:
-        joints: (..., num_joints, 3) world mm, z up.
-    Returns:
-        cue name -> (...,) mm, NaN where a joint is missing.
-    """
-    fwd = body_axes(joints, joint_set)["forward"]
-    out = {}
-    nose, sh = _joint(joints, joint_set, "nose"), _pair(joints, joint_set, "shoulder")
-    if nose is not None and sh is not None:
-        out["nose"] = _dot(nose - 0.5 * (sh[0] + sh[1]), fwd)
-    eyes, ears = _pair(joints, joint_set, "eye"), _pair(joints, joint_set, "ear")
-    if eyes is not None and ears is not None:
-        out["eyes"] = _dot(0.5 * (eyes[0] + eyes[1]) - 0.5 * (ears[0] + ears[1]), fwd)
-    toes, heels = _pair(joints, joint_set, "big_toe"), _pair(joints, joint_set, "heel")
-    if toes is not None and heels is not None:
-        per_foot = np.stack([_dot(toes[i] - heels[i], fwd) for i in range(2)], -1)
-        out["toes"] = _nanmean_last(per_foot)
-    return out
-
-
-def _nanmean_last(x: np.ndarray) -> np.ndarray:
-    """Mean over the last axis ignoring NaN (NaN where all are)."""
-    ok = np.isfinite(x)
-    n = ok.sum(-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 0, np.where(ok, x, 0.0).sum(-1) / n, np.nan)
-
-
-def hinge_angles(joints: np.ndarray, joint_set: JointSet) -> dict[str, np.ndarray]:
-    """Signed knee and elbow flexion in the body's sagittal plane, degrees.
-
-    Positive = the anatomical direction: a knee's shank goes behind its thigh's line, an
-    elbow's forearm ahead of its upper arm's line (both judged by rotation about the
-    hips' / shoulders' left axis, in 3D). A straight limb is 0; a knee bent backwards or
-    an elbow bent backwards is negative. A bend sideways of the body (out of the
-    sagittal plane) reads near 0.
-
-    Args:
-        joints: (..., num_joints, 3) world mm, z up.
-    Returns:
-        ``"left_knee"``, ``"right_knee"``, ``"left_elbow"``, ``"right_elbow"`` (those
-        the set has) -> (...,) degrees, NaN where a joint is missing.
-    """
-    out = {}
-    for hinge, (a, b, c), axis, sign in (
-        ("knee", ("hip", "knee", "ankle"), "hip", 1.0),
-        ("elbow", ("shoulder", "elbow", "wrist"), "shoulder", -1.0),
-    ):
-        pair = _pair(joints, joint_set, axis)
-        if pair is None:
-            continue
-        left = _unit(pair[0] - pair[1])
-        for side in SIDES:
-            p = [_joint(joints, joint_set, f"{side}_{n}") for n in (a, b, c)]
-            if any(x is None for x in p):
-                continue
-            upper, lower = p[1] - p[0], p[2] - p[1]
-            s = _dot(np.cross(upper, lower), left)
-            out[f"{side}_{hinge}"] = sign * np.rad2deg(np.arctan2(s, _dot(upper, lower)))
-    return out
-
-
-def bone_lengths(joints: np.ndarray, joint_set: JointSet) -> dict[str, np.ndarray]:
-    """Lengths of the named bones the set has, mm.
-
-    Args:
-        joints: (..., num_joints, 3).
-    Returns:
-        ``"left_<limb>"`` / ``"right_<limb>"`` for each limb of :data:`LIMBS`, and
-        ``"shoulder_width"`` / ``"hip_width"`` -> (...,) mm, NaN where a joint is missing.
-    """
-    out = {}
-    for limb, (a, b) in LIMBS.items():
-        for side in SIDES:
-            pa = _joint(joints, joint_set, f"{side}_{a}")
-            pb = _joint(joints, joint_set, f"{side}_{b}")
-            if pa is not None and pb is not None:
-                out[f"{side}_{limb}"] = np.linalg.norm(pb - pa, axis=-1)
-    for width, joint in (("shoulder_width", "shoulder"), ("hip_width", "hip")):
-        pair = _pair(joints, joint_set, joint)
-        if pair is not None:
-            out[width] = np.linalg.norm(pair[0] - pair[1], axis=-1)
-    return out
-
-
 # --------------------------------------------------------------------------- checks
 
 
@@ -455,10 +305,10 @@ def _fraction_signals(
     out = {}
     axes = body_axes(joints, js)
     s, h = axes["shoulders"], axes["hips"]
-    if _pair(joints, js, "shoulder") is not None and _pair(joints, js, "hip") is not None:
+    if joint_pair(joints, js, "shoulder") is not None and joint_pair(joints, js, "hip") is not None:
         scored = np.isfinite(s).all(-1) & np.isfinite(h).all(-1)
         with np.errstate(invalid="ignore"):
-            bad = scored & (_dot(s, h) < 0)
+            bad = scored & (dot(s, h) < 0)
         out["left_right"] = (bad[..., None], scored[..., None], p.axis_contradiction)
     cues = facing_offsets(joints, js)
     if cues:
@@ -534,7 +384,120 @@ def _part(medians: dict[str, np.ndarray], part: str) -> np.ndarray | None:
     if part in medians:
         return medians[part]
     sides = [medians[f"{s}_{part}"] for s in SIDES if f"{s}_{part}" in medians]
-    return _nanmean_last(np.stack(sides, -1)) if sides else None
+    return nanmean_last(np.stack(sides, -1)) if sides else None
+
+
+def _flag_measure(
+    findings: list[LabelFinding],
+    kind: str,
+    values: np.ndarray,
+    joints: np.ndarray,
+    tracks: np.ndarray,
+    threshold: Callable[[float], float],
+    worse: Callable[[float], bool],
+    describe: Callable[[float], str],
+) -> tuple[dict[int, float], float]:
+    """Per-track measure ``values`` (K,) of the judged ``tracks``, and its scene value
+    (the median over them); a finding (appended to ``findings``, a scene one in front)
+    where ``worse(value)``, ``threshold(value)`` the bound it crossed."""
+    per = {int(k): float(values[k]) for k in tracks if np.isfinite(values[k])}
+    vals = np.array(list(per.values()))
+    scene = float(np.median(vals)) if vals.size else float("nan")
+    flagged = 0
+    for k, v in per.items():
+        if worse(v):
+            flagged += 1
+            frames = _frames(np.isfinite(joints[k]).all(-1).any(-1))
+            text = f"track {k}: {describe(v)}"
+            findings.append(LabelFinding(kind, k, None, frames, v, threshold(v), text))
+    if vals.size and worse(scene) and _most(flagged, vals.size):
+        frames = _frames(np.isfinite(joints[tracks]).all(-1).any(-1).any(0))
+        text = f"scene: {describe(scene)} (median over {vals.size} tracks)"
+        findings.insert(0, LabelFinding(kind, None, None, frames, scene, threshold(scene), text))
+    return per, scene
+
+
+def _symmetry_measures(med: dict[str, np.ndarray], p: LabelCheckParams) -> list[tuple]:
+    """(key, values (K,), threshold, worse, describe) of each limb's left/right difference."""
+    out = []
+    for limb in [x for x in LIMBS if f"left_{x}" in med and f"right_{x}" in med]:
+        a, b = med[f"left_{limb}"], med[f"right_{limb}"]
+        with np.errstate(invalid="ignore"):
+            rel = np.abs(a - b) / (0.5 * (a + b))
+        out.append((
+            f"symmetry:{limb}",
+            rel,
+            lambda v: p.symmetry,
+            lambda v: v > p.symmetry,
+            lambda v, limb=limb: (
+                f"left and right {limb} lengths differ by {_pct(v)} (threshold {_pct(p.symmetry)})"
+            ),
+        ))  # fmt: skip
+    return out
+
+
+def _proportion_measures(med: dict[str, np.ndarray]) -> list[tuple]:
+    """(key, values (K,), threshold, worse, describe) of each ratio of :data:`RATIOS`."""
+    out = []
+    for name, num, den, lo, hi in RATIOS:
+        parts_n = [_part(med, x) for x in num]
+        parts_d = [_part(med, x) for x in den]
+        if any(x is None for x in parts_n + parts_d):
+            continue
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.sum(parts_n, 0) / np.sum(parts_d, 0)
+        out.append((
+            f"ratio:{name}",
+            ratio,
+            lambda v, lo=lo, hi=hi: lo if v < lo else hi,
+            lambda v, lo=lo, hi=hi: not lo <= v <= hi,
+            lambda v, name=name, lo=lo, hi=hi: f"{name} = {v:.2f} (plausible {lo}-{hi})",
+        ))  # fmt: skip
+    return out
+
+
+def _stability(
+    findings: list[LabelFinding],
+    lengths: dict[str, np.ndarray],
+    med: dict[str, np.ndarray],
+    p: LabelCheckParams,
+    tracks: np.ndarray,
+) -> tuple[dict[int, float], float]:
+    """Worst robust relative spread (1.4826 MAD / median) of a bone's length over frames,
+    per judged track and its median over them; findings appended to ``findings``."""
+    spread = {}
+    for bone, x in lengths.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows -> NaN
+            mad = np.nanmedian(np.abs(x - med[bone][:, None]), axis=1)
+        spread[bone] = 1.4826 * mad / med[bone]
+    stack = np.stack(list(spread.values()), -1)  # (K, B)
+    worst = np.where(np.isfinite(stack), stack, -np.inf).argmax(-1)
+    value = np.take_along_axis(stack, worst[:, None], -1)[:, 0]
+    bones = list(spread)
+    per = {int(k): float(value[k]) for k in tracks if np.isfinite(value[k])}
+    vals = np.array(list(per.values()))
+    scene = float(np.median(vals)) if vals.size else float("nan")
+    flagged = 0
+    for k, v in per.items():
+        if v > p.stability:
+            flagged += 1
+            bone = bones[worst[k]]
+            with np.errstate(invalid="ignore"):
+                off = np.abs(lengths[bone][k] / med[bone][k] - 1) > p.stability
+            text = (
+                f"track {k}: {bone} length varies by {_pct(v)} over frames "
+                f"(threshold {_pct(p.stability)})"
+            )
+            findings.append(LabelFinding("stability", k, None, _frames(off), v, p.stability, text))
+    if vals.size and scene > p.stability and _most(flagged, vals.size):
+        text = (
+            f"scene: bone lengths vary by {_pct(scene)} over frames "
+            f"(median over {vals.size} tracks; threshold {_pct(p.stability)})"
+        )
+        frames = tuple(sorted({f for x in findings if x.kind == "stability" for f in x.frames}))
+        findings.insert(0, LabelFinding("stability", None, None, frames, scene, p.stability, text))
+    return per, scene
 
 
 def _length_findings(
@@ -549,106 +512,21 @@ def _length_findings(
     findings: list[LabelFinding] = []
     kinds: list[str] = []
     tracks = np.flatnonzero(judged)
-
-    def add(kind, key, values, threshold, worse, describe):
-        """Record ``values`` (K,) under ``key``; a finding where ``worse(value)``;
-        ``threshold(value)`` is the bound it crossed."""
-        per[key] = {int(k): float(values[k]) for k in tracks if np.isfinite(values[k])}
-        vals = np.array(list(per[key].values()))
-        scene[key] = float(np.median(vals)) if vals.size else float("nan")
-        flagged = 0
-        for k, v in per[key].items():
-            if worse(v):
-                flagged += 1
-                frames = _frames(np.isfinite(joints[k]).all(-1).any(-1))
-                text = f"track {k}: {describe(v)}"
-                findings.append(LabelFinding(kind, k, None, frames, v, threshold(v), text))
-        if vals.size and worse(scene[key]) and _most(flagged, vals.size):
-            frames = _frames(np.isfinite(joints[tracks]).all(-1).any(-1).any(0))
-            text = f"scene: {describe(scene[key])} (median over {vals.size} tracks)"
-            findings.insert(
-                0, LabelFinding(kind, None, None, frames, scene[key], threshold(scene[key]), text)
+    # 1. left/right symmetry of each limb, 2. anatomical proportions
+    for kind, measures in (
+        ("symmetry", _symmetry_measures(med, p)),
+        ("proportion", _proportion_measures(med)),
+    ):
+        if measures:
+            kinds.append(kind)
+        for key, values, threshold, worse, describe in measures:
+            per[key], scene[key] = _flag_measure(
+                findings, kind, values, joints, tracks, threshold, worse, describe
             )
-
-    # 1. left/right symmetry of each limb
-    limbs = [limb for limb in LIMBS if f"left_{limb}" in med and f"right_{limb}" in med]
-    if limbs:
-        kinds.append("symmetry")
-    for limb in limbs:
-        a, b = med[f"left_{limb}"], med[f"right_{limb}"]
-        with np.errstate(invalid="ignore"):
-            rel = np.abs(a - b) / (0.5 * (a + b))
-        add(
-            "symmetry",
-            f"symmetry:{limb}",
-            rel,
-            lambda v: p.symmetry,
-            lambda v: v > p.symmetry,
-            lambda v, limb=limb: (
-                f"left and right {limb} lengths differ by {_pct(v)} (threshold {_pct(p.symmetry)})"
-            ),
-        )
-    # 2. anatomical proportions
-    for name, num, den, lo, hi in RATIOS:
-        parts_n = [_part(med, x) for x in num]
-        parts_d = [_part(med, x) for x in den]
-        if any(x is None for x in parts_n + parts_d):
-            continue
-        if "proportion" not in kinds:
-            kinds.append("proportion")
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ratio = np.sum(parts_n, 0) / np.sum(parts_d, 0)
-        add(
-            "proportion",
-            f"ratio:{name}",
-            ratio,
-            lambda v, lo=lo, hi=hi: lo if v < lo else hi,
-            lambda v, lo=lo, hi=hi: not lo <= v <= hi,
-            lambda v, name=name, lo=lo, hi=hi: f"{name} = {v:.2f} (plausible {lo}-{hi})",
-        )
     # 3. stability over frames: robust relative spread of each bone's length
     if lengths:
         kinds.append("stability")
-        spread = {}
-        for bone, x in lengths.items():
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows -> NaN
-                mad = np.nanmedian(np.abs(x - med[bone][:, None]), axis=1)
-            spread[bone] = 1.4826 * mad / med[bone]
-        stack = np.stack(list(spread.values()), -1)  # (K, B)
-        worst = np.where(np.isfinite(stack), stack, -np.inf).argmax(-1)
-        value = np.take_along_axis(stack, worst[:, None], -1)[:, 0]
-        bones = list(spread)
-        per["stability"] = {int(k): float(value[k]) for k in tracks if np.isfinite(value[k])}
-        vals = np.array(list(per["stability"].values()))
-        scene["stability"] = float(np.median(vals)) if vals.size else float("nan")
-        flagged = 0
-        for k, v in per["stability"].items():
-            if v > p.stability:
-                flagged += 1
-                bone = bones[worst[k]]
-                x = lengths[bone][k]
-                with np.errstate(invalid="ignore"):
-                    off = np.abs(x / med[bone][k] - 1) > p.stability
-                text = (
-                    f"track {k}: {bone} length varies by {_pct(v)} over frames "
-                    f"(threshold {_pct(p.stability)})"
-                )
-                findings.append(
-                    LabelFinding("stability", k, None, _frames(off), v, p.stability, text)
-                )
-        if vals.size and scene["stability"] > p.stability and _most(flagged, vals.size):
-            text = (
-                f"scene: bone lengths vary by {_pct(scene['stability'])} over frames "
-                f"(median over {vals.size} tracks; threshold {_pct(p.stability)})"
-            )
-            frames = tuple(sorted({f for x in findings if x.kind == "stability" for f in x.frames}))
-            findings.insert(
-                0,
-                LabelFinding(
-                    "stability", None, None, frames, scene["stability"], p.stability, text
-                ),
-            )
+        per["stability"], scene["stability"] = _stability(findings, lengths, med, p, tracks)
     return per, scene, findings, kinds
 
 
@@ -713,6 +591,43 @@ def camera_mirror_fractions(
     return fraction, count, mirrored
 
 
+def _camera_findings(
+    cameras: Sequence[Camera], views: ViewObservations, js: JointSet, params: LabelCheckParams
+) -> tuple[dict[str, float], list[LabelFinding]]:
+    """``camera_mirror``: the mirrored fraction per camera name, and the findings."""
+    fraction, count, mirrored = camera_mirror_fractions(
+        cameras,
+        views,
+        js,
+        min_confidence=params.min_confidence,
+        min_separation_px=params.min_separation_px,
+    )
+    cam_fraction: dict[str, float] = {}
+    found = []
+    for v, cam in enumerate(cameras):
+        cam_fraction[cam.name] = float(fraction[v])
+        if count[v] >= params.camera_min_people and fraction[v] > params.camera_mirror:
+            frames = tuple(sorted({int(x) for x in views.frame[mirrored[:, v]]}))
+            text = (
+                f"camera {cam.name}: 2D fits the left/right-mirrored 3D better for "
+                f"{_pct(fraction[v])} of {int(count[v])} people "
+                f"(threshold {_pct(params.camera_mirror)})"
+            )
+            found.append(
+                LabelFinding(
+                    "camera_mirror", None, v, frames, float(fraction[v]),
+                    params.camera_mirror, text,
+                )
+            )  # fmt: skip
+    return cam_fraction, found
+
+
+def _finding_order(x: LabelFinding) -> tuple[int, int, int]:
+    """Scene-wide findings first, then per track, then per camera; by kind within."""
+    scope = 2 if x.camera is not None else 0 if x.track is None else 1
+    return scope, -1 if x.track is None else x.track, KINDS.index(x.kind)
+
+
 def check_labels(
     joints: np.ndarray,
     joint_set: JointSet | str,
@@ -764,38 +679,11 @@ def check_labels(
     cam_fraction: dict[str, float] = {}
     if cameras is not None and views is not None:
         kinds.append("camera_mirror")
-        fraction, count, mirrored = camera_mirror_fractions(
-            cameras,
-            views,
-            js,
-            min_confidence=params.min_confidence,
-            min_separation_px=params.min_separation_px,
-        )
-        for v, cam in enumerate(cameras):
-            cam_fraction[cam.name] = float(fraction[v])
-            if count[v] >= params.camera_min_people and fraction[v] > params.camera_mirror:
-                frames = tuple(sorted({int(x) for x in views.frame[mirrored[:, v]]}))
-                text = (
-                    f"camera {cam.name}: 2D fits the left/right-mirrored 3D better for "
-                    f"{_pct(fraction[v])} of {int(count[v])} people "
-                    f"(threshold {_pct(params.camera_mirror)})"
-                )
-                found.append(
-                    LabelFinding(
-                        "camera_mirror", None, v, frames, float(fraction[v]),
-                        params.camera_mirror, text,
-                    )
-                )  # fmt: skip
+        cam_fraction, f = _camera_findings(cameras, views, js, params)
+        found += f
         finite = [x for x in cam_fraction.values() if np.isfinite(x)]
         scene["camera_mirror"] = max(finite) if finite else float("nan")
-    order = {"scene": 0, "track": 1, "camera": 2}
-    found.sort(
-        key=lambda x: (
-            order["camera" if x.camera is not None else "scene" if x.track is None else "track"],
-            -1 if x.track is None else x.track,
-            KINDS.index(x.kind),
-        )
-    )
+    found.sort(key=_finding_order)
     return LabelCheck(
         joint_set=js.name,
         checked=tuple(k for k in KINDS if k in kinds),

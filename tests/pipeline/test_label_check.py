@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from pipeline.body_measures import hinge_angles
 from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.evaluate import evaluate, format_table
@@ -23,7 +24,6 @@ from pipeline.label_check import (
     camera_mirror_fractions,
     check_labels,
     check_results,
-    hinge_angles,
 )
 from pipeline.results import run_pipeline
 from pipeline.scene import load_scene
