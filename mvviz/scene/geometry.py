@@ -22,6 +22,7 @@ from mvviz.scene.bodies import Bodies, GtBodies, fitted_bodies, gt_bodies
 from pipeline.body_model import BodyModel
 from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
+from pipeline.palette import TRACK_PALETTE
 from pipeline.results import PipelineResults
 from pipeline.run import frame_rows
 from pipeline.scene import Scene
@@ -31,20 +32,8 @@ if TYPE_CHECKING:
 
 MM = 1e-3  # millimetres -> metres
 
-# One colour per track id (no red: red means "outlier"; no grey: grey means "unassigned").
-PALETTE = np.array(
-    [
-        (31, 119, 180),  # blue
-        (255, 127, 14),  # orange
-        (44, 160, 44),  # green
-        (148, 103, 189),  # purple
-        (23, 190, 207),  # cyan
-        (227, 119, 194),  # pink
-        (188, 189, 34),  # olive
-        (140, 86, 75),  # brown
-    ],
-    dtype=np.uint8,
-)
+# One colour per track id, shared with the rerun and file exports (pipeline.palette).
+PALETTE = np.array(TRACK_PALETTE, dtype=np.uint8)
 UNASSIGNED = np.array((150, 150, 150), np.uint8)  # detection in no cluster
 UNTRACKED = np.array((70, 70, 70), np.uint8)  # clustered person that no track kept
 OUTLIER = np.array((230, 20, 20), np.uint8)  # view rejected for a joint

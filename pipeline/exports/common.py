@@ -161,16 +161,3 @@ def gap_note(present: np.ndarray, what: str = "holds the last pose") -> str | No
     spans = ", ".join(f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs[:6])
     more = f" and {len(runs) - 6} more" if len(runs) > 6 else ""
     return f"{len(missing)} frames without a body (frames {spans}{more}): {what}"
-
-
-def track_rgb(track: int) -> tuple[int, int, int]:
-    """The viewer's colour of a track (sRGB 0-255): the palette of ``mvviz.scene.geometry``."""
-    return PALETTE[track % len(PALETTE)]
-
-
-# mvviz.scene.geometry.PALETTE, repeated so pipeline/ does not import the viewer (a test
-# checks they agree).
-PALETTE: tuple[tuple[int, int, int], ...] = (
-    (31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189), (23, 190, 207),
-    (227, 119, 194), (188, 189, 34), (140, 86, 75),
-)  # fmt: skip

@@ -35,9 +35,10 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from pipeline.exports.common import gap_note, track_rgb
+from pipeline.exports.common import gap_note
 from pipeline.exports.skeleton import track_skeleton
 from pipeline.files import atomic_write
+from pipeline.palette import track_rgb
 from pipeline.smpl_fit import SmplFit
 
 FLOAT, UINT, UBYTE = 5126, 5125, 5121

@@ -4,7 +4,6 @@ the annotation context, the blueprint, frame selection and input checks (see
 
 from __future__ import annotations
 
-import colorsys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -14,6 +13,7 @@ import rerun.blueprint as rrb
 
 from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet
+from pipeline.palette import track_rgb
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
 
@@ -32,6 +32,7 @@ GREY_UNTRACKED = (210, 210, 210)
 GT_COLOR = (120, 225, 140)
 BODY_STAGES = ("smpl", "smpl_vae")  # PipelineResults fields holding SmplFit bodies
 AXIS_COLORS = ((230, 80, 80), (80, 200, 90), (80, 130, 235))
+RAW_SHADE = 0.6  # a raw track's colour: its filtered colour this much darker
 
 
 # --------------------------------------------------------------------------- data
@@ -107,10 +108,10 @@ class ClassLayout:
 
 
 def track_color(track: int, *, raw: bool = False) -> tuple[int, int, int]:
-    """A distinct RGB colour per track (golden-ratio hues); ``raw`` is a darker shade."""
-    hue = (0.07 + 0.618034 * track) % 1.0
-    r, g, b = colorsys.hsv_to_rgb(hue, 0.55 if raw else 0.8, 0.6 if raw else 0.95)
-    return int(255 * r), int(255 * g), int(255 * b)
+    """The track's colour, as the viewer draws it (:func:`pipeline.palette.track_rgb`);
+    ``raw`` is a darker shade of it."""
+    rgb = track_rgb(track)
+    return tuple(int(c * RAW_SHADE) for c in rgb) if raw else rgb
 
 
 # --------------------------------------------------------------------------- helpers

@@ -12,8 +12,8 @@ import viser
 import viser.transforms as vtf
 
 from pipeline.exports import export_results
-from pipeline.exports.common import track_rgb
 from pipeline.importers.bvh import Y_UP_TO_WORLD
+from pipeline.palette import track_rgb
 from tests.mvviz.conftest import (
     canvas_image,
     close_webgl_notice,

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from pipeline.exports import ExportError, available_stages, export_results, stages_for
-from pipeline.exports.common import PALETTE, gap_note, hold_indices, per_track_paths, select_tracks
+from pipeline.exports.common import gap_note, hold_indices, per_track_paths, select_tracks
+from pipeline.palette import TRACK_PALETTE, track_rgb
 
 
 def test_hold_indices_hold_the_last_present_frame_and_the_first_before_it():
@@ -42,10 +43,15 @@ def test_per_track_paths(tmp_path):
     ]  # fmt: skip
 
 
-def test_palette_is_the_viewers():
-    from mvviz.scene.geometry import PALETTE as VIEWER  # noqa: PLC0415
+def test_one_palette_for_viewer_rerun_and_exports():
+    """Track k has one colour: the viewer's, the rerun recording's and the file exports'."""
+    from mvviz.export.rerun.layout import track_color  # noqa: PLC0415
+    from mvviz.scene.geometry import track_color as viewer_color  # noqa: PLC0415
 
-    assert np.array_equal(np.array(PALETTE), VIEWER)
+    for k in range(2 * len(TRACK_PALETTE) + 1):
+        assert tuple(int(c) for c in viewer_color(k)) == track_rgb(k) == track_color(k)
+        assert track_color(k, raw=True) != track_color(k)
+    assert len(set(TRACK_PALETTE)) == len(TRACK_PALETTE)
 
 
 def test_a_stage_the_run_lacks_is_refused_naming_the_stages_it_has(fitted_run, tmp_path):
