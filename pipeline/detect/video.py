@@ -457,36 +457,14 @@ def _read_meta(scene_dir: Path) -> dict:
     return meta
 
 
-def detect_scene(
-    scene_dir: str | os.PathLike,
+def _videos_and_crops(
+    rig: CameraRig,
     video_specs: list[str | os.PathLike],
-    *,
-    settings: DetectSettings = DetectSettings(),
-    overwrite: bool = False,
-    video_scale: float = 1.0,
-    progress: bool = True,
-    log: Callable[[str], None] = print,
-    detector: BlazePose | None = None,
-    video_crops: dict[str, tuple[float, float, float, float]] | None = None,
-) -> DetectReport:
-    """Detect people in every camera's video and write the scene's detections.
-
-    ``scene_dir`` needs ``cameras.json`` (or the file ``scene.json`` names); ``scene.json``
-    is created or updated (joint_set coco17, fps, num_frames, videos), ``detections.npz``
-    written, ``videos/<camera>.mp4`` copied or re-encoded; all atomically, at the end.
-    ``video_crops`` (camera -> LEFT, TOP, RIGHT, BOTTOM calibrated px) states how a video
-    was cut from the calibrated image (see :mod:`pipeline.video_crop`).
-    """
-    scene_dir = Path(scene_dir)
-    meta = _read_meta(scene_dir)
-    rig: CameraRig = load_cameras(scene_dir / meta.get("cameras", "cameras.json"))
-    det_path = scene_dir / meta.get("detections", "detections.npz")
-    if det_path.exists() and not overwrite:
-        raise FileExistsError(f"{det_path} exists (pass --overwrite to replace it)")
-    if settings.every < 1:
-        raise ValueError(f"--every must be >= 1, got {settings.every}")
-
-    # 1. videos <-> cameras, sizes and lengths
+    video_crops: dict[str, tuple[float, float, float, float]] | None,
+    log: Callable[[str], None],
+) -> tuple[dict[str, VideoInfo], dict[str, VideoCrop]]:
+    """1a. The videos named after the rig's cameras, probed, and how each maps onto its
+    camera's calibrated image."""
     match = match_videos(rig.names, find_videos(list(video_specs)))
     if match.unmatched_videos:
         log(
@@ -515,6 +493,14 @@ def detect_scene(
             log(f"video {infos[c].path.name}: {vc.describe()}")
         elif vc.rule != "exact":
             log(f"warning: video {infos[c].path.name}: {vc.describe()}")
+    return infos, crops
+
+
+def _frame_plan(
+    infos: dict[str, VideoInfo], settings: DetectSettings, log: Callable[[str], None]
+) -> tuple[int, float, dict[str, int]]:
+    """1b. The scene's frame count and rate (the common length, every ``settings.every``-th
+    frame, at most ``settings.max_frames``) and each video's frame count."""
     counts = {c: v.num_frames for c, v in infos.items()}
     common = min(counts.values())
     if len(set(counts.values())) > 1:
@@ -534,11 +520,24 @@ def detect_scene(
         f"{len(infos)} cameras, {num_frames} frames at {fps:.3g} fps"
         + (f" (every {settings.every}th video frame)" if settings.every > 1 else "")
     )
+    return num_frames, fps, counts
 
-    # 2. detection, camera by camera, resumable
-    detector = detector or settings.make_detector()
-    models = model_digest()
-    cache_dir = scene_dir / ".mvviz" / "detect"
+
+def _detect_cameras(
+    detector: BlazePose,
+    rig: CameraRig,
+    infos: dict[str, VideoInfo],
+    crops: dict[str, VideoCrop],
+    *,
+    num_frames: int,
+    settings: DetectSettings,
+    cache_dir: Path,
+    models: str,
+    progress: bool,
+    log: Callable[[str], None],
+) -> tuple[dict[str, np.ndarray], dict[str, int], dict[str, int]]:
+    """2. Detection, camera by camera, resumable: the detection columns of all cameras,
+    and per camera its rows and frames with people."""
     columns, rows_per, with_people = [], {}, {}
     for cam, info in infos.items():
         poses = detect_camera(
@@ -562,19 +561,24 @@ def detect_scene(
         rows_per[cam] = len(poses.frame)
         with_people[cam] = int(np.unique(poses.frame).size)
     arrays = {k: np.concatenate([c[k] for c in columns]) for k in columns[0]}
-    check_detections(arrays, source=det_path, num_joints=COCO17.num_joints, num_views=len(rig))
+    return arrays, rows_per, with_people
 
-    # 3. the viewer's videos, the detections, then scene.json (which points to both)
-    for cam, info in infos.items():
-        write_viewer_video(
-            info,
-            scene_dir / "videos" / f"{cam}.mp4",
-            num_frames=num_frames,
-            every=settings.every,
-            fps=fps,
-            scale=video_scale,
-        )
-    save_npz_atomic(det_path, **arrays)
+
+def _updated_meta(
+    meta: dict,
+    scene_dir: Path,
+    det_path: Path,
+    *,
+    num_frames: int,
+    fps: float,
+    counts: dict[str, int],
+    infos: dict[str, VideoInfo],
+    crops: dict[str, VideoCrop],
+    settings: DetectSettings,
+    models: str,
+    log: Callable[[str], None],
+) -> dict:
+    """3. ``scene.json`` updated for the new detections (``meta`` is changed in place)."""
     old_frames = meta.get("num_frames")
     if meta.get("gt") and old_frames not in (None, num_frames):
         log(f"scene.json had num_frames {old_frames} (ground truth kept); now {num_frames}")
@@ -604,6 +608,64 @@ def detect_scene(
     meta.pop("video_crop", None)
     if cropped:  # calibrated px each video does not show: the viewer places frames by it
         meta["video_crop"] = cropped
+    return meta
+
+
+def detect_scene(
+    scene_dir: str | os.PathLike,
+    video_specs: list[str | os.PathLike],
+    *,
+    settings: DetectSettings = DetectSettings(),
+    overwrite: bool = False,
+    video_scale: float = 1.0,
+    progress: bool = True,
+    log: Callable[[str], None] = print,
+    detector: BlazePose | None = None,
+    video_crops: dict[str, tuple[float, float, float, float]] | None = None,
+) -> DetectReport:
+    """Detect people in every camera's video and write the scene's detections.
+
+    ``scene_dir`` needs ``cameras.json`` (or the file ``scene.json`` names); ``scene.json``
+    is created or updated (joint_set coco17, fps, num_frames, videos), ``detections.npz``
+    written, ``videos/<camera>.mp4`` copied or re-encoded; all atomically, at the end.
+    ``video_crops`` (camera -> LEFT, TOP, RIGHT, BOTTOM calibrated px) states how a video
+    was cut from the calibrated image (see :mod:`pipeline.video_crop`).
+    """
+    scene_dir = Path(scene_dir)
+    meta = _read_meta(scene_dir)
+    rig: CameraRig = load_cameras(scene_dir / meta.get("cameras", "cameras.json"))
+    det_path = scene_dir / meta.get("detections", "detections.npz")
+    if det_path.exists() and not overwrite:
+        raise FileExistsError(f"{det_path} exists (pass --overwrite to replace it)")
+    if settings.every < 1:
+        raise ValueError(f"--every must be >= 1, got {settings.every}")
+    # 1. videos <-> cameras, sizes and lengths
+    infos, crops = _videos_and_crops(rig, video_specs, video_crops, log)
+    num_frames, fps, counts = _frame_plan(infos, settings, log)
+    # 2. detection, camera by camera, resumable
+    detector = detector or settings.make_detector()
+    models = model_digest()
+    arrays, rows_per, with_people = _detect_cameras(
+        detector, rig, infos, crops, num_frames=num_frames,
+        settings=settings, cache_dir=scene_dir / ".mvviz" / "detect", models=models,
+        progress=progress, log=log,
+    )  # fmt: skip
+    check_detections(arrays, source=det_path, num_joints=COCO17.num_joints, num_views=len(rig))
+    # 3. the viewer's videos, the detections, then scene.json (which points to both)
+    for cam, info in infos.items():
+        write_viewer_video(
+            info,
+            scene_dir / "videos" / f"{cam}.mp4",
+            num_frames=num_frames,
+            every=settings.every,
+            fps=fps,
+            scale=video_scale,
+        )
+    save_npz_atomic(det_path, **arrays)
+    meta = _updated_meta(
+        meta, scene_dir, det_path, num_frames=num_frames, fps=fps, counts=counts, infos=infos,
+        crops=crops, settings=settings, models=models, log=log,
+    )  # fmt: skip
     with atomic_write(scene_dir / "scene.json", "w") as fh:
         fh.write(json.dumps(meta, indent=1) + "\n")
     return DetectReport(
