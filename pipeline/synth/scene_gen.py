@@ -19,8 +19,8 @@ from tqdm import tqdm
 
 from pipeline.body_keypoints import KeypointRegressor, keypoint_regressor, layout_keypoints
 from pipeline.body_model import BodyModel
-from pipeline.cameras import CameraRig
-from pipeline.joint_sets import SMPL24, get_joint_set
+from pipeline.cameras import Camera, CameraRig
+from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 from pipeline.scene import SMPL_FIELDS, Detections, GroundTruth, write_scene
 from pipeline.synth.detectors import DetectorNoise, simulate_keypoints, simulate_regressor
 from pipeline.synth.motion import (
@@ -32,6 +32,7 @@ from pipeline.synth.motion import (
 )
 from pipeline.synth.render import (
     MeshInstance,
+    Render,
     occluded_by_other,
     render_background,
     render_meshes,
@@ -173,6 +174,134 @@ def _ghosts(
     return cam.project(coco), cam.project(smpl), (pose, betas)
 
 
+@dataclass(frozen=True, eq=False)
+class _Simulation:
+    """What every view of every frame needs to simulate its detections."""
+
+    model: BodyModel
+    kreg: KeypointRegressor
+    js: JointSet
+    defined: np.ndarray  # (T,) bool: keypoints the body model gives; the others never detected
+    noise: DetectorNoise
+    area: np.ndarray  # floor points where ghosts may stand, mm
+    library: np.ndarray  # poses ghosts take
+
+
+def _open_writers(
+    rig: CameraRig, config: SynthConfig, video_dir: Path | None
+) -> dict[str, tuple[cv2.VideoWriter, tuple[int, int]]]:
+    """camera name -> (video writer, frame size) when videos are asked for."""
+    writers = {}
+    if video_dir is None or not config.render_video:
+        return writers
+    for cam in rig:
+        size = (int(round(cam.width * config.video_scale)) // 2 * 2,
+                int(round(cam.height * config.video_scale)) // 2 * 2)  # fmt: skip
+        w = cv2.VideoWriter(
+            str(video_dir / f"{cam.name}.mp4"),
+            cv2.VideoWriter_fourcc(*"mp4v"),
+            config.fps,
+            size,
+        )
+        if not w.isOpened():
+            raise RuntimeError(f"cannot open a video writer for {video_dir / cam.name}.mp4")
+        writers[cam.name] = (w, size)
+    return writers
+
+
+def _detect_view(
+    rng: np.random.Generator,
+    sim: _Simulation,
+    cam: Camera,
+    render: Render,
+    coco: np.ndarray,
+    people: SynthPeople,
+    f: int,
+    v: int,
+    rows: dict[str, list],
+) -> None:
+    """Simulated detections of frame ``f`` in view ``v`` appended to ``rows``: the people
+    the render shows (``coco`` (P, T, 3) mm their keypoints), then ghosts."""
+    P, js, defined = coco.shape[0], sim.js, sim.defined
+    pts = coco[:, defined].reshape(-1, 3)
+    ids = np.repeat(np.arange(P), int(defined.sum()))
+    vis = np.zeros((P, js.num_joints), bool)
+    other = np.zeros((P, js.num_joints), bool)
+    vis[:, defined] = visible_mask(
+        render, cam, pts, ids, tolerance_mm=sim.noise.self_occlusion_tolerance_mm
+    ).reshape(P, -1)
+    other[:, defined] = occluded_by_other(render, cam, pts, ids).reshape(P, -1)
+    self_occ = ~vis & ~other
+    true_2d = cam.project(coco)
+    kp, detected = simulate_keypoints(
+        rng, cam, true_2d, self_occ, other, sim.noise, joint_set=js, defined=defined
+    )
+    order = rng.permutation(np.flatnonzero(detected))  # detector order is arbitrary
+    n_ghost = rng.poisson(sim.noise.false_positives_per_view)
+    if order.size:
+        smpl2d = cam.project(people.joints[order, f])
+        reg = simulate_regressor(
+            rng, cam, people.pose[order, f], people.betas[order], smpl2d, sim.model, sim.noise
+        )
+        _append(rows, f, v, kp[order], order, reg)
+    if n_ghost:
+        _detect_ghosts(rng, sim, cam, n_ghost, f, v, rows)
+
+
+def _detect_ghosts(
+    rng: np.random.Generator,
+    sim: _Simulation,
+    cam: Camera,
+    n_ghost: int,
+    f: int,
+    v: int,
+    rows: dict[str, list],
+) -> None:
+    """``n_ghost`` false detections (person -1) in the view, those at least 8 of whose
+    keypoints land in the image, appended to ``rows``."""
+    g_coco, g_smpl, (g_pose, g_betas) = _ghosts(
+        rng, cam, sim.area, sim.library, sim.model, n_ghost, sim.kreg
+    )
+    in_img = (
+        (g_coco[..., 0] >= 0) & (g_coco[..., 0] < cam.width)
+        & (g_coco[..., 1] >= 0) & (g_coco[..., 1] < cam.height)
+    )  # fmt: skip
+    inside = in_img.sum(1) >= 8
+    if not inside.any():
+        return
+    g_coco, g_smpl = g_coco[inside], g_smpl[inside]
+    conf = np.clip(rng.uniform(0.25, 0.55, g_coco.shape[:2]), 0, 1)
+    g_kp = np.concatenate([g_coco + rng.normal(0, 3, g_coco.shape), conf[..., None]], -1)
+    off = (
+        (g_kp[..., 0] < 0)
+        | (g_kp[..., 0] >= cam.width)
+        | (g_kp[..., 1] < 0)
+        | (g_kp[..., 1] >= cam.height)
+    )
+    g_kp[off] = (np.nan, np.nan, 0.0)
+    g_kp[:, ~sim.defined] = (np.nan, np.nan, 0.0)
+    reg = simulate_regressor(
+        rng, cam, g_pose[inside], g_betas[inside], g_smpl, sim.model, sim.noise
+    )
+    _append(rows, f, v, g_kp, np.full(int(inside.sum()), -1), reg)
+
+
+def _detections(rows: dict[str, list], num_joints: int) -> Detections:
+    """The appended rows as :class:`~pipeline.scene.Detections` (empty arrays for none)."""
+    n = len(rows["frame"])
+    arrays = {k: (np.concatenate(v) if v else None) for k, v in rows.items()}
+    return Detections(
+        frame=arrays["frame"] if n else np.zeros(0, int),
+        view=arrays["view"] if n else np.zeros(0, int),
+        keypoints=arrays["keypoints"] if n else np.zeros((0, num_joints, 3)),
+        gt_person_id=arrays["gt_person_id"] if n else np.zeros(0, int),
+        smpl_pose=arrays["smpl_pose"] if n else np.zeros((0, 72)),
+        smpl_betas=arrays["smpl_betas"] if n else np.zeros((0, 10)),
+        cam_weak=arrays["cam_weak"] if n else np.zeros((0, 3)),
+        bbox=arrays["bbox"] if n else np.zeros((0, 4)),
+    )
+
+
 def synthesize(
     rig: CameraRig,
     model: BodyModel,
@@ -183,38 +312,23 @@ def synthesize(
 ) -> tuple[SynthPeople, Detections]:
     """Plan, pose, render and detect. Writes ``video_dir/<camera>.mp4`` when given."""
     rng = np.random.default_rng(config.seed)
-    noise = config.noise
     area = visible_floor_area(rig, min_views=config.min_views)
     motions = plan_people(rng, area, config.num_people, config.num_frames, config.fps)
     people = bodies_from_motion(motions, model, joint_set=config.joint_set)
     kreg = keypoint_regressor(model, config.joint_set)
-    js = get_joint_set(config.joint_set)
-    defined = kreg.fitted  # keypoints the body model gives; the others are never detected
-    library = sample_pose_library(200, seed=config.seed)
+    sim = _Simulation(
+        model=model, kreg=kreg, js=get_joint_set(config.joint_set), defined=kreg.fitted,
+        noise=config.noise, area=area, library=sample_pose_library(200, seed=config.seed),
+    )  # fmt: skip
     faces = model.faces.numpy()
     backgrounds = [render_background(cam) for cam in rig]
-
-    writers = {}
-    if video_dir is not None and config.render_video:
-        for cam in rig:
-            size = (int(round(cam.width * config.video_scale)) // 2 * 2,
-                    int(round(cam.height * config.video_scale)) // 2 * 2)  # fmt: skip
-            w = cv2.VideoWriter(
-                str(video_dir / f"{cam.name}.mp4"),
-                cv2.VideoWriter_fourcc(*"mp4v"),
-                config.fps,
-                size,
-            )
-            if not w.isOpened():
-                raise RuntimeError(f"cannot open a video writer for {video_dir / cam.name}.mp4")
-            writers[cam.name] = (w, size)
-
+    writers = _open_writers(rig, config, video_dir)
     columns = ("frame", "view", "keypoints", "gt_person_id") + SMPL_FIELDS
     rows: dict[str, list] = {k: [] for k in columns}
-    P = config.num_people
     betas_t = torch.as_tensor(people.betas, dtype=torch.float32)
     frames = range(config.num_frames)
     for f in tqdm(frames, desc="synth frames", disable=not progress, unit="frame"):
+        # 1. pose the bodies, 2. render each view (and write its video frame), 3. detect
         with torch.no_grad():
             out = model(torch.as_tensor(people.pose[:, f], dtype=torch.float32), betas_t)
             coco_m = layout_keypoints(kreg, out.vertices, out.joints)
@@ -224,7 +338,7 @@ def synthesize(
             MeshInstance(
                 vertices=verts[p], faces=faces, color=PERSON_COLOURS[p % len(PERSON_COLOURS)]
             )
-            for p in range(P)
+            for p in range(config.num_people)
         ]
         for v, cam in enumerate(rig):
             render = render_meshes(cam, meshes, background=backgrounds[v])
@@ -234,70 +348,10 @@ def synthesize(
                 if size != (cam.width, cam.height):
                     img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
                 w.write(cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-            pts = coco[:, defined].reshape(-1, 3)
-            ids = np.repeat(np.arange(P), int(defined.sum()))
-            vis = np.zeros((P, js.num_joints), bool)
-            other = np.zeros((P, js.num_joints), bool)
-            vis[:, defined] = visible_mask(
-                render, cam, pts, ids, tolerance_mm=noise.self_occlusion_tolerance_mm
-            ).reshape(P, -1)
-            other[:, defined] = occluded_by_other(render, cam, pts, ids).reshape(P, -1)
-            self_occ = ~vis & ~other
-            true_2d = cam.project(coco)
-            kp, detected = simulate_keypoints(
-                rng, cam, true_2d, self_occ, other, noise, joint_set=js, defined=defined
-            )
-            order = rng.permutation(np.flatnonzero(detected))  # detector order is arbitrary
-            n_ghost = rng.poisson(noise.false_positives_per_view)
-            if order.size:
-                smpl2d = cam.project(people.joints[order, f])
-                reg = simulate_regressor(
-                    rng, cam, people.pose[order, f], people.betas[order], smpl2d, model, noise
-                )
-                _append(rows, f, v, kp[order], order, reg)
-            if n_ghost:
-                g_coco, g_smpl, (g_pose, g_betas) = _ghosts(
-                    rng, cam, area, library, model, n_ghost, kreg
-                )
-                in_img = (
-                    (g_coco[..., 0] >= 0) & (g_coco[..., 0] < cam.width)
-                    & (g_coco[..., 1] >= 0) & (g_coco[..., 1] < cam.height)
-                )  # fmt: skip
-                inside = in_img.sum(1) >= 8
-                if inside.any():
-                    g_coco, g_smpl = g_coco[inside], g_smpl[inside]
-                    conf = np.clip(rng.uniform(0.25, 0.55, g_coco.shape[:2]), 0, 1)
-                    g_kp = np.concatenate(
-                        [g_coco + rng.normal(0, 3, g_coco.shape), conf[..., None]], -1
-                    )
-                    off = (
-                        (g_kp[..., 0] < 0)
-                        | (g_kp[..., 0] >= cam.width)
-                        | (g_kp[..., 1] < 0)
-                        | (g_kp[..., 1] >= cam.height)
-                    )
-                    g_kp[off] = (np.nan, np.nan, 0.0)
-                    g_kp[:, ~defined] = (np.nan, np.nan, 0.0)
-                    reg = simulate_regressor(
-                        rng, cam, g_pose[inside], g_betas[inside], g_smpl, model, noise
-                    )
-                    _append(rows, f, v, g_kp, np.full(int(inside.sum()), -1), reg)
+            _detect_view(rng, sim, cam, render, coco, people, f, v, rows)
     for w, _ in writers.values():
         w.release()
-
-    n = len(rows["frame"])
-    arrays = {k: (np.concatenate(v) if v else None) for k, v in rows.items()}
-    detections = Detections(
-        frame=arrays["frame"] if n else np.zeros(0, int),
-        view=arrays["view"] if n else np.zeros(0, int),
-        keypoints=arrays["keypoints"] if n else np.zeros((0, js.num_joints, 3)),
-        gt_person_id=arrays["gt_person_id"] if n else np.zeros(0, int),
-        smpl_pose=arrays["smpl_pose"] if n else np.zeros((0, 72)),
-        smpl_betas=arrays["smpl_betas"] if n else np.zeros((0, 10)),
-        cam_weak=arrays["cam_weak"] if n else np.zeros((0, 3)),
-        bbox=arrays["bbox"] if n else np.zeros((0, 4)),
-    )
-    return people, detections
+    return people, _detections(rows, sim.js.num_joints)
 
 
 def _append(
