@@ -34,8 +34,8 @@ from pipeline import pose_limits  # noqa: E402
 from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.evaluate import (  # noqa: E402
-    _frames_of_gt,
     ground_truth_slots,
+    gt_per_frame,
     stage_metrics,
     to_smpl_slots,
 )
@@ -176,7 +176,7 @@ def main() -> None:
     print(f"speed-up step I / baseline: {ratio:.1f}x")
 
     gt_slots, _ = ground_truth_slots(scene.gt, js)
-    gt_dense, _ = _frames_of_gt(scene.gt, gt_slots, results.num_frames)
+    gt_dense, _ = gt_per_frame(scene.gt, gt_slots, results.num_frames)
     # Scored like pipeline.evaluate: where the raw triangulation has the joint.
     measured = np.isfinite(results.track_raw).all(-1, keepdims=True)
 
@@ -193,7 +193,7 @@ def main() -> None:
             rows("smpl_vae", scored(fit2.keypoints), gt_dense, plausibility(fit2)),
         ]
     )  # fmt: skip
-    joints_dense, _ = _frames_of_gt(scene.gt, scene.gt.joints3d, results.num_frames)
+    joints_dense, _ = gt_per_frame(scene.gt, scene.gt.joints3d, results.num_frames)
     for name, fit in (("smpl", fit1), ("smpl_vae", fit2)):
         table[name]["mpjpe_smpl24_joints_mm"] = stage_metrics(fit.joints, joints_dense)[0]["mpjpe"]
     print(f"\n{'stage':9s} {'MPJPE':>7s} {'accel':>6s} {'limits/1k':>9s} {'hinge/1k':>8s} "

@@ -395,7 +395,8 @@ def main(argv: list[str] | None = None) -> dict:
     def run(label: str, setup=None, core: bool = False, **options) -> dict:
         app, tap = start_app(scene, results, model, frames, **options)
         if core:  # the viewer alone: other panels' per-frame work (e.g. plots) detached
-            app.state_changed.clear()
+            for panel in app.panels:  # stopped panels no longer follow the frame
+                panel.stop()
         client = WireClient(app.url) if args.client else None
         try:
             if client:

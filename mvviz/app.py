@@ -5,370 +5,56 @@ reaches into a stage. A frame change computes :func:`~mvviz.scene.geometry.frame
 and assigns it to existing scene handles; renders run on one worker thread through a
 "latest wins" slot, so scrubbing draws only the newest requested frame.
 
-Each ``make_*_panel(server, state, on_change)`` builds one panel and returns a dataclass
-of its handles; its callbacks update the state and call ``on_change(reason)``.
-
-Hooks for other panels (filter tuning, failure review, export):
-:meth:`ViewerApp.jump_to` (frame, track, joint, view), :meth:`ViewerApp.focus` (point
-the clients' cameras), :meth:`ViewerApp.set_results` (show re-run results),
-:attr:`ViewerApp.state_changed` (callbacks ``(state, reason)`` after each render), and
-``app.server.gui`` for their own GUI.
+Every panel (:mod:`mvviz.panels`) is built by its ``make_<name>_panel(host)`` against the
+panel contract, :class:`~mvviz.panels.contract.PanelHost`, which :class:`ViewerApp`
+implements (state, ``set_results``, ``show_data``, ``jump_to``, ``focus``, ``redraw``,
+``subscribe``, ``stopped``, ...); the app keeps every panel it built in
+:attr:`ViewerApp.panels` and :meth:`ViewerApp.stop` stops them all.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import statistics
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
 import viser
 
+from mvviz.analysis.filter_runs import FilterRun
+from mvviz.panels.contract import Panel, StateCallback
 from mvviz.panels.export_panel import make_export_panel
 from mvviz.panels.failure_panel import make_failure_panel
 from mvviz.panels.filter_panel import make_filter_panel
 from mvviz.panels.pipeline_panel import make_pipeline_panel
-from mvviz.scene.geometry import (
-    FRUSTUM_WIDTHS,
-    MESH_DETAILS,
-    MESH_STYLES,
-    LayerToggles,
-    frame_geometry,
-    prepare,
+from mvviz.panels.view_panels import (
+    make_camera_panel,
+    make_layers_panel,
+    make_selection_panel,
+    make_timeline_panel,
 )
+from mvviz.scene.geometry import LayerToggles, ViewerData, frame_geometry, prepare
 from mvviz.scene.images import FrameStore, blank_frame, draw_overlay, image_overlay
-from mvviz.scene.layers import SceneLayers
-from mvviz.state import PANEL_WIDTHS, ViewerState
+from mvviz.scene.layers import make_scene_layers
+from mvviz.state import ViewerState
 from mvviz.workers import LatestWins
 from pipeline.body_model import BodyModel
 from pipeline.results import PipelineResults
 
-SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
-STEP_BACK, STEP_FORWARD = "◀ −1", "+1 ▶"
-PANEL_JPEG_QUALITY = 65
 STATS_INTERVAL_S = 1.0  # the render-time line updates at most this often
-
-def selection_info(state: ViewerState) -> str:
-    """Markdown about the selected track and joint in the current frame."""
-    data, sel, f = state.data, state.selection, state.frame
-    if sel.track is None or not 0 <= sel.track < data.num_tracks:
-        return "_No track selected: click a filtered joint or pick one above._"
-    k, j, res = sel.track, sel.joint, data.results
-    name = data.joint_set.names[j] if 0 <= j < data.joint_set.num_joints else "?"
-    raw, filt = res.track_raw[k, f, j], data.filtered[k, f, j]
-
-    def xyz(p: np.ndarray) -> str:
-        return "—" if not np.isfinite(p).all() else ", ".join(f"{v:.0f}" for v in p)
-
-    lines = [f"**track {k} · {name}** · frame {f}", f"raw (mm): {xyz(raw)}  "]
-    lines.append(f"filtered (mm): {xyz(filt)}  ")
-    if np.isfinite(raw).all() and np.isfinite(filt).all():
-        lines.append(f"|filtered − raw| = {np.linalg.norm(filt - raw):.0f} mm  ")
-    m = res.track_mahalanobis[k, f, j]
-    if np.isfinite(m):
-        lines.append(f"Mahalanobis {m:.2f}  ")
-    q = data.track_person[k, f]
-    if q >= 0:
-        views = []
-        for v, cam in enumerate(data.scene.rig.names):
-            e = res.person_reproj[q, j, v]
-            if not np.isfinite(e):
-                continue
-            mark = "used" if res.person_used[q, j, v] else "**outlier**"
-            views.append(f"{cam}: {e:.1f} px {mark}")
-        lines.append("reprojection: " + ("; ".join(views) if views else "no views"))
-    return "\n".join(lines)
-
-
-# --------------------------------------------------------------------------- panels
-
-OnChange = Callable[[str], None]
-
-
-@dataclass
-class TimelinePanel:
-    folder: viser.GuiFolderHandle
-    slider: viser.GuiSliderHandle
-    play: viser.GuiButtonHandle
-    step: viser.GuiButtonGroupHandle  # STEP_BACK / STEP_FORWARD
-    speed: viser.GuiDropdownHandle
-    loop: viser.GuiCheckboxHandle
-    label: viser.GuiMarkdownHandle
-    stats: viser.GuiMarkdownHandle
-
-
-def make_timeline_panel(
-    server: viser.ViserServer, state: ViewerState, on_change: OnChange
-) -> TimelinePanel:
-    n = state.data.num_frames
-    with server.gui.add_folder("Timeline") as folder:
-        slider = server.gui.add_slider("Frame", min=0, max=max(n - 1, 0), step=1, initial_value=0)
-        label = server.gui.add_markdown(frame_label(state, 0))
-        play = server.gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY)
-        step = server.gui.add_button_group("Step", (STEP_BACK, STEP_FORWARD))
-        speed = server.gui.add_dropdown("Speed", SPEEDS, initial_value="1x")
-        loop = server.gui.add_checkbox("Loop", initial_value=state.loop)
-        stats = server.gui.add_markdown("")
-    panel = TimelinePanel(folder, slider, play, step, speed, loop, label, stats)
-
-    @slider.on_update
-    def _(_) -> None:
-        state.frame = int(slider.value)
-        on_change("frame")
-
-    @play.on_click
-    def _(_) -> None:
-        state.playing = not state.playing
-        on_change("playing")
-
-    @step.on_click
-    def _(event) -> None:
-        delta = -1 if event.target.value == STEP_BACK else 1
-        slider.value = int(np.clip(int(slider.value) + delta, 0, n - 1))
-
-    @speed.on_update
-    def _(_) -> None:
-        state.speed = float(speed.value.rstrip("x"))
-
-    @loop.on_update
-    def _(_) -> None:
-        state.loop = bool(loop.value)
-
-    return panel
-
-
-def frame_label(state: ViewerState, frame: int) -> str:
-    n, fps = state.data.num_frames, state.scene.fps
-    return f"frame **{frame}** / {n - 1} · {frame / fps:.2f} s"
-
-
-@dataclass
-class LayersPanel:
-    folder: viser.GuiFolderHandle
-    toggles: dict[str, viser.GuiCheckboxHandle]
-    trail_window: viser.GuiSliderHandle
-    frustum_width: viser.GuiDropdownHandle
-    mesh_style: viser.GuiDropdownHandle
-    mesh_detail: viser.GuiDropdownHandle
-
-
-LAYER_LABELS = {
-    "grid": "Grid",
-    "cameras": "Cameras",
-    "camera_labels": "Camera labels",
-    "frustum_images": "Video on frustums",
-    "detections2d": "2D detections",
-    "rays": "Rays",
-    "rays_selected_only": "Rays: selected track only",
-    "raw": "Raw 3D skeletons",
-    "filtered": "Filtered skeletons",
-    "offset_filtered": "Filtered side by side (+1 m x)",
-    "gt": "Ground-truth skeletons",
-    "trails": "Trails (selected joint)",
-    "meshes": "Ground-truth meshes",
-    "fit_meshes": "Fitted SMPL meshes",
-    "meshes_selected_only": "Meshes: selected track only",
-}
-
-# The page shows this itself when its WebGL renderer is a software one (SwiftShader,
-# llvmpipe: what viser's client warns about too), through an <img> error handler that
-# asks a throw-away WebGL context for its renderer: the server cannot know.
-SOFTWARE_NOTICE_HTML = """<div class="mvviz-software-gl" style="display:none;font-size:0.8em;
-color:#9a3412;background:#fff7ed;border:1px solid #fdba74;border-radius:4px;padding:4px 6px;
-margin:2px 0">⚠ <b>Software WebGL</b> (<span class="mvviz-gl-renderer"></span>): bodies are
-slow to draw here. Keep meshes <i>decimated</i>, try <i>wireframe</i> or <i>selected track
-only</i>, or turn hardware acceleration on in the browser.</div><img alt="" src="data:,"
-style="display:none" onerror="(function(img){try{var gl=document.createElement('canvas')
-.getContext('webgl');var ext=gl&&gl.getExtension('WEBGL_debug_renderer_info');var r=ext?
-gl.getParameter(ext.UNMASKED_RENDERER_WEBGL):'';if(/swiftshader|llvmpipe|softpipe|software/i
-.test(r)){var box=img.previousElementSibling;box.style.display='block';box.querySelector(
-'.mvviz-gl-renderer').textContent=r;}var lose=gl&&gl.getExtension('WEBGL_lose_context');
-if(lose){lose.loseContext();}}catch(e){}})(this)">"""
-
-
-def make_layers_panel(
-    server: viser.ViserServer, state: ViewerState, on_change: OnChange
-) -> LayersPanel:
-    toggles = {}
-    # what this scene and run cannot show: off, and disabled below
-    missing = [
-        name
-        for name, absent in (
-            ("gt", state.data.gt_points is None),
-            ("meshes", state.data.bodies is None),
-            ("fit_meshes", state.data.fit_bodies is None),
-        )
-        if absent
-    ]
-    for name in missing:
-        setattr(state.layers, name, False)
-    with server.gui.add_folder("Layers") as folder:
-        for name, label in LAYER_LABELS.items():
-            cb = server.gui.add_checkbox(label, initial_value=getattr(state.layers, name))
-            toggles[name] = cb
-
-            def bind(name: str = name, cb: viser.GuiCheckboxHandle = cb) -> None:
-                @cb.on_update
-                def _(_) -> None:
-                    setattr(state.layers, name, bool(cb.value))
-                    on_change("layers")
-
-            bind()
-        for ref in state.scene.references:  # one checkbox per reference track
-            cb = server.gui.add_checkbox(
-                f"Reference: {ref}", initial_value=ref not in state.layers.references_off
-            )
-            toggles[f"reference:{ref}"] = cb
-
-            def bind_ref(ref: str = ref, cb: viser.GuiCheckboxHandle = cb) -> None:
-                @cb.on_update
-                def _(_) -> None:
-                    off = state.layers.references_off - {ref}
-                    state.layers.references_off = off if cb.value else off | {ref}
-                    on_change("layers")
-
-            bind_ref()
-        window = server.gui.add_slider(
-            "Trail ± frames", min=0, max=100, step=1, initial_value=state.layers.trail_window
-        )
-        widths = tuple(f"{w} px" for w in FRUSTUM_WIDTHS)
-        frustum_width = server.gui.add_dropdown(
-            "Frustum video", widths, initial_value=f"{state.layers.frustum_image_width} px"
-        )
-        mesh_style = server.gui.add_dropdown(
-            "Mesh style", MESH_STYLES, initial_value=state.layers.mesh_style,
-            hint="translucent / wireframe bodies show the skeletons inside",
-        )  # fmt: skip
-        mesh_detail = server.gui.add_dropdown(
-            "Mesh detail", MESH_DETAILS, initial_value=state.layers.mesh_detail,
-            hint="decimated: ~1/6 of the faces, for the display only (exports are full)",
-        )  # fmt: skip
-
-    @mesh_style.on_update
-    def _(_) -> None:
-        state.layers.mesh_style = str(mesh_style.value)
-        on_change("layers")
-
-    @mesh_detail.on_update
-    def _(_) -> None:
-        state.layers.mesh_detail = str(mesh_detail.value)
-        on_change("layers")
-
-    @frustum_width.on_update
-    def _(_) -> None:
-        state.layers.frustum_image_width = int(frustum_width.value.split()[0])
-        on_change("layers")
-
-    @window.on_update
-    def _(_) -> None:
-        state.layers.trail_window = int(window.value)
-        on_change("layers")
-
-    for name in missing:
-        toggles[name].disabled = True
-    return LayersPanel(folder, toggles, window, frustum_width, mesh_style, mesh_detail)
-
-
-@dataclass
-class SelectionPanel:
-    folder: viser.GuiFolderHandle
-    track: viser.GuiDropdownHandle
-    joint: viser.GuiDropdownHandle
-    info: viser.GuiMarkdownHandle
-
-
-NO_TRACK = "none"
-
-
-def make_selection_panel(
-    server: viser.ViserServer, state: ViewerState, on_change: OnChange
-) -> SelectionPanel:
-    data, sel = state.data, state.selection
-    tracks = (NO_TRACK,) + tuple(str(k) for k in range(data.num_tracks))
-    joints = data.joint_set.names or ("-",)
-    with server.gui.add_folder("Selection") as folder:
-        track = server.gui.add_dropdown(
-            "Track", tracks, initial_value=NO_TRACK if sel.track is None else str(sel.track)
-        )
-        joint = server.gui.add_dropdown("Joint", joints, initial_value=joints[sel.joint])
-        info = server.gui.add_markdown(selection_info(state))
-
-    def update(_) -> None:
-        t = None if track.value == NO_TRACK else int(track.value)
-        j = joint.options.index(joint.value)
-        state.selection = dataclasses.replace(state.selection, track=t, joint=j)
-        on_change("selection")
-
-    track.on_update(update)
-    joint.on_update(update)
-    return SelectionPanel(folder, track, joint, info)
-
-
-@dataclass
-class CameraPanel:
-    panel: viser.PanelHandle
-    camera: viser.GuiDropdownHandle
-    image: viser.GuiImageHandle
-    width: viser.GuiDropdownHandle
-    legend: viser.GuiMarkdownHandle
-    # shown by the page itself in software WebGL; in this panel, which is always in view
-    software_notice: viser.GuiHtmlHandle
-
-
-# What the camera panel's lines are (mvviz.scene.images.draw_overlay).
-CAMERA_LEGEND = (
-    "<small>**thick** lines, dots: 2D detections, coloured by the person they were "
-    "associated to (**grey**: unassigned) · **thin**, rings: the filtered 3D result "
-    "reprojected · **thin dark**, crosses: ground truth</small>"
-)
-
-
-def make_camera_panel(
-    server: viser.ViserServer, state: ViewerState, on_change: OnChange
-) -> CameraPanel:
-    names = tuple(state.scene.rig.names)
-    cam = state.scene.rig[state.camera]
-    w = state.panel_image_width
-    panel = server.gui.add_panel()
-    with panel.add_tab("Camera", viser.Icon.CAMERA):
-        camera = server.gui.add_dropdown("Camera", names, initial_value=names[state.camera])
-        image = server.gui.add_image(
-            blank_frame(w, round(cam.height * w / cam.width)),
-            format="jpeg",
-            jpeg_quality=PANEL_JPEG_QUALITY,
-        )
-        widths = tuple(f"{w} px" for w in PANEL_WIDTHS)
-        legend = server.gui.add_markdown(CAMERA_LEGEND)
-        width = server.gui.add_dropdown("Image width", widths, initial_value=f"{w} px")
-        software_notice = server.gui.add_html(SOFTWARE_NOTICE_HTML)
-    panel.dock_left()
-    panel.set_width(400)
-
-    @camera.on_update
-    def _(_) -> None:
-        state.camera = names.index(camera.value)
-        state.selection = dataclasses.replace(state.selection, view=state.camera)
-        on_change("camera")
-
-    @width.on_update
-    def _(_) -> None:
-        state.panel_image_width = int(width.value.split()[0])
-        on_change("camera")
-
-    return CameraPanel(panel, camera, image, width, legend, software_notice)
-
 
 # --------------------------------------------------------------------------- rendering
 
 
 class ViewerApp:
-    """The running viewer: server, scene layers, panels, render worker, playback."""
+    """The running viewer: server, scene layers, panels, render worker, playback.
+
+    Implements :class:`~mvviz.panels.contract.PanelHost` for the panels it builds.
+    """
 
     def __init__(
         self,
@@ -383,8 +69,9 @@ class ViewerApp:
         self.state = state
         self.model = model  # the body model of the run (None: the shipped one)
         self.frames = frames
-        self.state_changed: list[Callable[[ViewerState, str], None]] = []
         self.frame_times_ms: deque[float] = deque(maxlen=500)
+        self.panels: list[Panel] = []  # every panel built, in order: stop() stops them
+        self._subscribers: list[StateCallback] = []
         self._reasons: set[str] = set()
         self._reasons_lock = threading.Lock()
         self._stopped = threading.Event()
@@ -402,26 +89,8 @@ class ViewerApp:
         server.gui.main_panel.set_width(340)
         server.scene.set_up_direction("+z")
         self._set_initial_camera()
-        self.layers = SceneLayers(server, state.data, on_joint_click=self._on_joint_click)
-        # The timeline stays on top whatever tab is open (scrubbing while looking at a
-        # failure, a filter or a layer is the point); below it one tab per panel.
-        self.timeline = make_timeline_panel(server, state, self._on_change)
-        self.tabs = tabs = server.gui.add_tab_group()
-        with tabs.add_tab("Layers", viser.Icon.STACK_2):
-            self.layers_panel = make_layers_panel(server, state, self._on_change)
-        with tabs.add_tab("Selection", viser.Icon.POINTER):
-            self.selection_panel = make_selection_panel(server, state, self._on_change)
-        self.camera_panel = make_camera_panel(server, state, self._on_change)
-        with tabs.add_tab("Pipeline", viser.Icon.ADJUSTMENTS):
-            self.pipeline_panel = make_pipeline_panel(self, model=self.model)
-        with tabs.add_tab("Filter A/B", viser.Icon.CHART_LINE):
-            self.filter_panel = make_filter_panel(self)
-        with tabs.add_tab("Failures", viser.Icon.ALERT_TRIANGLE):
-            self.failure_panel = make_failure_panel(self)
-        with tabs.add_tab("Export", viser.Icon.DOWNLOAD):
-            self.export_panel = make_export_panel(self)
-        for folder in (self.pipeline_panel.gui.folder, self.export_panel.gui.folder):
-            folder.expand_by_default = True  # alone in its tab: open
+        self.layers = make_scene_layers(server, state.data, on_joint_click=self._on_joint_click)
+        self._build_panels()
         self._image_pool = ThreadPoolExecutor(1, thread_name_prefix="mvviz-images")
         self.last_image_cpu_ms = 0.0  # CPU time of the last frame's image job
         self._stats_shown_t = -np.inf
@@ -432,7 +101,33 @@ class ViewerApp:
             frames.on_camera_ready.append(lambda _cam: self._on_change("video"))
         self._on_change("init")
 
-    # ------------------------------------------------------------------ public hooks
+    def _build_panels(self) -> None:
+        """The timeline on top whatever tab is open (scrubbing while looking at a
+        failure, a filter or a layer is the point); below it one tab per panel; the
+        camera panel docked left."""
+        self.timeline = self._add(make_timeline_panel(self))
+        self.tabs = tabs = self.server.gui.add_tab_group()
+        with tabs.add_tab("Layers", viser.Icon.STACK_2):
+            self.layers_panel = self._add(make_layers_panel(self))
+        with tabs.add_tab("Selection", viser.Icon.POINTER):
+            self.selection_panel = self._add(make_selection_panel(self))
+        self.camera_panel = self._add(make_camera_panel(self))
+        with tabs.add_tab("Pipeline", viser.Icon.ADJUSTMENTS):
+            self.pipeline_panel = self._add(make_pipeline_panel(self))
+        with tabs.add_tab("Filter A/B", viser.Icon.CHART_LINE):
+            self.filter_panel = self._add(make_filter_panel(self))
+        with tabs.add_tab("Failures", viser.Icon.ALERT_TRIANGLE):
+            self.failure_panel = self._add(make_failure_panel(self))
+        with tabs.add_tab("Export", viser.Icon.DOWNLOAD):
+            self.export_panel = self._add(make_export_panel(self))
+        for folder in (self.pipeline_panel.gui.folder, self.export_panel.gui.folder):
+            folder.expand_by_default = True  # alone in its tab: open
+
+    def _add(self, panel):
+        self.panels.append(panel)
+        return panel
+
+    # ------------------------------------------------------------------ the panel host
 
     @property
     def url(self) -> str:
@@ -440,10 +135,29 @@ class ViewerApp:
         host = "127.0.0.1" if host in ("0.0.0.0", "") else host
         return f"http://{host}:{self.server.get_port()}"
 
+    @property
+    def stopped(self) -> threading.Event:
+        """Set by :meth:`stop`: panel workers end, GUI writes are skipped."""
+        return self._stopped
+
+    @property
+    def rendering(self) -> bool:
+        """A frame is being rendered (the render lock is held)."""
+        return self._render_lock.locked()
+
+    def subscribe(self, callback: StateCallback) -> Callable[[], None]:
+        """Call ``callback(state, reason)`` after each render; returns the unsubscriber."""
+        self._subscribers.append(callback)
+
+        def unsubscribe() -> None:
+            if callback in self._subscribers:
+                self._subscribers.remove(callback)
+
+        return unsubscribe
+
     def set_frame(self, frame: int) -> None:
         """Go to ``frame`` (moves the slider, which redraws)."""
-        n = self.state.data.num_frames
-        self.timeline.slider.value = int(np.clip(frame, 0, n - 1))
+        self.timeline.set_frame(frame)
 
     def jump_to(
         self,
@@ -456,15 +170,9 @@ class ViewerApp:
 
         The entry point for panels that list problems (failure review, filter tuning).
         """
-        sel = self.selection_panel
-        if track is not None:
-            sel.track.value = str(int(track)) if track >= 0 else NO_TRACK
-        if joint is not None:
-            names = self.state.data.joint_set.names
-            sel.joint.value = joint if isinstance(joint, str) else names[int(joint)]
+        self.selection_panel.select(track, joint)
         if view is not None:
-            names = self.state.scene.rig.names
-            self.camera_panel.camera.value = view if isinstance(view, str) else names[int(view)]
+            self.camera_panel.show_view(view)
         if frame is not None:
             self.set_frame(frame)
 
@@ -477,8 +185,13 @@ class ViewerApp:
             client.camera.position = target + offset  # moves look_at along with it
             client.camera.look_at = target
 
-    def redraw(self) -> None:
-        self._on_change("redraw")
+    def redraw(self, reason: str = "redraw") -> None:
+        self._on_change(reason)
+
+    def show_data(self, data: ViewerData) -> None:
+        """Show ``data`` (same scene, joint set, tracks, fits) on the existing nodes."""
+        self.state.data = data
+        self.redraw()
 
     def set_results(self, results: PipelineResults) -> None:
         """Show new results of the same scene (e.g. re-run with other parameters): the
@@ -491,7 +204,7 @@ class ViewerApp:
             }
             self.layers.remove()
             self.state.data = data
-            self.layers = SceneLayers(self.server, data, on_joint_click=self._on_joint_click)
+            self.layers = make_scene_layers(self.server, data, on_joint_click=self._on_joint_click)
             self.layers.set_visibility(self.state.layers)  # shown meshes: in this batch
             self._applied_layers = None
             # viser 1.1.1's client blanks the page ("Cannot read properties of null
@@ -503,10 +216,18 @@ class ViewerApp:
             }
             for name in sorted(skinned - kept):
                 self.server.scene.add_frame(name, show_axes=False, visible=False)
-        sel = self.selection_panel
-        sel.track.options = (NO_TRACK,) + tuple(str(k) for k in range(data.num_tracks))
-        sel.joint.options = data.joint_set.names
+        self.selection_panel.set_choices(data.num_tracks, data.joint_set.names)
         self._on_change("results")
+
+    def complete_results(self) -> PipelineResults:
+        """The Pipeline panel's newest complete results (waits for a re-run to land)."""
+        panel = getattr(self, "pipeline_panel", None)
+        return self.state.results if panel is None else panel.complete_results()
+
+    def filter_runs(self) -> tuple[FilterRun, FilterRun | None] | None:
+        """Filter A and B of the Filter A/B panel (None before it is built)."""
+        panel = getattr(self, "filter_panel", None)
+        return None if panel is None else (panel.run_a, panel.run_b)
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         return self._renderer.wait_idle(timeout)
@@ -523,8 +244,11 @@ class ViewerApp:
         }
 
     def stop(self) -> None:
+        """Stop playback, every panel, the render and image threads, then the server."""
         self._stopped.set()
         self._play_wake.set()
+        for panel in reversed(self.panels):
+            panel.stop()
         self._renderer.stop()
         self._image_pool.shutdown(wait=True)
         self._player.join(timeout=5)
@@ -558,10 +282,7 @@ class ViewerApp:
             self._reasons.add(reason)
         if reason == "playing":
             self._play_wake.set()
-            self.timeline.play.label = "Pause" if self.state.playing else "Play"
-            self.timeline.play.icon = (
-                viser.Icon.PLAYER_PAUSE if self.state.playing else viser.Icon.PLAYER_PLAY
-            )
+            self.timeline.show_playing(self.state.playing)
             return
         self._renderer.request()
 
@@ -606,7 +327,7 @@ class ViewerApp:
         with self._reasons_lock:
             reasons, self._reasons = self._reasons, set()
         st = self.state.snapshot()
-        f, lay = st.frame, st.layers
+        lay = st.layers
         # Decoding, resizing and drawing the images (OpenCV, which releases the GIL) run
         # on a second thread while this one computes and assigns the geometry.
         images_job = self._image_pool.submit(self._frame_images, st)
@@ -618,13 +339,13 @@ class ViewerApp:
                 self._applied_layers = lay
             self.layers.apply(geom, st.selection)
             self.layers.highlight_camera(st.scene.rig.names[st.camera])
-            self.timeline.label.content = frame_label(st, f)
-            self.selection_panel.info.content = selection_info(st)
+            self.timeline.show_frame(st)
+            self.selection_panel.show(st)
             t2 = time.perf_counter()
             images, panel_image = images_job.result()
             t3 = time.perf_counter()
             self.layers.set_frustum_images(images)
-            self.camera_panel.image.image = panel_image
+            self.camera_panel.show_image(panel_image)
         self.server.flush()
         t4 = time.perf_counter()
         ms = (t4 - t0) * 1e3
@@ -638,16 +359,16 @@ class ViewerApp:
         if t4 - self._stats_shown_t >= STATS_INTERVAL_S:  # a figure to read, not to flicker
             self._stats_shown_t = t4
             s = self.frame_time_stats()
-            self.timeline.stats.content = (
+            self.timeline.show_stats(
                 f"<small>server render {ms:.0f} ms (median {s['median_ms']:.0f}, "
                 f"p95 {s['p95_ms']:.0f})</small>"
             )
         reason = ",".join(sorted(reasons)) or "redraw"
-        for cb in list(self.state_changed):
+        for cb in list(self._subscribers):
             try:
                 cb(st, reason)
             except Exception as exc:
-                print(f"mvviz view: state_changed callback failed: {exc}")
+                print(f"mvviz view: state-change callback failed: {exc}")
 
     def _play_loop(self) -> None:
         next_t = time.perf_counter()

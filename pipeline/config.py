@@ -20,6 +20,9 @@ from pipeline.smpl_fit import FitParams
 from pipeline.track import TrackingParams
 
 SOURCES = ("keypoints", "smpl")
+CONFIG_FILE = "mvviz_config.json"
+"""The scene's run config, ``SCENE/mvviz_config.json``: what ``mvviz run`` and ``mvviz view``
+read when no ``--config`` is given, and what the viewer's panels save into."""
 
 
 @dataclass(frozen=True)

@@ -109,7 +109,20 @@ def to_coco_like(smpl_joints: np.ndarray, joint_set: str) -> np.ndarray:
     return out
 
 
-def _frames_of_gt(gt: GroundTruth, gt_slots: np.ndarray, num_frames: int):
+def gt_per_frame(
+    gt: GroundTruth, gt_slots: np.ndarray, num_frames: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ground truth laid out by frame and person, as :func:`stage_metrics` takes it.
+
+    Args:
+        gt: the scene's ground truth (M rows, one per person and frame).
+        gt_slots: (M, 24, 3) mm, each row's joints in SMPL-24 slots
+            (:func:`ground_truth_slots`, or ``gt.joints3d``).
+        num_frames: F; rows of later frames are left out.
+    Returns:
+        ``(dense, person_ids)``: (F, G, 24, 3) mm, NaN where a person is absent, and the
+        (G,) sorted person ids of its second axis.
+    """
     ids = np.unique(gt.person_id)
     dense = np.full((num_frames, len(ids), SMPL24.num_joints, 3), np.nan)
     col = np.searchsorted(ids, gt.person_id)
@@ -175,7 +188,7 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
     gt_source = "none"
     if scene.gt is not None:
         gt_slots, gt_source = ground_truth_slots(scene.gt, results.joint_set)
-        gt_dense, gt_ids = _frames_of_gt(scene.gt, gt_slots, results.num_frames)
+        gt_dense, gt_ids = gt_per_frame(scene.gt, gt_slots, results.num_frames)
         # Filters are scored where the raw triangulation has the joint, so every row is
         # measured on the same samples (coasting through gaps is not scored here).
         measured = np.isfinite(results.track_raw).all(-1, keepdims=True)
@@ -189,7 +202,7 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
                 )
         association = dict(association, id_switches=len(events))
         if scene.gt.joints3d is not None:
-            dense24, _ = _frames_of_gt(scene.gt, scene.gt.joints3d, results.num_frames)
+            dense24, _ = gt_per_frame(scene.gt, scene.gt.joints3d, results.num_frames)
             for name in ("smpl", "smpl_vae"):
                 fit = getattr(results, name)
                 if fit is not None:

@@ -47,7 +47,7 @@ def main() -> None:
         page.wait_for_selector("canvas", timeout=60_000)
         close_webgl_notice(page)
         page.wait_for_timeout(3000)
-        lp = app.layers_panel.toggles
+        lp = app.layers_panel.gui.toggles
         lp["fit_meshes"].value = args.fit_meshes
         lp["rays"].value = not args.no_rays
         app.jump_to(frame=args.frame, track=args.track, view=args.camera)

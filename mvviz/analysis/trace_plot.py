@@ -12,7 +12,6 @@ Units: mm and frames, as in the results.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -21,10 +20,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
+from mvviz.analysis.filter_runs import FilterRun
 from mvviz.scene.geometry import ViewerData
-
-if TYPE_CHECKING:
-    from mvviz.panels.filter_panel import FilterRun
 
 PLOT_WIDTH, PLOT_HEIGHT, PLOT_DPI = 680, 860, 220  # shown ~300 px wide in the panel
 PLAYHEAD_HEIGHT = 36  # px of the strip marking the current frame (shown at ~1/3 scale)

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from pipeline.body_model import BodyModel, load_body_model
-from pipeline.config import PipelineConfig, load_config
+from pipeline.config import CONFIG_FILE, PipelineConfig, load_config
 from pipeline.evaluate import evaluate, format_table
 from pipeline.files import atomic_write
 from pipeline.pose_prior import load_prior
@@ -43,8 +43,8 @@ def add_pipeline_options(p: argparse.ArgumentParser) -> None:
 def resolve_config(args: argparse.Namespace) -> PipelineConfig:
     """The run's config: --config FILE, else SCENE/mvviz_config.json if present, then --set."""
     path = args.config
-    if path is None and (args.scene / "mvviz_config.json").is_file():
-        path = args.scene / "mvviz_config.json"
+    if path is None and (args.scene / CONFIG_FILE).is_file():
+        path = args.scene / CONFIG_FILE
     config = load_config(path) if path else PipelineConfig()
     return config.with_overrides(args.set)
 

@@ -14,7 +14,7 @@ rerun-sdk package (``python -m rerun --serve-web``, nothing downloaded), bound t
   filter B change as a branch ``_b<n>`` of the time series (see :mod:`mvviz.export.rerun`).
 
 The logging runs on its own thread through a "latest wins" slot: the render thread only
-stores the newest frame (``state_changed`` callback, microseconds), frames visited while
+stores the newest frame (a ``subscribe`` callback, microseconds), frames visited while
 one is being logged are dropped, never queued; and the logger waits while the viewer
 renders, so it does not hold the GIL against a frame change; it and rerun's server run
 at a lower CPU priority (nice 10) than the viewer.
@@ -28,23 +28,45 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 from urllib.parse import quote
 
 import numpy as np
 import rerun as rr
 import torch
 
+from mvviz.analysis.filter_runs import FilterRun
 from mvviz.export.rerun import APP_ID, SceneLogger, make_blueprint
-
-if TYPE_CHECKING:
-    from mvviz.app import ViewerApp
+from mvviz.scene.images import FrameStore
+from mvviz.state import ViewerState
+from pipeline.body_model import BodyModel
 
 DEFAULT_WEB_PORT = 9090
 POLL_S = 0.25  # how often the logger looks at filter B and the stop flag
 NICE = 10  # the logging thread and rerun's server yield the CPU to the viewer
 SERVER_MEMORY_LIMIT = "1GiB"  # the gRPC server's buffer for late viewers (oldest dropped)
+
+
+class LiveHost(Protocol):
+    """What :class:`LiveRerun` reads of the viewer: a part of the panel contract
+    (:class:`mvviz.panels.contract.PanelHost`, documented there), so any panel host,
+    the app included, is one. Declared here because export code sits below the panels.
+    """
+
+    @property
+    def state(self) -> ViewerState: ...
+    @property
+    def model(self) -> BodyModel | None: ...
+    @property
+    def frames(self) -> FrameStore | None: ...
+    @property
+    def stopped(self) -> threading.Event: ...
+    @property
+    def rendering(self) -> bool: ...
+    def subscribe(self, callback: Callable[[ViewerState, str], None]) -> Callable[[], None]: ...
+    def filter_runs(self) -> tuple[FilterRun, FilterRun | None] | None: ...
 
 
 def _lower_priority() -> None:
@@ -128,10 +150,10 @@ class RerunWebServer:
 
 
 class LiveRerun:
-    """Logs what a :class:`~mvviz.app.ViewerApp` shows into a rerun recording, live.
+    """Logs what a running viewer shows into a rerun recording, live.
 
     Args:
-        app: the running viewer.
+        app: the running viewer (any :class:`LiveHost`: the app, or a panel host).
         server: where the recording streams (None: no gRPC sink).
         save: also write the same stream to this ``.rrd`` file.
         recording: log into this stream instead of a new one (its sinks are kept when
@@ -144,7 +166,7 @@ class LiveRerun:
 
     def __init__(
         self,
-        app: ViewerApp,
+        app: LiveHost,
         *,
         server: RerunWebServer | None = None,
         save: str | Path | None = None,
@@ -174,7 +196,7 @@ class LiveRerun:
         self._thread = threading.Thread(target=self._loop, name="mvviz-rerun", daemon=True)
         self._thread.start()
         self._ready.wait(30)
-        app.state_changed.append(self._on_state_changed)
+        self._unsubscribe: Callable[[], None] | None = app.subscribe(self._on_state_changed)
 
     # ------------------------------------------------------------------ public
 
@@ -191,8 +213,9 @@ class LiveRerun:
 
     def close(self) -> None:
         """Stop logging, flush and close the sinks (the file gets its footer)."""
-        if self.on_state_changed_attached:
-            self.app.state_changed.remove(self._on_state_changed)
+        if self._unsubscribe is not None:
+            self._unsubscribe()
+            self._unsubscribe = None
         self._closed.set()
         with self._cv:
             self._cv.notify_all()
@@ -203,7 +226,8 @@ class LiveRerun:
 
     @property
     def on_state_changed_attached(self) -> bool:
-        return self._on_state_changed in self.app.state_changed
+        """Still following the viewer (until :meth:`close`)."""
+        return self._unsubscribe is not None
 
     # ------------------------------------------------------------------ render thread
 
@@ -221,9 +245,8 @@ class LiveRerun:
 
     def _pause(self) -> None:
         """Wait while the viewer renders a frame (its render lock is held)."""
-        lock = self.app._render_lock
         t0 = time.monotonic()
-        while lock.locked() and time.monotonic() - t0 < 0.5:
+        while self.app.rendering and time.monotonic() - t0 < 0.5:
             time.sleep(0.001)
 
     def _open(self) -> None:
@@ -258,7 +281,7 @@ class LiveRerun:
             self.rec.send_blueprint(make_blueprint(self.app.state.scene.rig.names))
         except Exception as exc:
             self.errors.append(f"blueprint: {exc}")
-        while not self._closed.is_set() and not self.app._stopped.is_set():
+        while not self._closed.is_set() and not self.app.stopped.is_set():
             with self._cv:
                 if self._want is None and not self._new_results:
                     self._cv.wait(POLL_S)
@@ -281,7 +304,7 @@ class LiveRerun:
         results = data.results
         if results is not self._results:
             first = self._results is None
-            model = getattr(self.app, "model", None) if data.bodies is not None else None
+            model = self.app.model if data.bodies is not None else None
             self._logger = SceneLogger(
                 data.scene, results, self.rec, body_model=model,
                 image_width=self._image_width(), sparse=True, pause=self._pause,
@@ -316,11 +339,10 @@ class LiveRerun:
 
     def _check_filter_b(self) -> None:
         """A new filter B run (not equal to A): its filtered tracks as a branch."""
-        fp = getattr(self.app, "filter_panel", None)
-        logger = self._logger
-        if fp is None or logger is None:
+        runs, logger = self.app.filter_runs(), self._logger
+        if runs is None or logger is None:
             return
-        run_b, run_a = fp.run_b, fp.run_a
+        run_a, run_b = runs
         if run_b is None or run_b is self._b_seen:
             return
         self._b_seen = run_b

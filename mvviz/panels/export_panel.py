@@ -14,22 +14,19 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import viser
 
+from mvviz.panels.contract import PanelHost
 from pipeline.exports import EXTENSIONS, FORMATS, ExportedFile, export_results, stages_for
 from pipeline.results import PipelineResults
-
-if TYPE_CHECKING:
-    from mvviz.app import ViewerApp
 
 LAST = "last"
 ALL = "all"
 
 
 @dataclass
-class ExportGui:
+class ExportHandles:
     folder: viser.GuiFolderHandle
     format: viser.GuiDropdownHandle
     stage: viser.GuiDropdownHandle
@@ -53,7 +50,9 @@ def default_path(out_dir: Path, scene_name: str, fmt: str, stage: str) -> Path:
     return out_dir / f"{scene_name}{tag}{EXTENSIONS[fmt]}"
 
 
-def make_export_gui(server: viser.ViserServer, results: PipelineResults, path: Path) -> ExportGui:
+def make_export_handles(
+    server: viser.ViserServer, results: PipelineResults, path: Path
+) -> ExportHandles:
     with server.gui.add_folder("Export", expand_by_default=False) as folder:
         fmt = server.gui.add_dropdown(
             "Format", FORMATS, initial_value="glb",
@@ -72,19 +71,19 @@ def make_export_gui(server: viser.ViserServer, results: PipelineResults, path: P
         out = server.gui.add_text("Export path", initial_value=str(path))
         export = server.gui.add_button("Export", icon=viser.Icon.FILE_EXPORT)
         status = server.gui.add_markdown("")
-    return ExportGui(folder, fmt, stage, track, per_track, out, export, status)
+    return ExportHandles(folder, fmt, stage, track, per_track, out, export, status)
 
 
 class ExportPanel:
     """The panel's GUI and its background export (one at a time)."""
 
-    def __init__(self, app: ViewerApp) -> None:
-        self.app = app
-        self.scene = app.state.scene
+    def __init__(self, host: PanelHost) -> None:
+        self.host = host
+        self.scene = host.state.scene
         self.out_dir = self.scene.root / ".mvviz" / "export"
-        results = app.state.results
-        self.gui = make_export_gui(
-            app.server, results, default_path(self.out_dir, self.scene.name, "glb", LAST)
+        results = host.state.results
+        self.gui = make_export_handles(
+            host.server, results, default_path(self.out_dir, self.scene.name, "glb", LAST)
         )
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
@@ -92,16 +91,13 @@ class ExportPanel:
         self.gui.format.on_update(lambda _: self._choices_changed())
         self.gui.stage.on_update(lambda _: self._suggest_path())
         self.gui.export.on_click(lambda _: self.export())
-        app.state_changed.append(self._on_state_changed)
+        self._unsubscribe = host.subscribe(self._on_state_changed)
 
     # ------------------------------------------------------------------ choices
 
     def _results(self) -> PipelineResults:
         """The newest complete results: the Pipeline panel's once its re-run lands."""
-        panel = getattr(self.app, "pipeline_panel", None)
-        if panel is not None:
-            return panel.complete_results()
-        return self.app.state.results
+        return self.host.complete_results()
 
     def _set_options(self, handle: viser.GuiDropdownHandle, options: tuple[str, ...]) -> None:
         if tuple(handle.options) != options:
@@ -110,7 +106,7 @@ class ExportPanel:
             handle.value = value if value in options else options[0]
 
     def _choices_changed(self) -> None:
-        results = self.app.state.results
+        results = self.host.state.results
         self._set_options(self.gui.stage, stage_options(results, self.gui.format.value))
         self._set_options(self.gui.track, track_options(results))
         self._suggest_path()
@@ -153,6 +149,10 @@ class ExportPanel:
             self._thread.start()
             return self._thread
 
+    def stop(self) -> None:
+        """Stop following the host; an export in progress finishes on its own thread."""
+        self._unsubscribe()
+
     def wait(self, timeout: float = 60.0) -> bool:
         """Block until no export runs (for tests and scripts)."""
         t = self._thread
@@ -188,6 +188,6 @@ class ExportPanel:
             g.export.disabled = False
 
 
-def make_export_panel(app: ViewerApp) -> ExportPanel:
-    """The "Export" folder of ``app``."""
-    return ExportPanel(app)
+def make_export_panel(host: PanelHost) -> ExportPanel:
+    """The "Export" folder in ``host``'s GUI."""
+    return ExportPanel(host)

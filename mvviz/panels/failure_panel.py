@@ -6,10 +6,10 @@ picks what to rank; the top :data:`MAX_ENTRIES` of :func:`~mvviz.analysis.failur
 track (``"1. f 140–172 · track 2"``), each with its whole text on a wrapping line below
 (joint, camera, measure, frames). An overview line counts the entries of every
 criterion, and the summary those of each kind in the one shown. A click calls
-:meth:`ViewerApp.jump_to` (timeline, track, joint, and the camera panel on a camera that
-sees the person: :func:`~mvviz.analysis.failures.seeing_view`) and, with "Look at it" on,
-:meth:`ViewerApp.focus` on the joint or the person. Lists are computed on a worker
-thread, cached per results and criterion, and recomputed when the app shows new results.
+``host.jump_to`` (timeline, track, joint, and the camera panel on a camera that sees the
+person: :func:`~mvviz.analysis.failures.seeing_view`) and, with "Look at it" on,
+``host.focus`` on the joint or the person. Lists are computed on a worker thread,
+cached per results and criterion, and recomputed when the host shows new results.
 
 Notes: a text box and "Flag this frame" add a :class:`~mvviz.analysis.failures.Note` for the
 current frame, saved at once to ``SCENE/.mvviz/notes.json``; each note is a button that
@@ -23,7 +23,6 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 import viser
@@ -42,13 +41,11 @@ from mvviz.analysis.failures import (
     save_notes,
     seeing_view,
 )
+from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import MM, ViewerData
+from mvviz.state import ViewerState
 from mvviz.workers import LatestWins
 from pipeline.files import SceneFormatError
-
-if TYPE_CHECKING:
-    from mvviz.app import ViewerApp
-from mvviz.state import ViewerState
 
 MAX_ENTRIES = 15
 SELECTED_COLOR = "orange"
@@ -88,7 +85,7 @@ CRITERION_HELP = {
 
 
 @dataclass
-class FailurePanel:
+class FailureHandles:
     """The folder's handles. ``note_buttons`` grows as notes are added (unused ones are
     hidden)."""
 
@@ -107,7 +104,7 @@ class FailurePanel:
     note_buttons: list[viser.GuiButtonHandle] = field(default_factory=list)
 
 
-def make_failure_gui(server: viser.ViserServer, criteria: tuple[str, ...]) -> FailurePanel:
+def make_failure_handles(server: viser.ViserServer, criteria: tuple[str, ...]) -> FailureHandles:
     """The "Failures" folder: criterion, :data:`MAX_ENTRIES` hidden entry buttons, notes."""
     gui = server.gui
     labels = tuple(CRITERION_LABELS[c] for c in criteria)
@@ -127,7 +124,7 @@ def make_failure_gui(server: viser.ViserServer, criteria: tuple[str, ...]) -> Fa
             flag = gui.add_button("Flag this frame", icon=viser.Icon.FLAG)
             delete = gui.add_button("Delete selected note", icon=viser.Icon.TRASH, disabled=True)
             notes_info = gui.add_markdown("")
-    return FailurePanel(
+    return FailureHandles(
         folder, criterion, look, summary, entries, details, overview, notes_folder, note_text,
         flag, delete, notes_info,
     )  # fmt: skip
@@ -168,7 +165,7 @@ def failure_point(data: ViewerData, failure: Failure) -> np.ndarray | None:
     return None if pose is None else pose.mean(0) * MM
 
 
-class FailureReview:
+class FailurePanel:
     """The "Failures" panel at work.
 
     ``failures`` are the entries shown (at most :data:`MAX_ENTRIES`), ``found`` how many
@@ -176,13 +173,13 @@ class FailureReview:
     ``notes_error`` why the notes file could not be read (nothing is saved over it).
     """
 
-    def __init__(self, app: ViewerApp) -> None:
-        self.app = app
+    def __init__(self, host: PanelHost) -> None:
+        self.host = host
         self._lock = threading.RLock()
-        self._data: ViewerData = app.state.data
+        self._data: ViewerData = host.state.data
         self._cache: dict[tuple[int, str], list[Failure]] = {}
         self.criteria = available_criteria(self._data.scene, self._data.results)
-        self.gui = make_failure_gui(app.server, self.criteria)
+        self.gui = make_failure_handles(host.server, self.criteria)
         self.failures: list[Failure] = []
         self.found = 0
         self.counts: dict[str, int] = {}  # entries per criterion, for the overview
@@ -197,7 +194,7 @@ class FailureReview:
         self._load_notes()
         self._bind()
         self._worker = LatestWins(self._refresh, name="mvviz-failures")
-        app.state_changed.append(self._on_state_changed)
+        self._unsubscribe = host.subscribe(self._on_state_changed)
         self._worker.request()
 
     # ------------------------------------------------------------------ public
@@ -218,10 +215,10 @@ class FailureReview:
             self._mark(self.gui.entries, index, self.selected_failure)
             self.selected_failure = index
         view = seeing_view(self._data.scene, self._data.results, failure)
-        self.app.jump_to(failure.frame, failure.track, failure.joint, view)
+        self.host.jump_to(failure.frame, failure.track, failure.joint, view)
         target = failure_point(self._data, failure)
         if self.gui.look.value and target is not None:
-            self.app.focus(target)
+            self.host.focus(target)
         return failure
 
     def flag(self, text: str | None = None, frame: int | None = None) -> Note:
@@ -231,7 +228,7 @@ class FailureReview:
         The file is read again first, so notes another viewer saved are kept; an
         unreadable file raises :class:`SceneFormatError` and is left as it is."""
         note = new_note(
-            self.app.state.frame if frame is None else frame,
+            self.host.state.frame if frame is None else frame,
             self.gui.note_text.value if text is None else text,
         )
         with self._lock:
@@ -251,7 +248,7 @@ class FailureReview:
             note = self.notes[index]
             self.selected_note = index
             self._show_notes()
-        self.app.jump_to(frame=note.frame)
+        self.host.jump_to(frame=note.frame)
         return note
 
     def delete_selected(self) -> Note | None:
@@ -282,13 +279,13 @@ class FailureReview:
         return self._worker.wait_idle(timeout)
 
     def stop(self) -> None:
+        """Stop following the host and end the worker (the host calls it at its stop)."""
+        self._unsubscribe()
         self._worker.stop()
 
     def remove(self) -> None:
-        """Stop following the app and take the folder off the GUI."""
+        """Stop and take the folder off the GUI."""
         self.stop()
-        if self._on_state_changed in self.app.state_changed:
-            self.app.state_changed.remove(self._on_state_changed)
         self.gui.folder.remove()
 
     # ------------------------------------------------------------------ internals
@@ -329,12 +326,12 @@ class FailureReview:
                     self._show_notes()
 
     def _on_state_changed(self, st: ViewerState, reason: str) -> None:
-        """After each app render: new results (a re-run, an applied filter) -> new lists."""
-        if st.data is not self._data and st.data is self.app.state.data:
+        """After each render: new results (a re-run, an applied filter) -> new lists."""
+        if st.data is not self._data and st.data is self.host.state.data:
             self._worker.request()
 
     def _refresh(self) -> None:
-        data = self.app.state.data
+        data = self.host.state.data
         with self._lock:
             if data is not self._data:  # new results: new lists, maybe other criteria
                 self._data, self._cache = data, {}
@@ -430,7 +427,7 @@ class FailureReview:
         g = self.gui
         while len(g.note_buttons) < len(self.notes):
             with g.notes_folder:
-                button = self.app.server.gui.add_button("-", icon=viser.Icon.NOTE)
+                button = self.host.server.gui.add_button("-", icon=viser.Icon.NOTE)
             i = len(g.note_buttons)
             g.note_buttons.append(button)
 
@@ -462,6 +459,6 @@ class FailureReview:
         g.notes_info.content = f"<small>{count}{msg}</small>"
 
 
-def make_failure_panel(app: ViewerApp) -> FailureReview:
-    """The "Failures" folder in ``app``'s GUI, following the app's results."""
-    return FailureReview(app)
+def make_failure_panel(host: PanelHost) -> FailurePanel:
+    """The "Failures" folder in ``host``'s GUI, following its results."""
+    return FailurePanel(host)

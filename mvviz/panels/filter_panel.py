@@ -49,8 +49,8 @@ from mvviz.analysis.trace_plot import (
 from mvviz.scene.geometry import MM, OFFSET_FILTERED_M, ViewerData, bone_segments, track_color
 from mvviz.workers import LatestWins
 from pipeline import metrics
-from pipeline.config import PipelineConfig, load_config, save_config
-from pipeline.evaluate import _frames_of_gt, ground_truth_slots, stage_metrics, to_smpl_slots
+from pipeline.config import CONFIG_FILE, PipelineConfig, load_config, save_config
+from pipeline.evaluate import ground_truth_slots, gt_per_frame, stage_metrics, to_smpl_slots
 from pipeline.files import SceneFormatError
 from pipeline.kalman import MODELS, KalmanParams, kalman_filter
 from pipeline.results import PipelineResults
@@ -58,7 +58,6 @@ from pipeline.results import PipelineResults
 if TYPE_CHECKING:
     from mvviz.app import ViewerApp
 
-CONFIG_NAME = "mvviz_config.json"  # the scene's run config (mvviz/cli/run.py resolve_config)
 B_ROOT = "/world/skeletons/filter_b"
 B_BONE_WIDTH_M = 0.034  # A's filtered bones are 0.022 m: B's dashes sleeve them
 B_LABEL_LIFT_M = 0.12
@@ -148,7 +147,7 @@ def save_filter_config(scene_root: Path, params: KalmanParams, run_config: Pipel
 
     An existing file keeps its other sections; without one the run's config is written.
     """
-    path = Path(scene_root) / CONFIG_NAME
+    path = Path(scene_root) / CONFIG_FILE
     base = run_config
     if path.is_file():
         try:
@@ -179,7 +178,7 @@ def gt_dense(data: ViewerData) -> np.ndarray | None:
     if gt is None:
         return None
     slots, _ = ground_truth_slots(gt, res.joint_set)
-    return _frames_of_gt(gt, slots, res.num_frames)[0]
+    return gt_per_frame(gt, slots, res.num_frames)[0]
 
 
 def score(

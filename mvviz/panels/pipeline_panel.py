@@ -9,7 +9,7 @@ is swapped into the viewer's data in place of the results, and the viewer redraw
 Meanwhile the sequence-wide stages run on a background thread with a progress bar:
 every frame's association and triangulation, tracking and Kalman filtering
 (:func:`rerun_sequence`), whose results replace the preview through
-:meth:`ViewerApp.set_results`; then, if the config fits SMPL bodies, the fit, whose
+``host.set_results``; then, if the config fits SMPL bodies, the fit, whose
 results replace those once more. A newer change cancels a run between frames and
 stages (latest wins; a fit in progress is finished and dropped). Frames the user
 visits before the tracks land are re-run as they are reached.
@@ -30,13 +30,14 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import viser
 from scipy.optimize import linear_sum_assignment
 from tqdm import tqdm
 
+from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import ViewerData, detection_rays
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import PipelineConfig, save_config
@@ -60,9 +61,6 @@ from pipeline.run import (
     source_joint_set,
 )
 from pipeline.scene import Scene
-
-if TYPE_CHECKING:
-    from mvviz.app import ViewerApp
 
 CONFIG_FILE = "mvviz_config.json"
 EXPORT_DESC = "export rrd"  # tqdm descriptions of export_rrd and the SMPL fit
@@ -322,7 +320,7 @@ def tqdm_progress(prefix: str) -> tuple[str, int, int] | None:
 
 
 @dataclass
-class PipelineGui:
+class PipelineHandles:
     folder: viser.GuiFolderHandle
     source: viser.GuiDropdownHandle
     max_distance: viser.GuiSliderHandle  # association.max_distance_mm
@@ -356,10 +354,10 @@ def _slider(server: viser.ViserServer, label: str, lo, hi, step, value, hint: st
     )
 
 
-def make_pipeline_gui(
+def make_pipeline_handles(
     server: viser.ViserServer, scene: Scene, config: PipelineConfig, *,
     sources: tuple[str, ...], export_path: Path,
-) -> PipelineGui:  # fmt: skip
+) -> PipelineHandles:  # fmt: skip
     V = len(scene.rig)
     a, t = config.association, config.triangulation
     with server.gui.add_folder("Pipeline", expand_by_default=False) as folder:
@@ -402,7 +400,7 @@ def make_pipeline_gui(
         export = server.gui.add_button("Export .rrd", icon=viser.Icon.FILE_EXPORT)
         export_progress = server.gui.add_progress_bar(0.0, visible=False)
         export_status = server.gui.add_markdown("")
-    return PipelineGui(
+    return PipelineHandles(
         folder, source, max_distance, min_affinity, assoc_min_views, outlier_px, tri_min_views,
         cameras, changes, progress, status, reset, save, path, export, export_progress,
         export_status,
@@ -418,19 +416,19 @@ class PipelinePanel:
     Threads: GUI callbacks re-run the current frame at once; ``_previewer`` re-runs
     frames reached by the timeline while the tracks are pending; one worker runs the
     sequence-wide stages of the newest request. Lock order: ``_lock`` may be held while
-    calling ``app.set_results`` (which takes the app's render lock); the render thread
-    never waits for ``_lock`` (its ``state_changed`` callback only queues work).
+    calling ``host.set_results`` (which takes the viewer's render lock); the render thread
+    never waits for ``_lock`` (its state-change callback only queues work).
     """
 
-    def __init__(self, app: ViewerApp, *, model: BodyModel | None = None) -> None:
-        self.app = app
-        self.scene: Scene = app.state.scene
-        self.run_results: PipelineResults = app.state.results  # as loaded (or last saved)
+    def __init__(self, host: PanelHost) -> None:
+        self.host = host
+        self.scene: Scene = host.state.scene
+        self.run_results: PipelineResults = host.state.results  # as loaded (or last saved)
         self.run_config: PipelineConfig = self.run_results.config
         self.base = self.run_results  # the newest complete results (every stage)
         self.config = self.run_config  # what the GUI asks for
         self.last_preview_ms = float("nan")  # the last frame re-run, server side
-        self._model = model
+        self._model = host.model
         self._shown = self.run_results  # what this panel last put on screen
         self._patched: set[int] = set()  # frames re-run for ``config`` while pending
         self.pending = False  # the tracks for ``config`` have not landed yet
@@ -442,6 +440,7 @@ class PipelinePanel:
         self._cv = threading.Condition(self._lock)
         self._job: tuple[int, PipelineConfig] | None = None
         self._running = False
+        self._closed = False  # stop(): the worker ends
         self._export_thread: threading.Thread | None = None
         self._previewer = ThreadPoolExecutor(1, thread_name_prefix="mvviz-pipeline-preview")
         self._preview_queued = False
@@ -452,15 +451,15 @@ class PipelinePanel:
         if self.run_config.source not in sources:
             sources += (self.run_config.source,)
         rrd = self.scene.root / ".mvviz" / "run.rrd"
-        self.gui = make_pipeline_gui(
-            app.server, self.scene, self.run_config, sources=sources, export_path=rrd
+        self.gui = make_pipeline_handles(
+            host.server, self.scene, self.run_config, sources=sources, export_path=rrd
         )
         for handle in self.gui.inputs:
             handle.on_update(self._on_input)
         self.gui.reset.on_click(lambda _: self.reset())
         self.gui.save.on_click(lambda _: self.save())
         self.gui.export.on_click(lambda _: self.export())
-        app.state_changed.append(self._on_state_changed)
+        self._unsubscribe = host.subscribe(self._on_state_changed)
         threading.Thread(target=self._worker, name="mvviz-rerun", daemon=True).start()
         self._show_changes()
 
@@ -468,7 +467,7 @@ class PipelinePanel:
 
     @property
     def model(self) -> BodyModel:
-        """The body model (the shipped one unless the app was given another)."""
+        """The body model (the shipped one unless the host has another)."""
         if self._model is None:
             self._model = load_body_model()
         return self._model
@@ -513,7 +512,7 @@ class PipelinePanel:
                 self._set_progress(None, "")
             else:
                 self.pending = True
-                self._preview_frame(self.app.state.frame)
+                self._preview_frame(self.host.state.frame)
                 self._job = (self._generation, config)
                 self._set_progress(0.0, "re-running the sequence…")
                 self._cv.notify_all()
@@ -546,7 +545,7 @@ class PipelinePanel:
             self.config = self.run_config
             self.pending = self._save_pending = False
             self._patched.clear()
-            if self.app.state.results is not self.run_results:
+            if self.host.state.results is not self.run_results:
                 self._show(self.run_results, full=False)
             self._set_progress(None, "reset to the run config")
         self._show_changes()
@@ -601,7 +600,17 @@ class PipelinePanel:
             self._export_thread.join(left())
             if self._export_thread.is_alive():
                 return False
-        return self.app.wait_idle(left())
+        return self.host.wait_idle(left())
+
+    def stop(self) -> None:
+        """Stop following the host, drop a re-run in progress (it ends at its next frame
+        or stage; a fit in progress finishes) and end the worker and the previewer."""
+        self._unsubscribe()
+        with self._cv:
+            self._generation += 1
+            self._job, self._closed = None, True
+            self._cv.notify_all()
+        self._previewer.shutdown(wait=False)
 
     # ------------------------------------------------------------------ previews
 
@@ -622,14 +631,14 @@ class PipelinePanel:
     def _preview_current_frame(self) -> None:
         with self._lock:
             self._preview_queued = False
-            f = self.app.state.frame
+            f = self.host.state.frame
             if self.pending and f not in self._patched:
                 self._adopt_foreign_results()
                 self._preview_frame(f)
 
     def _adopt_foreign_results(self) -> None:
         """Another panel swapped results in: build on those from now on."""
-        shown = self.app.state.results
+        shown = self.host.state.results
         if shown is not self._shown:
             self.base = self._shown = shown
             self._patched.clear()
@@ -658,26 +667,27 @@ class PipelinePanel:
 
     def _show(self, results: PipelineResults, *, full: bool) -> None:
         """Put ``results`` on screen (caller holds the lock): with ``full`` (new complete
-        results) through ``app.set_results``; else, if they keep the shown joint set,
+        results) through ``host.set_results``; else, if they keep the shown joint set,
         tracks and fits (a preview, or the results it was made from), by replacing the
-        viewer's data only: the scene nodes stay."""
-        app, old = self.app, self.app.state.data
+        viewer's data only (``host.show_data``): the scene nodes stay."""
+        host, old = self.host, self.host.state.data
         r = old.results
         same = results.joint_set == r.joint_set and results.num_tracks == r.num_tracks
         same = same and results.smpl is r.smpl and results.smpl_vae is r.smpl_vae
         self._shown = results
         if full or not same:
-            app.set_results(results)
+            host.set_results(results)
         else:
-            app.state.data = preview_data(old, results)
-            app.redraw()
+            host.show_data(preview_data(old, results))
 
     # ------------------------------------------------------------------ sequence
 
     def _worker(self) -> None:
         while True:
             with self._cv:
-                self._cv.wait_for(lambda: self._job is not None)
+                self._cv.wait_for(lambda: self._job is not None or self._closed)
+                if self._closed:
+                    return
                 (gen, config), self._job = self._job, None
                 self._running = True
             try:
@@ -819,6 +829,7 @@ class PipelinePanel:
                 g.export_status.content = f"exporting: {100 * n / total:.0f}% ({n}/{total} frames)"
 
 
-def make_pipeline_panel(app: ViewerApp, *, model: BodyModel | None = None) -> PipelinePanel:
-    """The "Pipeline" folder of ``app``; ``model`` defaults to the shipped body model."""
-    return PipelinePanel(app, model=model)
+def make_pipeline_panel(host: PanelHost) -> PipelinePanel:
+    """The "Pipeline" folder in ``host``'s GUI (``host.model`` None: the shipped body
+    model, loaded when first needed)."""
+    return PipelinePanel(host)

@@ -13,7 +13,7 @@ frame, which :class:`mvviz.scene.layers.SceneLayers` assigns to the viser nodes.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import viser.transforms as vtf
@@ -26,9 +26,6 @@ from pipeline.palette import TRACK_PALETTE
 from pipeline.results import PipelineResults
 from pipeline.run import frame_rows
 from pipeline.scene import Scene
-
-if TYPE_CHECKING:
-    from mvviz.state import ViewerState
 
 MM = 1e-3  # millimetres -> metres
 
@@ -502,7 +499,17 @@ def trails(
     return out
 
 
-def frame_geometry(state: ViewerState, frame: int | None = None) -> FrameGeometry:
+class FrameView(Protocol):
+    """What :func:`frame_geometry` reads of the viewer's state (a
+    :class:`mvviz.state.ViewerState` is one; scene code never imports the state)."""
+
+    data: ViewerData
+    frame: int
+    selection: Selection
+    layers: LayerToggles
+
+
+def frame_geometry(state: FrameView, frame: int | None = None) -> FrameGeometry:
     """What to draw for ``frame`` (default: the state's frame) given layers and selection."""
     data, lay, sel = state.data, state.layers, state.selection
     f = int(state.frame if frame is None else frame)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 import trimesh
@@ -40,6 +41,7 @@ from mvviz.scene.geometry import (
     SELECTED_CAMERA,
     UNASSIGNED,
     UNTRACKED,
+    CameraGeometry,
     FrameGeometry,
     LayerToggles,
     Selection,
@@ -54,6 +56,7 @@ from mvviz.scene.skinned import BonePoser
 FRUSTUM_COLOR = (60, 60, 60)
 
 
+@lru_cache(maxsize=4)
 def _icosphere(radius: float) -> tuple[np.ndarray, np.ndarray]:
     s = trimesh.creation.icosphere(subdivisions=1, radius=radius)
     return np.asarray(s.vertices, np.float32), np.asarray(s.faces, np.uint32)
@@ -84,8 +87,9 @@ _NO_SEG = np.zeros((0, 2, 3))
 
 @dataclass
 class SceneLayers:
-    """The viser scene nodes of every layer, created once; a frame change only assigns
-    properties (points, colours, bone poses, images, visibility)."""
+    """The viser scene nodes of every layer, created once by :func:`make_scene_layers`;
+    a frame change only assigns properties (points, colours, bone poses, images,
+    visibility). The skinned meshes are added the first time their layer is shown."""
 
     server: viser.ViserServer
     data: ViewerData
@@ -118,107 +122,6 @@ class SceneLayers:
             thickness_units=units, visible=False,
         )  # fmt: skip
         self.colors[path] = None if world else np.asarray(color, np.uint8)
-
-    def __post_init__(self) -> None:
-        scene, data = self.server.scene, self.data
-        group = lambda path: self.groups.setdefault(  # noqa: E731
-            path, scene.add_frame(path, show_axes=False)
-        )
-        group("/world")
-        r = max(6.0, 2.5 * data.extent)
-        self.groups["/world/grid"] = scene.add_grid(
-            "/world/grid", width=r, height=r, cell_size=0.5, section_size=1.0, plane="xy"
-        )
-        for path in (
-            "/world/cameras",
-            "/world/detections2d",
-            "/world/skeletons",
-            "/world/skeletons/raw",
-            "/world/skeletons/filtered",
-            "/world/skeletons/gt",
-            "/world/skeletons/reference",
-            "/world/trails",
-            "/world/meshes",
-            "/world/meshes/gt",
-            "/world/meshes/fit",
-        ):
-            group(path)
-        for cam in data.cameras:
-            base = f"/world/cameras/{cam.name}"
-            self.groups[base] = scene.add_frame(
-                base, show_axes=False, wxyz=cam.wxyz, position=cam.position
-            )
-            self.nodes[f"{base}/frustum"] = scene.add_camera_frustum(
-                f"{base}/frustum",
-                fov=cam.fov,
-                aspect=cam.aspect,
-                scale=cam.frustum_scale,
-                thickness=1.5,
-                thickness_units="screen",
-                color=FRUSTUM_COLOR,
-                jpeg_quality=FRUSTUM_JPEG_QUALITY,
-                cast_shadow=False,
-                receive_shadow=False,
-            )
-            self.nodes[f"{base}/label"] = scene.add_label(
-                f"{base}/label", cam.name, anchor="bottom-center"
-            )
-            d2 = f"/world/detections2d/{cam.name}"
-            self.groups[d2] = scene.add_frame(
-                d2, show_axes=False, wxyz=cam.wxyz, position=cam.position
-            )
-            self.nodes[f"{d2}/joints"] = scene.add_point_cloud(
-                f"{d2}/joints",
-                np.zeros((1, 3), np.float32),
-                np.zeros((1, 3), np.uint8),
-                point_size=0.008,
-                point_shape="circle",
-                # camera-frame metres on a plane 0.6 m ahead: float16 steps stay under a pixel
-                precision="float16",
-                visible=False,
-            )
-            self._lines(f"{d2}/bones", UNASSIGNED, 1.5)
-        group("/world/rays")
-        self._lines("/world/rays/used", UNTRACKED, 1.6)
-        self._lines("/world/rays/outliers", OUTLIER, 2.5)
-        J = data.joint_set.num_joints
-        sv, sf = _icosphere(0.025)
-        for k in range(data.num_tracks):
-            col = track_color(k)
-            raw = f"/world/skeletons/raw/{k}"
-            self._lines(f"{raw}/bones", pale(col, 0.45), 2.0)
-            self.nodes[f"{raw}/joints"] = scene.add_point_cloud(
-                f"{raw}/joints", np.zeros((1, 3), np.float32), pale(col, 0.45),
-                point_size=0.03, point_shape="circle", precision="float32", visible=False,
-            )  # fmt: skip
-            filt = f"/world/skeletons/filtered/{k}"
-            self._lines(f"{filt}/bones", col, 0.022, "world")
-            joints = scene.add_batched_meshes_simple(
-                f"{filt}/joints",
-                sv,
-                sf,
-                batched_wxyzs=np.tile([1.0, 0, 0, 0], (max(J, 1), 1)),
-                batched_positions=np.zeros((max(J, 1), 3)),
-                batched_colors=col,
-                lod="off",
-                cast_shadow=False,
-                visible=False,
-            )
-            self.nodes[f"{filt}/joints"] = joints
-            joints.on_click(self._click_handler(k))
-            self._lines(f"/world/trails/{k}/raw", pale(col, 0.45), 2.0)
-            self._lines(f"/world/trails/{k}/filtered", col, 3.5)
-        if data.gt_points is not None:
-            self.gt_ids = [int(p) for p in np.unique(data.scene.gt.person_id)]
-        for pid in self.gt_ids:
-            self._lines(f"/world/skeletons/gt/{pid}", GT_SKELETON, 0.012, "world")
-        for name in data.scene.references:
-            ref = group(f"/world/skeletons/reference/{name}")
-            self._lines(f"{ref.name}/bones", REFERENCE_SKELETON, 0.014, "world")
-            self.nodes[f"{ref.name}/joints"] = scene.add_point_cloud(
-                f"{ref.name}/joints", np.zeros((1, 3), np.float32), REFERENCE_SKELETON,
-                point_size=0.03, point_shape="circle", precision="float32", visible=False,
-            )  # fmt: skip
 
     @staticmethod
     def mesh_version(lay: LayerToggles, kind: str) -> str:
@@ -424,3 +327,141 @@ class SceneLayers:
                     poser = self.bone_posers[mesh.name] = BonePoser(mesh, fast=self.fast_bones)
                 poser.pose(bp.wxyz, bp.position)
                 mesh.visible = True
+
+
+# --------------------------------------------------------------------------- building
+
+
+def make_scene_layers(
+    server: viser.ViserServer,
+    data: ViewerData,
+    *,
+    on_joint_click: Callable[[int, int], None] | None = None,
+) -> SceneLayers:
+    """Every layer's (hidden) nodes for ``data`` on ``server``, in the tree of the module
+    docstring; ``on_joint_click(track, joint)`` runs when a filtered joint is clicked."""
+    layers = SceneLayers(server, data, on_joint_click=on_joint_click)
+    _add_groups(layers)
+    for cam in data.cameras:
+        _add_camera(layers, cam)
+    layers.groups["/world/rays"] = server.scene.add_frame("/world/rays", show_axes=False)
+    layers._lines("/world/rays/used", UNTRACKED, 1.6)
+    layers._lines("/world/rays/outliers", OUTLIER, 2.5)
+    for k in range(data.num_tracks):
+        _add_track(layers, k)
+    _add_ground_truth(layers)
+    _add_references(layers)
+    return layers
+
+
+def _add_groups(layers: SceneLayers) -> None:
+    """The grid and the group frames that the layer toggles show and hide."""
+    scene, data = layers.server.scene, layers.data
+    layers.groups["/world"] = scene.add_frame("/world", show_axes=False)
+    r = max(6.0, 2.5 * data.extent)
+    layers.groups["/world/grid"] = scene.add_grid(
+        "/world/grid", width=r, height=r, cell_size=0.5, section_size=1.0, plane="xy"
+    )
+    for path in (
+        "/world/cameras",
+        "/world/detections2d",
+        "/world/skeletons",
+        "/world/skeletons/raw",
+        "/world/skeletons/filtered",
+        "/world/skeletons/gt",
+        "/world/skeletons/reference",
+        "/world/trails",
+        "/world/meshes",
+        "/world/meshes/gt",
+        "/world/meshes/fit",
+    ):
+        layers.groups[path] = scene.add_frame(path, show_axes=False)
+
+
+def _add_camera(layers: SceneLayers, cam: CameraGeometry) -> None:
+    """One camera's frustum (with its video), label and 2D detections."""
+    scene = layers.server.scene
+    base = f"/world/cameras/{cam.name}"
+    layers.groups[base] = scene.add_frame(
+        base, show_axes=False, wxyz=cam.wxyz, position=cam.position
+    )
+    layers.nodes[f"{base}/frustum"] = scene.add_camera_frustum(
+        f"{base}/frustum",
+        fov=cam.fov,
+        aspect=cam.aspect,
+        scale=cam.frustum_scale,
+        thickness=1.5,
+        thickness_units="screen",
+        color=FRUSTUM_COLOR,
+        jpeg_quality=FRUSTUM_JPEG_QUALITY,
+        cast_shadow=False,
+        receive_shadow=False,
+    )
+    layers.nodes[f"{base}/label"] = scene.add_label(
+        f"{base}/label", cam.name, anchor="bottom-center"
+    )
+    d2 = f"/world/detections2d/{cam.name}"
+    layers.groups[d2] = scene.add_frame(d2, show_axes=False, wxyz=cam.wxyz, position=cam.position)
+    layers.nodes[f"{d2}/joints"] = scene.add_point_cloud(
+        f"{d2}/joints",
+        np.zeros((1, 3), np.float32),
+        np.zeros((1, 3), np.uint8),
+        point_size=0.008,
+        point_shape="circle",
+        # camera-frame metres on a plane 0.6 m ahead: float16 steps stay under a pixel
+        precision="float16",
+        visible=False,
+    )
+    layers._lines(f"{d2}/bones", UNASSIGNED, 1.5)
+
+
+def _add_track(layers: SceneLayers, k: int) -> None:
+    """Track ``k``'s raw and filtered skeletons (clickable joints) and its trails."""
+    scene, J = layers.server.scene, layers.data.joint_set.num_joints
+    sv, sf = _icosphere(0.025)
+    col = track_color(k)
+    raw = f"/world/skeletons/raw/{k}"
+    layers._lines(f"{raw}/bones", pale(col, 0.45), 2.0)
+    layers.nodes[f"{raw}/joints"] = scene.add_point_cloud(
+        f"{raw}/joints", np.zeros((1, 3), np.float32), pale(col, 0.45),
+        point_size=0.03, point_shape="circle", precision="float32", visible=False,
+    )  # fmt: skip
+    filt = f"/world/skeletons/filtered/{k}"
+    layers._lines(f"{filt}/bones", col, 0.022, "world")
+    joints = scene.add_batched_meshes_simple(
+        f"{filt}/joints",
+        sv,
+        sf,
+        batched_wxyzs=np.tile([1.0, 0, 0, 0], (max(J, 1), 1)),
+        batched_positions=np.zeros((max(J, 1), 3)),
+        batched_colors=col,
+        lod="off",
+        cast_shadow=False,
+        visible=False,
+    )
+    layers.nodes[f"{filt}/joints"] = joints
+    joints.on_click(layers._click_handler(k))
+    layers._lines(f"/world/trails/{k}/raw", pale(col, 0.45), 2.0)
+    layers._lines(f"/world/trails/{k}/filtered", col, 3.5)
+
+
+def _add_ground_truth(layers: SceneLayers) -> None:
+    """One skeleton node per ground-truth person (their meshes come when shown)."""
+    data = layers.data
+    if data.gt_points is not None:
+        layers.gt_ids = [int(p) for p in np.unique(data.scene.gt.person_id)]
+    for pid in layers.gt_ids:
+        layers._lines(f"/world/skeletons/gt/{pid}", GT_SKELETON, 0.012, "world")
+
+
+def _add_references(layers: SceneLayers) -> None:
+    """Bones and joints of each reference track (another tool's result)."""
+    scene = layers.server.scene
+    for name in layers.data.scene.references:
+        path = f"/world/skeletons/reference/{name}"
+        layers.groups[path] = scene.add_frame(path, show_axes=False)
+        layers._lines(f"{path}/bones", REFERENCE_SKELETON, 0.014, "world")
+        layers.nodes[f"{path}/joints"] = scene.add_point_cloud(
+            f"{path}/joints", np.zeros((1, 3), np.float32), REFERENCE_SKELETON,
+            point_size=0.03, point_shape="circle", precision="float32", visible=False,
+        )  # fmt: skip

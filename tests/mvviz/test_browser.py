@@ -83,7 +83,7 @@ def test_layer_toggle_changes_the_canvas(page, running_app, shots):
     running_app.set_frame(8)
     wait_rendered(running_app, page)
     a = canvas_image(page)
-    toggle = running_app.layers_panel.toggles["grid"]
+    toggle = running_app.layers_panel.gui.toggles["grid"]
     toggle.value = False
     wait_rendered(running_app, page)
     b = save(page, shots, "viewer_tiny_no_grid")
@@ -91,7 +91,7 @@ def test_layer_toggle_changes_the_canvas(page, running_app, shots):
     wait_rendered(running_app, page)
     assert diff(a, b) > 0.3
     # a skeleton layer, too
-    filt = running_app.layers_panel.toggles["filtered"]
+    filt = running_app.layers_panel.gui.toggles["filtered"]
     filt.value = False
     wait_rendered(running_app, page)
     c = canvas_image(page)
@@ -161,7 +161,7 @@ def test_bytes_and_time_per_frame_change(browser, running_app, shots):
 
 def test_meshes_and_side_by_side_screenshot(page, running_app, shots):
     """A README screenshot with the GT meshes and the filtered skeletons shifted 1 m."""
-    lay = running_app.layers_panel.toggles
+    lay = running_app.layers_panel.gui.toggles
     lay["meshes"].value = True
     lay["offset_filtered"].value = True
     running_app.set_frame(10)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mvviz.app import CAMERA_LEGEND
+from mvviz.panels.view_panels import CAMERA_LEGEND
 from mvviz.scene.geometry import SELECTED_CAMERA
 from mvviz.scene.layers import FRUSTUM_COLOR
 from tests.mvviz.conftest import open_tab, open_viewer, settle, wait_rendered
@@ -34,8 +34,8 @@ def test_selected_camera_is_highlighted(running_app):
     finally:
         app.jump_to(view=0)
         assert app.wait_idle(10)
-    assert "grey" in app.camera_panel.legend.content
-    assert app.camera_panel.legend.content == CAMERA_LEGEND
+    assert "grey" in app.camera_panel.gui.legend.content
+    assert app.camera_panel.gui.legend.content == CAMERA_LEGEND
 
 
 def test_panels_are_tabs_in_the_page(browser, running_app, tmp_path):

@@ -307,7 +307,7 @@ def test_server_without_browser(viewer_scene, frame_store):
     app = ViewerApp(state, port=free_port(), frames=frame_store)
     try:
         seen = []
-        app.state_changed.append(lambda st, why: seen.append((st.frame, why)))
+        app.subscribe(lambda st, why: seen.append((st.frame, why)))
         for f in range(NUM_FRAMES):
             app.set_frame(f)
             assert app.wait_idle(10)
@@ -319,13 +319,13 @@ def test_server_without_browser(viewer_scene, frame_store):
         assert state.frame == 3 and state.camera == 2
         assert state.selection.track == 1
         assert state.data.joint_set.names[state.selection.joint] == "left_wrist"
-        app.layers_panel.toggles["rays"].value = False
+        app.layers_panel.gui.toggles["rays"].value = False
         assert app.wait_idle(10) and not state.layers.rays
         # playback advances frames on its own, and pausing stops it
-        app.timeline.play.value = True  # a click
+        app.timeline.gui.play.value = True  # a click
         assert state.playing
         time.sleep(0.5)
-        app.timeline.play.value = True
+        app.timeline.gui.play.value = True
         assert not state.playing and state.frame != 3
         assert app.wait_idle(10) and not app.render_errors
     finally:
@@ -343,12 +343,12 @@ def test_image_widths_follow_the_options(viewer_scene, frame_store):
         app.set_frame(2)
         assert app.wait_idle(10)
         frustum = app.layers.nodes[f"/world/cameras/{scene.rig.names[0]}/frustum"]
-        assert app.camera_panel.image.image.shape[1] == PANEL_WIDTHS[0] == 400
+        assert app.camera_panel.gui.image.image.shape[1] == PANEL_WIDTHS[0] == 400
         assert frustum.image.shape[1] == FRUSTUM_WIDTHS[0] == 128
-        app.camera_panel.width.value = "640 px"
-        app.layers_panel.frustum_width.value = "320 px"
+        app.camera_panel.gui.width.value = "640 px"
+        app.layers_panel.gui.frustum_width.value = "320 px"
         assert app.wait_idle(10)
-        assert app.camera_panel.image.image.shape[1] == 640
+        assert app.camera_panel.gui.image.image.shape[1] == 640
         assert frustum.image.shape[1] == 320
         cam = scene.rig[0]
         assert abs(frustum.image.shape[0] - 320 * cam.height / cam.width) <= 1
@@ -371,7 +371,7 @@ def test_meshes_are_created_when_their_layer_is_first_shown(viewer_scene, frame_
         app.set_frame(4)
         assert app.wait_idle(10)
         assert app.layers.meshes == {} and app.layers.fit_meshes == {}
-        app.layers_panel.toggles["meshes"].value = True
+        app.layers_panel.gui.toggles["meshes"].value = True
         assert app.wait_idle(10)
         b = state.data.bodies
         assert sorted(app.layers.meshes) == sorted(int(p) for p in b.ids)
@@ -394,7 +394,7 @@ def test_server_survives_odd_scenes(viewer_scene, blind_camera_scene):
     assert state.data.bodies is None and state.data.gt_points is None
     app = ViewerApp(state, port=free_port(), frames=FrameStore(no_gt).start())
     try:
-        assert app.layers_panel.toggles["meshes"].disabled
+        assert app.layers_panel.gui.toggles["meshes"].disabled
         for f in range(0, NUM_FRAMES, 3):
             app.set_frame(f)
             assert app.wait_idle(10)
@@ -407,7 +407,7 @@ def test_server_survives_odd_scenes(viewer_scene, blind_camera_scene):
         app.set_frame(7)
         assert app.wait_idle(10)
         assert state.data.results is other
-        assert app.selection_panel.track.options[1:] == tuple(
+        assert app.selection_panel.gui.track.options[1:] == tuple(
             str(k) for k in range(other.num_tracks)
         )
         assert not app.render_errors
@@ -427,7 +427,7 @@ def test_cli_view_starts_and_stops(viewer_scene):
     try:
         assert app.url.startswith("http://127.0.0.1:")
         done = threading.Event()
-        app.state_changed.append(lambda *_: done.set())
+        app.subscribe(lambda *_: done.set())
         app.set_frame(5)
         assert done.wait(10)
     finally:

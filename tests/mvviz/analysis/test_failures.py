@@ -31,7 +31,7 @@ from mvviz.analysis.failures import (
     seeing_view,
 )
 from mvviz.app import ViewerApp
-from mvviz.panels.failure_panel import MAX_ENTRIES, FailureReview
+from mvviz.panels.failure_panel import MAX_ENTRIES, make_failure_panel
 from mvviz.state import ViewerState
 from pipeline import metrics, pose_limits
 from pipeline.body_model import load_body_model
@@ -493,10 +493,10 @@ def test_panel_lists_and_jumps(app, tiny):
     app.set_frame(0)
     first = panel.click(0)  # reprojection: names a view
     assert app.wait_idle()
-    assert int(app.timeline.slider.value) == first.frame == app.state.frame
+    assert int(app.timeline.gui.slider.value) == first.frame == app.state.frame
     assert app.state.selection.track == first.track
     assert app.state.selection.joint == first.joint
-    assert app.camera_panel.camera.value == scene.rig.names[first.view]
+    assert app.camera_panel.gui.camera.value == scene.rig.names[first.view]
     assert panel.gui.entries[0].color == "orange"
     # an entry naming no camera: the camera panel shows one that sees the person
     panel.set_criterion("kalman")
@@ -504,7 +504,7 @@ def test_panel_lists_and_jumps(app, tiny):
     k_entry = panel.click(0)
     assert app.wait_idle() and k_entry.view is None
     v = seeing_view(scene, res, k_entry)
-    assert app.camera_panel.camera.value == scene.rig.names[v]
+    assert app.camera_panel.gui.camera.value == scene.rig.names[v]
     q = person_at(res, k_entry.frame, k_entry.track)
     assert res.person_members[q, v] >= 0
 
@@ -545,7 +545,7 @@ def test_panel_notes_flag_reload_delete(app, no_notes):
     panel.flag("elbow", frame=9)
     assert [n.frame for n in load_notes(no_notes)] == [2, 6, 9]
     # a fresh panel (a viewer restart) reads them back
-    again = FailureReview(app)
+    again = make_failure_panel(app)
     try:
         assert [n.text for n in again.notes] == ["late start", "left wrist flips", "elbow"]
         assert [b.label for b in again.gui.note_buttons if b.visible] == [
@@ -566,7 +566,7 @@ def test_panel_notes_flag_reload_delete(app, no_notes):
 def test_panel_leaves_a_corrupt_notes_file_alone(app, no_notes):
     no_notes.parent.mkdir(parents=True, exist_ok=True)
     no_notes.write_text("{ half a file")
-    panel = FailureReview(app)
+    panel = make_failure_panel(app)
     try:
         assert panel.notes_error is not None and str(no_notes) in panel.notes_error
         assert "Notes file unreadable" in panel.gui.notes_info.content
@@ -601,11 +601,11 @@ def test_clicking_a_failure_in_the_page_moves_the_timeline(browser, app, tiny, n
         button.scroll_into_view_if_needed()
         button.click()
         deadline = time.monotonic() + 10
-        while int(app.timeline.slider.value) != first.frame and time.monotonic() < deadline:
+        while int(app.timeline.gui.slider.value) != first.frame and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert int(app.timeline.slider.value) == first.frame
+        assert int(app.timeline.gui.slider.value) == first.frame
         assert app.wait_idle() and app.state.frame == first.frame
-        assert app.camera_panel.camera.value == scene.rig.names[first.view]
+        assert app.camera_panel.gui.camera.value == scene.rig.names[first.view]
         # "Look at it": the page's 3D camera turned to the failing joint (metres)
         target = app.state.data.filtered[first.track, first.frame, first.joint] / 1000
         client = next(iter(app.server.get_clients().values()))

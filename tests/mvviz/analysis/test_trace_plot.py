@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 
+from mvviz.analysis.filter_runs import results_run, run_filter
 from mvviz.analysis.trace_plot import (
     PLOT_HEIGHT,
     PLOT_WIDTH,
@@ -13,7 +14,6 @@ from mvviz.analysis.trace_plot import (
     joint_trace,
     plot_range,
 )
-from mvviz.panels.filter_panel import results_run, run_filter
 
 
 def test_plot_image_size_and_frame_marker(viewer_state):

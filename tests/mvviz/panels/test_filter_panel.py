@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
+from mvviz.analysis.filter_runs import results_run, run_filter, with_filter
 from mvviz.analysis.trace_plot import PLAYHEAD_HEIGHT, PLOT_HEIGHT, PLOT_WIDTH
 from mvviz.app import ViewerApp
 from mvviz.cli.run import resolve_config
@@ -25,10 +26,7 @@ from mvviz.panels.filter_panel import (
     PLACEMENTS,
     dashed_segments,
     metrics_table,
-    results_run,
-    run_filter,
     score,
-    with_filter,
 )
 from mvviz.scene.geometry import bone_segments
 from mvviz.state import ViewerState
@@ -49,7 +47,6 @@ def app(viewer_scene, tmp_path):
     app = ViewerApp(ViewerState.create(scene, results, None), port=free_port())
     assert app.wait_idle(30) and app.filter_panel.wait_idle(30)
     yield app
-    app.filter_panel.stop()
     app.stop()
 
 

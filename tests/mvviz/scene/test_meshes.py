@@ -34,7 +34,7 @@ def app(viewer_scene, frame_store):
 
 def set_layers(app: ViewerApp, **values) -> None:
     """What the Layers panel's controls do, then wait for the render."""
-    panel = app.layers_panel
+    panel = app.layers_panel.gui
     for name, value in values.items():
         if name in panel.toggles:
             panel.toggles[name].value = value
@@ -115,7 +115,7 @@ def test_toggles_a_scene_cannot_show_are_disabled(viewer_scene):
     state = ViewerState.create(no_gt, results, model)
     a = ViewerApp(state, host="127.0.0.1", port=free_port())
     try:
-        t = a.layers_panel.toggles
+        t = a.layers_panel.gui.toggles
         assert t["gt"].disabled and not t["gt"].value and not state.layers.gt
         assert t["meshes"].disabled and not t["fit_meshes"].disabled
     finally:

@@ -101,7 +101,7 @@ def test_reference_checkbox_and_nodes(ref_scene):
     try:
         app.set_frame(2)
         assert app.wait_idle(20) and not app.render_errors
-        cb = app.layers_panel.toggles["reference:pose2sim"]
+        cb = app.layers_panel.gui.toggles["reference:pose2sim"]
         assert cb.label == "Reference: pose2sim" and cb.value
         base = "/world/skeletons/reference/pose2sim"
         bones = app.layers.nodes[f"{base}/bones"]

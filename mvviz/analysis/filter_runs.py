@@ -1,0 +1,80 @@
+"""Kalman filter runs over a whole sequence, tracks first: filter A (the results' own
+arrays) and re-filters with other parameters (the Filter A/B panel's B), as one data
+class, :class:`FilterRun`, that the panel, its trace plot and the live rerun export read.
+
+Units: millimetres and frames, as in the results. Pure: no GUI, no viewer state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.kalman import KalmanParams, kalman_filter
+from pipeline.results import PipelineResults
+
+
+@dataclass(frozen=True, eq=False)
+class FilterRun:
+    """One filter over the whole sequence, tracks first. K tracks, F frames, J joints; mm."""
+
+    params: KalmanParams
+    forward: np.ndarray  # (K, F, J, 3) forward posterior mean
+    smoothed: np.ndarray  # (K, F, J, 3) RTS
+    prior: np.ndarray  # (K, F, J, 3) predicted mean before each update
+    innovation: np.ndarray  # (K, F, J, 3)
+    mahalanobis: np.ndarray  # (K, F, J)
+    rejected: np.ndarray  # (K, F, J) bool, measurement rejected by the gate
+
+    @property
+    def shown(self) -> np.ndarray:
+        """(K, F, J, 3) the configured output: smoothed if ``params.smoother``."""
+        return self.smoothed if self.params.smoother else self.forward
+
+
+def run_filter(track_raw: np.ndarray, params: KalmanParams) -> FilterRun:
+    """Filter ``track_raw`` (K, F, J, 3) mm as the pipeline does (forward and RTS at once)."""
+    raw = np.asarray(track_raw, float)
+    if raw.ndim != 4 or raw.shape[-1] != 3:
+        raise ValueError(f"track_raw must be (num_tracks, num_frames, J, 3), got {raw.shape}")
+    fr = kalman_filter(np.moveaxis(raw, 1, 0), dataclasses.replace(params, smoother=True))
+    tracks = lambda a: np.moveaxis(a, 0, 1)  # noqa: E731  (F, K, ...) -> (K, F, ...)
+    return FilterRun(
+        params=params,
+        forward=tracks(fr.forward),
+        smoothed=tracks(fr.filtered),
+        prior=tracks(fr.prior_mean),
+        innovation=tracks(fr.innovation),
+        mahalanobis=tracks(fr.mahalanobis),
+        rejected=tracks(fr.rejected),
+    )
+
+
+def results_run(results: PipelineResults) -> FilterRun:
+    """Filter A: the results' own arrays."""
+    return FilterRun(
+        params=results.config.kalman,
+        forward=results.track_forward,
+        smoothed=results.track_smoothed,
+        prior=results.track_prior,
+        innovation=results.track_innovation,
+        mahalanobis=results.track_mahalanobis,
+        rejected=results.track_rejected,
+    )
+
+
+def with_filter(results: PipelineResults, run: FilterRun) -> PipelineResults:
+    """``results`` with ``run``'s arrays and parameters as its Kalman stage."""
+    return dataclasses.replace(
+        results,
+        track_forward=run.forward,
+        track_smoothed=run.smoothed,
+        track_prior=run.prior,
+        track_innovation=run.innovation,
+        track_mahalanobis=run.mahalanobis,
+        track_rejected=run.rejected,
+        config=dataclasses.replace(results.config, kalman=run.params),
+        cache_key="",  # no longer what a pipeline run with the old key produced
+    )
