@@ -18,7 +18,7 @@ filter B as controls. Any change to B re-filters the whole sequence with the vec
 - MPJPE, PCK@160, acceleration error and jitter of raw, A and B against the ground
   truth, scored exactly as :func:`pipeline.evaluate.evaluate` scores its rows.
 
-"Apply B" swaps B's arrays into the results (:meth:`ViewerApp.set_results`) and saves B
+"Apply B" swaps B's arrays into the results (``host.set_results``) and saves B
 into ``SCENE/mvviz_config.json`` (atomically), which ``mvviz run`` / ``mvviz view`` /
 ``python app.py`` read next time.
 
@@ -33,11 +33,11 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import viser
 
+from mvviz.analysis.filter_runs import FilterRun, results_run, run_filter, with_filter
 from mvviz.analysis.trace_plot import (
     PLAYHEAD_HEIGHT,
     PLOT_HEIGHT,
@@ -46,17 +46,14 @@ from mvviz.analysis.trace_plot import (
     joint_trace,
     plot_range,
 )
+from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import MM, OFFSET_FILTERED_M, ViewerData, bone_segments, track_color
 from mvviz.workers import LatestWins
 from pipeline import metrics
 from pipeline.config import CONFIG_FILE, PipelineConfig, load_config, save_config
 from pipeline.evaluate import ground_truth_slots, gt_per_frame, stage_metrics, to_smpl_slots
 from pipeline.files import SceneFormatError
-from pipeline.kalman import MODELS, KalmanParams, kalman_filter
-from pipeline.results import PipelineResults
-
-if TYPE_CHECKING:
-    from mvviz.app import ViewerApp
+from pipeline.kalman import MODELS, KalmanParams
 
 B_ROOT = "/world/skeletons/filter_b"
 B_BONE_WIDTH_M = 0.034  # A's filtered bones are 0.022 m: B's dashes sleeve them
@@ -67,79 +64,6 @@ STRIP_GAP_M = 1.0  # between the people's x range and B's strip
 PLOT_INTERVAL_S = 0.1  # at most ~10 plot renders per second while the selection changes
 WINDOWS = {"all": None, "±25": 25, "±50": 50, "±100": 100}  # plotted frames around the frame
 Q_SCALES = {"÷4": 0.25, "÷2": 0.5, "×2": 2.0, "×4": 4.0}  # B's q scale buttons
-
-
-# --------------------------------------------------------------------------- filter runs
-
-
-@dataclass(frozen=True, eq=False)
-class FilterRun:
-    """One filter over the whole sequence, tracks first. K tracks, F frames, J joints; mm."""
-
-    params: KalmanParams
-    forward: np.ndarray  # (K, F, J, 3) forward posterior mean
-    smoothed: np.ndarray  # (K, F, J, 3) RTS
-    prior: np.ndarray  # (K, F, J, 3) predicted mean before each update
-    innovation: np.ndarray  # (K, F, J, 3)
-    mahalanobis: np.ndarray  # (K, F, J)
-    rejected: np.ndarray  # (K, F, J) bool, measurement rejected by the gate
-
-    @property
-    def shown(self) -> np.ndarray:
-        """(K, F, J, 3) the configured output: smoothed if ``params.smoother``."""
-        return self.smoothed if self.params.smoother else self.forward
-
-
-def run_filter(track_raw: np.ndarray, params: KalmanParams) -> FilterRun:
-    """Filter ``track_raw`` (K, F, J, 3) mm as the pipeline does (forward and RTS at once)."""
-    raw = np.asarray(track_raw, float)
-    if raw.ndim != 4 or raw.shape[-1] != 3:
-        raise ValueError(f"track_raw must be (num_tracks, num_frames, J, 3), got {raw.shape}")
-    fr = kalman_filter(np.moveaxis(raw, 1, 0), dataclasses.replace(params, smoother=True))
-    tracks = lambda a: np.moveaxis(a, 0, 1)  # noqa: E731  (F, K, ...) -> (K, F, ...)
-    return FilterRun(
-        params=params,
-        forward=tracks(fr.forward),
-        smoothed=tracks(fr.filtered),
-        prior=tracks(fr.prior_mean),
-        innovation=tracks(fr.innovation),
-        mahalanobis=tracks(fr.mahalanobis),
-        rejected=tracks(fr.rejected),
-    )
-
-
-def results_run(results: PipelineResults) -> FilterRun:
-    """Filter A: the results' own arrays. A gate rejected exactly the measurements whose
-    Mahalanobis distance exceeds it (the initialising one has distance 0)."""
-    params = results.config.kalman
-    rejected = np.zeros(results.track_mahalanobis.shape, bool)
-    if params.gate is not None:
-        with np.errstate(invalid="ignore"):
-            rejected = results.track_mahalanobis > params.gate
-        rejected &= np.isfinite(results.track_raw).all(-1)
-    return FilterRun(
-        params=params,
-        forward=results.track_forward,
-        smoothed=results.track_smoothed,
-        prior=results.track_prior,
-        innovation=results.track_innovation,
-        mahalanobis=results.track_mahalanobis,
-        rejected=rejected,
-    )
-
-
-def with_filter(results: PipelineResults, run: FilterRun) -> PipelineResults:
-    """``results`` with ``run``'s arrays and parameters as its Kalman stage."""
-    return dataclasses.replace(
-        results,
-        track_forward=run.forward,
-        track_smoothed=run.smoothed,
-        track_prior=run.prior,
-        track_innovation=run.innovation,
-        track_mahalanobis=run.mahalanobis,
-        config=dataclasses.replace(results.config, kalman=run.params),
-        cache_key="",  # no longer what a pipeline run with the old key produced
-    )
 
 
 def save_filter_config(scene_root: Path, params: KalmanParams, run_config: PipelineConfig) -> Path:
@@ -223,7 +147,7 @@ def metrics_table(rows: dict[str, dict[str, float]]) -> str:
 
 
 @dataclass
-class FilterPanel:
+class FilterHandles:
     """Handles of the "Filter A/B" folder."""
 
     folder: viser.GuiFolderHandle
@@ -278,7 +202,7 @@ class FilterPanel:
         self.gate.disabled = not self.gate_on.value
 
 
-def make_filter_gui(server: viser.ViserServer, a: KalmanParams) -> FilterPanel:
+def make_filter_handles(server: viser.ViserServer, a: KalmanParams) -> FilterHandles:
     """The "Filter A/B" folder, B's controls showing ``a``."""
     gui = server.gui
     blank = np.full((PLOT_HEIGHT, PLOT_WIDTH, 3), 255, np.uint8)
@@ -302,7 +226,7 @@ def make_filter_gui(server: viser.ViserServer, a: KalmanParams) -> FilterPanel:
         window = gui.add_dropdown("Plot frames", tuple(WINDOWS), initial_value="all")
         plot = gui.add_image(blank, format="png")
         playhead = gui.add_image(blank[:PLAYHEAD_HEIGHT], format="png")
-    panel = FilterPanel(
+    panel = FilterHandles(
         folder, a_info, model, q, q_scale, r, p0, gain, smoother, gate_on, gate, reset, apply,
         show_b, placement, window, plot, playhead, metrics_md, status,
     )  # fmt: skip
@@ -336,24 +260,24 @@ def strip_offset(data: ViewerData) -> np.ndarray:
 # --------------------------------------------------------------------------- the panel
 
 
-class FilterTuning:
+class FilterPanel:
     """The "Filter A/B" panel at work: B's run, its skeletons, plots and metrics.
 
     ``run_a``/``run_b`` are the two filters' :class:`FilterRun`; ``metrics`` the last
     :func:`score` rows (raw, A, B); ``plot_image``/``playhead_image`` the last plot and
     playhead sent; ``timings`` the last re-filter / skeleton / plot / metrics times in
-    ms. Everything drawn follows the app: :attr:`ViewerApp.state_changed` brings frame,
-    selection and new results.
+    ms. Everything drawn follows the host (:class:`~mvviz.panels.contract.PanelHost`): its
+    state-change callbacks bring frame, selection and new results.
     """
 
-    def __init__(self, app: ViewerApp) -> None:
-        self.app = app
+    def __init__(self, host: PanelHost) -> None:
+        self.host = host
         self._lock = threading.RLock()  # the scene nodes and the runs below
-        data = app.state.data
+        data = host.state.data
         self._data = data
         self.run_a = results_run(data.results)
         self.run_b: FilterRun | None = self.run_a  # None: being re-filtered
-        self.gui = make_filter_gui(app.server, self.run_a.params)
+        self.gui = make_filter_handles(host.server, self.run_a.params)
         self.metrics: dict[str, dict[str, float]] = {}
         self.plot_image: np.ndarray | None = None  # the last plot sent (no frame marker)
         self.playhead_image: np.ndarray | None = None  # the last playhead strip sent
@@ -370,10 +294,10 @@ class FilterTuning:
         self._nodes: dict[str, viser.SceneNodeHandle] = {}
         self._build_nodes()
         self._bind()
-        # the app has no stop hook: its stop flag ends the worker and skips GUI writes
-        self._halted = app._stopped.is_set
+        # the host's stop flag ends the worker and skips GUI writes
+        self._halted = host.stopped.is_set
         self._worker = LatestWins(self._work, name="mvviz-filter-ab", halted=self._halted)
-        app.state_changed.append(self._on_state_changed)
+        self._unsubscribe = host.subscribe(self._on_state_changed)
         self._worker.request()
 
     # ------------------------------------------------------------------ public
@@ -393,7 +317,7 @@ class FilterTuning:
         self._worker.request()
 
     def apply_b(self) -> Path:
-        """Make B the current filter: swap its arrays into the app's results and save its
+        """Make B the current filter: swap its arrays into the shown results and save its
         parameters to ``SCENE/mvviz_config.json``. Returns the config path."""
         params = self.params_b
         with self._lock:
@@ -401,7 +325,7 @@ class FilterTuning:
         if run is None or run.params != params:
             run = run_filter(data.results.track_raw, params)
         path = save_filter_config(data.scene.root, params, data.results.config)
-        self.app.set_results(with_filter(data.results, run))
+        self.host.set_results(with_filter(data.results, run))
         self.message = (
             f"✓ {time.strftime('%H:%M:%S')}: B applied and saved to `{path}` "
             f"(`mvviz run` / `python app.py` use it next time)"
@@ -414,6 +338,8 @@ class FilterTuning:
         return self._worker.wait_idle(timeout)
 
     def stop(self) -> None:
+        """Stop following the host and end the worker (the host calls it at its stop)."""
+        self._unsubscribe()
         self._worker.stop()
 
     # ------------------------------------------------------------------ gui callbacks
@@ -452,9 +378,9 @@ class FilterTuning:
                 self._worker.request()
 
     def _on_state_changed(self, st, reason: str) -> None:
-        """After each app render: follow new results, draw B at the new frame."""
+        """After each render: follow new results, draw B at the new frame."""
         with self._lock:
-            if st.data is not self._data and st.data is self.app.state.data:
+            if st.data is not self._data and st.data is self.host.state.data:
                 self._rebuild(st.data)
             self._draw_b(st.frame, st.layers.offset_filtered)
         self._worker.request()
@@ -462,7 +388,7 @@ class FilterTuning:
     # ------------------------------------------------------------------ scene nodes
 
     def _build_nodes(self) -> None:
-        scene, K = self.app.server.scene, self._data.num_tracks
+        scene, K = self.host.server.scene, self._data.num_tracks
         empty = np.zeros((1, 2, 3), np.float32)
         self._nodes = {B_ROOT: scene.add_frame(B_ROOT, show_axes=False, visible=False)}
         for k in range(K):
@@ -570,7 +496,7 @@ class FilterTuning:
             if self._auto_show and params != self.run_a.params:
                 self._auto_show = False
                 self.gui.show_b.value = True
-        st = self.app.state
+        st = self.host.state
         with self._lock:  # 2. skeletons (a no-op when nothing they show changed)
             self._draw_b(st.frame, st.layers.offset_filtered)
         self._update_plot()  # 3. plots, 4. metrics
@@ -579,7 +505,7 @@ class FilterTuning:
         self._show_status()
 
     def _update_plot(self) -> None:
-        st = self.app.state
+        st = self.host.state
         with self._lock:
             data, run_a, run_b = self._data, self.run_a, self.run_b
         if run_b is None:
@@ -653,6 +579,6 @@ class FilterTuning:
             self.gui.status.content = "\n\n".join(lines)
 
 
-def make_filter_panel(app: ViewerApp) -> FilterTuning:
-    """The "Filter A/B" folder in ``app``'s GUI, following the app's state."""
-    return FilterTuning(app)
+def make_filter_panel(host: PanelHost) -> FilterPanel:
+    """The "Filter A/B" folder in ``host``'s GUI, following its state."""
+    return FilterPanel(host)

@@ -332,6 +332,25 @@ def test_server_without_browser(viewer_scene, frame_store):
         app.stop()
 
 
+def test_stop_stops_every_panel(viewer_scene):
+    """The app owns its panels: stop() ends every thread the app and its panels started
+    (render, images, playback, filter B, failure lists, the pipeline re-run worker)."""
+    scene, results, model = viewer_scene
+    before = set(threading.enumerate())
+    app = ViewerApp(ViewerState.create(scene, results, model), port=free_port())
+    assert app.wait_idle(30) and app.filter_panel.wait_idle(30)
+    assert app.failure_panel.wait_idle(60)
+    started = [t for t in set(threading.enumerate()) - before if t.name.startswith("mvviz-")]
+    names = {t.name.split("_")[0] for t in started}
+    assert {"mvviz-render", "mvviz-filter-ab", "mvviz-failures", "mvviz-rerun"} <= names
+    assert len(app.panels) == 8
+    app.stop()
+    deadline = time.monotonic() + 10
+    while any(t.is_alive() for t in started) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert [t.name for t in started if t.is_alive()] == []
+
+
 def test_image_widths_follow_the_options(viewer_scene, frame_store):
     """The camera panel's picture and the frustums' videos are as wide as their dropdowns
     say, and the frustum images are only re-sent when frame or width change."""
