@@ -305,6 +305,76 @@ def _tile_fragments(ids, A, B, C, x0, x1, y0, y1, tiles_x, n_tiles, width: int):
 # --------------------------------------------------------------------------- rendering
 
 
+def _canvas(cam: Camera, background: np.ndarray | None) -> np.ndarray:
+    """(height, width, 3) uint8 image to draw on: a copy of ``background``, else black."""
+    h, w = cam.height, cam.width
+    if background is None:
+        return np.zeros((h, w, 3), dtype=np.uint8)
+    image = np.asarray(background)
+    if image.shape != (h, w, 3) or image.dtype != np.uint8:
+        raise ValueError(
+            f"background: expected ({h}, {w}, 3) uint8, got {image.shape} {image.dtype}"
+        )
+    return np.ascontiguousarray(image).copy()
+
+
+def _visible_faces(
+    cam: Camera, verts: np.ndarray, f: np.ndarray, *, near_mm: float, cull_back_faces: bool
+) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """Project with distortion; drop faces near/behind the camera or past the fold.
+
+    Args:
+        verts: (num_vertices, 3) world mm; f: (3, num_faces) vertex indices.
+    Returns:
+        drawn face indices, per face corner the pixel u and v (3 x (num_faces,)), and
+        (num_vertices,) 1 / camera z.
+    """
+    p_cam = verts @ cam.R.T + cam.t
+    z = p_cam[:, 2]
+    uv = distort_and_project(p_cam, cam.K, cam.dist)
+    u, v = uv[:, 0].copy(), uv[:, 1].copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r2 = (p_cam[:, 0] ** 2 + p_cam[:, 1] ** 2) / z**2
+        good = (z > near_mm) & (r2 <= max_valid_radius2(cam.dist)) & np.isfinite(u + v)
+        inv_z = np.where(good, 1.0 / z, 1.0)
+    keep = good[f[0]] & good[f[1]] & good[f[2]]
+    fu = [u[i] for i in f]
+    fv = [v[i] for i in f]
+    if cull_back_faces:
+        # with y down, a face whose outward normal points at the camera winds clockwise
+        # on screen: its signed area (x-right, y-down cross product) is negative
+        with np.errstate(invalid="ignore"):
+            keep &= (fu[1] - fu[0]) * (fv[2] - fv[0]) - (fv[1] - fv[0]) * (fu[2] - fu[0]) < 0
+    return np.flatnonzero(keep), fu, fv, inv_z
+
+
+def _lambert_shades(
+    cam: Camera,
+    verts: np.ndarray,
+    fd: list[np.ndarray],
+    light_dir_world: tuple[float, float, float],
+    ambient: float,
+) -> np.ndarray:
+    """Flat two-sided Lambert shade (ambient..1) from world normals of the faces whose
+    corners are ``fd`` (3 x (n,) vertex indices): (n,)."""
+    X = [verts[:, k].copy() for k in range(3)]
+    p0 = [c[fd[0]] for c in X]
+    e1 = [c[fd[1]] - q for c, q in zip(X, p0, strict=True)]
+    e2 = [c[fd[2]] - q for c, q in zip(X, p0, strict=True)]
+    n = np.stack(
+        [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ]
+    )
+    towards = sum(nk * (ck - qk) for nk, ck, qk in zip(n, cam.center, p0, strict=True))
+    light = np.asarray(light_dir_world, dtype=float)
+    light = light / np.linalg.norm(light)
+    cos = (light @ n) * np.sign(towards) / np.maximum(np.sqrt((n * n).sum(0)), 1e-12)
+    return ambient + (1.0 - ambient) * np.clip(cos, 0.0, 1.0)
+
+
 def render_meshes(
     camera: Camera,
     meshes: list[MeshInstance],
@@ -334,15 +404,7 @@ def render_meshes(
     """
     cam = scale_camera(camera, scale)
     h, w = cam.height, cam.width
-    if background is None:
-        image = np.zeros((h, w, 3), dtype=np.uint8)
-    else:
-        image = np.asarray(background)
-        if image.shape != (h, w, 3) or image.dtype != np.uint8:
-            raise ValueError(
-                f"background: expected ({h}, {w}, 3) uint8, got {image.shape} {image.dtype}"
-            )
-        image = np.ascontiguousarray(image).copy()
+    image = _canvas(cam, background)
     if len(meshes) > np.iinfo(np.int16).max:
         raise ValueError(f"at most {np.iinfo(np.int16).max} meshes, got {len(meshes)}")
     mesh_index = np.full((h, w), -1, dtype=np.int16)
@@ -358,23 +420,9 @@ def render_meshes(
     sizes = [len(m.faces) for m in meshes]
 
     # 2. project with distortion; drop faces near/behind the camera or past the fold
-    p_cam = verts @ cam.R.T + cam.t
-    z = p_cam[:, 2]
-    uv = distort_and_project(p_cam, cam.K, cam.dist)
-    u, v = uv[:, 0].copy(), uv[:, 1].copy()
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r2 = (p_cam[:, 0] ** 2 + p_cam[:, 1] ** 2) / z**2
-        good = (z > near_mm) & (r2 <= max_valid_radius2(cam.dist)) & np.isfinite(u + v)
-        inv_z = np.where(good, 1.0 / z, 1.0)
-    keep = good[f[0]] & good[f[1]] & good[f[2]]
-    fu = [u[i] for i in f]
-    fv = [v[i] for i in f]
-    if cull_back_faces:
-        # with y down, a face whose outward normal points at the camera winds clockwise
-        # on screen: its signed area (x-right, y-down cross product) is negative
-        with np.errstate(invalid="ignore"):
-            keep &= (fu[1] - fu[0]) * (fv[2] - fv[0]) - (fv[1] - fv[0]) * (fu[2] - fu[0]) < 0
-    drawn = np.flatnonzero(keep)
+    drawn, fu, fv, inv_z = _visible_faces(
+        cam, verts, f, near_mm=near_mm, cull_back_faces=cull_back_faces
+    )
     if drawn.size == 0:
         return empty
 
@@ -385,22 +433,7 @@ def render_meshes(
     )
 
     # 4. flat two-sided Lambert shading from world normals, per drawn face
-    X = [verts[:, k].copy() for k in range(3)]
-    p0 = [c[fd[0]] for c in X]
-    e1 = [c[fd[1]] - q for c, q in zip(X, p0, strict=True)]
-    e2 = [c[fd[2]] - q for c, q in zip(X, p0, strict=True)]
-    n = np.stack(
-        [
-            e1[1] * e2[2] - e1[2] * e2[1],
-            e1[2] * e2[0] - e1[0] * e2[2],
-            e1[0] * e2[1] - e1[1] * e2[0],
-        ]
-    )
-    towards = sum(nk * (ck - qk) for nk, ck, qk in zip(n, cam.center, p0, strict=True))
-    light = np.asarray(light_dir_world, dtype=float)
-    light = light / np.linalg.norm(light)
-    cos = (light @ n) * np.sign(towards) / np.maximum(np.sqrt((n * n).sum(0)), 1e-12)
-    shade = ambient + (1.0 - ambient) * np.clip(cos, 0.0, 1.0)
+    shade = _lambert_shades(cam, verts, fd, light_dir_world, ambient)
     owner = np.repeat(np.arange(len(meshes), dtype=np.int16), sizes)[drawn]
     colors = np.array([m.color for m in meshes], dtype=float)[owner]
     face_rgb = np.clip(np.rint(colors * shade[:, None]), 0, 255).astype(np.uint8)
