@@ -342,6 +342,45 @@ def _candidate_solves(
     return X[:, chosen], err.reshape(V, V * n)[:, chosen], dropped
 
 
+def _drop_outlier_views(
+    arrays: _RigArrays,
+    obs: np.ndarray,
+    used: np.ndarray,
+    num_used: np.ndarray,
+    points: np.ndarray,
+    err: np.ndarray,
+    *,
+    outlier_threshold_px: float,
+    min_views: int,
+) -> None:
+    """Rejection rounds of :func:`triangulate_people`, updating ``used`` (V, N),
+    ``points`` (3, N) and ``err`` (V, N) in place.
+
+    Each round drops, for every joint whose worst used view reprojects further than
+    ``outlier_threshold_px`` and that has more than ``min_views`` used views, the view
+    whose removal fits the others best; so at most V - min_views rounds. NaN points
+    (singular) compare False and stay out. ``obs`` (5, V, N) is x, y, u, v, weight.
+    """
+    V = used.shape[0]
+    sub, X, e, sub_used, sub_num = np.arange(used.shape[1]), points, err, used, num_used
+    for _ in range(V - min_views):
+        over = (np.where(sub_used, e, -1.0).max(0) > outlier_threshold_px) & (sub_num > min_views)
+        if not over.any():
+            break
+        sub, sub_used, sub_num, X = sub[over], sub_used[:, over], sub_num[over], X[:, over]
+        sub_obs = obs[:, :, sub]
+        sub_obs[4] *= sub_used * _pixel_scale(arrays, X)
+        X, e, dropped = _candidate_solves(arrays, sub_obs, sub_used, sub_num)
+        solved = dropped >= 0  # else keep the joint as it was, with all its views
+        if not solved.all():
+            sub, sub_used, X, e = sub[solved], sub_used[:, solved], X[:, solved], e[:, solved]
+            sub_num, dropped = sub_num[solved], dropped[solved]
+        sub_used[dropped, np.arange(len(sub))] = False
+        sub_num = sub_num - 1
+        used[:, sub] = sub_used
+        points[:, sub], err[:, sub] = X, e
+
+
 def triangulate_people(
     rig: CameraRig,
     keypoints: np.ndarray,
@@ -404,36 +443,17 @@ def triangulate_people(
         X = _solve_normal(arrays.basis, x, y, w)
         points = _solve_normal(arrays.basis, x, y, w * _pixel_scale(arrays, X))
         err = _reprojection_error(arrays, points, u, v)
-        # 4. Rejection rounds over the joints still over the threshold; each round drops
-        #    one view per joint, so at most V - min_views rounds. NaN points (singular)
-        #    compare False and stay out.
-        sub, X, e, sub_used, sub_num = np.arange(N), points, err, used, num_used  # in play
-        for _ in range(V - min_views):
-            over = (np.where(sub_used, e, -1.0).max(0) > outlier_threshold_px) & (
-                sub_num > min_views
-            )
-            if not over.any():
-                break
-            sub, sub_used, sub_num, X = sub[over], sub_used[:, over], sub_num[over], X[:, over]
-            sub_obs = obs[:, :, sub]
-            sub_obs[4] *= sub_used * _pixel_scale(arrays, X)
-            X, e, dropped = _candidate_solves(arrays, sub_obs, sub_used, sub_num)
-            solved = dropped >= 0  # else keep the joint as it was, with all its views
-            if not solved.all():
-                sub, sub_used, X, e = sub[solved], sub_used[:, solved], X[:, solved], e[:, solved]
-                sub_num, dropped = sub_num[solved], dropped[solved]
-            sub_used[dropped, np.arange(len(sub))] = False
-            sub_num = sub_num - 1
-            used[:, sub] = sub_used
-            points[:, sub], err[:, sub] = X, e
+        # 4. Rejection rounds over the joints still over the threshold.
+        _drop_outlier_views(
+            arrays, obs, used, num_used, points, err,
+            outlier_threshold_px=outlier_threshold_px, min_views=min_views,
+        )  # fmt: skip
 
     # 5. Points with too few views (or singular geometry) are NaN, never invented.
     num_views = used.sum(0)
     bad = (num_views < min_views) | ~np.isfinite(points).all(0)
-    points[:, bad] = np.nan
-    err[:, bad] = np.nan
-    used[:, bad] = False
-    num_views[bad] = 0
+    points[:, bad], err[:, bad] = np.nan, np.nan
+    used[:, bad], num_views[bad] = False, 0
     return Triangulation(
         points=points.T.reshape(P, J, 3),
         reprojection_error=err.T.reshape(P, J, V),
