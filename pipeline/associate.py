@@ -264,15 +264,8 @@ def associate_frame(
             flip = None
     dist = ray_distances(origins, dirs, weights, params)
     mirrored = np.full_like(dist, np.nan)
-    if flip is not None:  # dist(a, mirror b) = dist(mirror a, b)
-        ia, ib = flip_candidates(origins, dirs, weights, views, params)
-        if len(ia):
-            m = pair_distances(
-                (origins[ia], dirs[ia], weights[ia]),
-                (origins[ib], dirs[ib][:, flip], weights[ib][:, flip]),
-                params,
-            )
-            mirrored[ia, ib] = mirrored[ib, ia] = m
+    if flip is not None:
+        mirrored = _mirrored_distances(origins, dirs, weights, views, flip, params)
     same_view = views[:, None] == views[None, :]
     dist[same_view] = mirrored[same_view] = np.nan
     best = np.fmin(dist, mirrored)
@@ -288,12 +281,52 @@ def associate_frame(
     if params.merge_distance_mm > 0:
         cluster = merge_duplicates(origins, dirs, weights, views, cluster, params)
 
-    # Keep clusters seen by enough views; number people by their first detection.
+    out, members, linkage = _people(cluster, views, affinity, V, params.min_views)
+    return Association(
+        cluster=out,
+        affinity=affinity,
+        ray_distance=best,
+        members=members,
+        linkage=linkage,
+        flipped=flipped & (out >= 0),
+    )
+
+
+def _mirrored_distances(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
+    views: np.ndarray,
+    flip: np.ndarray,
+    params: AssociationParams,
+) -> np.ndarray:
+    """(n, n) ray distance of each detection pair with the second one left/right mirrored
+    (``flip``: the joint set's flip index), mm; NaN for pairs that are no flip candidate.
+    Symmetric: dist(a, mirror b) = dist(mirror a, b)."""
+    n = len(views)
+    mirrored = np.full((n, n), np.nan)
+    ia, ib = flip_candidates(origins, dirs, weights, views, params)
+    if len(ia):
+        m = pair_distances(
+            (origins[ia], dirs[ia], weights[ia]),
+            (origins[ib], dirs[ib][:, flip], weights[ib][:, flip]),
+            params,
+        )
+        mirrored[ia, ib] = mirrored[ib, ia] = m
+    return mirrored
+
+
+def _people(
+    cluster: np.ndarray, views: np.ndarray, affinity: np.ndarray, V: int, min_views: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keep the clusters seen by at least ``min_views`` views; number people by their first
+    detection. Returns (n,) person per detection (-1: none), (num_people, V) members
+    (detection row per view, -1) and (num_people,) mean affinity within each person."""
     people, linkage = [], []
-    out = np.full(n, -1)
+    out = np.full(len(views), -1)
     for c in np.unique(cluster):
         rows = np.flatnonzero(cluster == c)
-        if len(rows) < params.min_views:
+        if len(rows) < min_views:
             continue
         members = np.full(V, -1)
         members[views[rows]] = rows
@@ -301,14 +334,7 @@ def associate_frame(
         people.append(members)
         sub = affinity[np.ix_(rows, rows)]
         linkage.append(float(np.nanmean(sub)) if np.isfinite(sub).any() else np.nan)
-    return Association(
-        cluster=out,
-        affinity=affinity,
-        ray_distance=best,
-        members=np.array(people, int).reshape(-1, V),
-        linkage=np.array(linkage),
-        flipped=flipped & (out >= 0),
-    )
+    return out, np.array(people, int).reshape(-1, V), np.array(linkage)
 
 
 FLIP_GAIN = 0.7
