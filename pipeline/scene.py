@@ -343,10 +343,8 @@ def _check_frames_in_scene(path: Path, frames: np.ndarray, num_frames: int) -> N
 # --------------------------------------------------------------------------- load / write
 
 
-def load_scene(root: str | os.PathLike) -> Scene:
-    """Load and validate a scene directory."""
-    root = Path(root)
-    recover(root)  # a replacement of this scene interrupted by a kill is completed first
+def _read_scene_json(root: Path) -> tuple[dict, dict]:
+    """``scene.json`` as read, and checked against :data:`SCENE_JSON` (defaults filled)."""
     meta_path = root / "scene.json"
     if not meta_path.is_file():
         raise SceneFormatError(meta_path, None, "file not found (is this a scene directory?)")
@@ -356,12 +354,11 @@ def load_scene(root: str | os.PathLike) -> Scene:
         raise SceneFormatError(meta_path, None, f"not valid JSON ({exc})") from exc
     if not isinstance(meta, dict):
         raise SceneFormatError(meta_path, None, "expected a JSON object")
-    spec = check_object(meta, SCENE_JSON, meta_path)
-    joint_set = get_joint_set(spec["joint_set"])
-    fps = spec["fps"]
+    return meta, check_object(meta, SCENE_JSON, meta_path)
 
-    rig = load_cameras(root / spec["cameras"])
-    det_path = root / spec["detections"]
+
+def _load_detections(det_path: Path, rig: CameraRig, joint_set: JointSet) -> Detections:
+    """The detections file, its views mapped onto the rig's order if it names them."""
     det_arrays = load_npz(det_path)
     if "view_names" in det_arrays:
         # Detections may name their views; map them onto the rig's order.
@@ -376,21 +373,25 @@ def load_scene(root: str | os.PathLike) -> Scene:
         if v.size and (v.min() < 0 or v.max() >= len(names)):
             raise SceneFormatError(det_path, "view", f"expected indices into view_names ({names})")
         det_arrays["view"] = lut[v.astype(int)] if v.size else v
-    detections = check_detections(
+    return check_detections(
         det_arrays, source=det_path, num_joints=joint_set.num_joints, num_views=len(rig)
     )
-    gt = None
-    if spec["gt"]:
-        gt_path = root / spec["gt"]
-        gt = check_ground_truth(load_npz(gt_path), source=gt_path)
-        if gt.keypoints3d is not None and gt.keypoints3d.shape[1] != joint_set.num_joints:
-            raise SceneFormatError(
-                gt_path,
-                "keypoints3d",
-                f"expected {joint_set.num_joints} joints ({joint_set.name}), "
-                f"got {gt.keypoints3d.shape[1]}",
-            )
 
+
+def _load_gt(gt_path: Path, joint_set: JointSet) -> GroundTruth:
+    gt = check_ground_truth(load_npz(gt_path), source=gt_path)
+    if gt.keypoints3d is not None and gt.keypoints3d.shape[1] != joint_set.num_joints:
+        raise SceneFormatError(
+            gt_path,
+            "keypoints3d",
+            f"expected {joint_set.num_joints} joints ({joint_set.name}), "
+            f"got {gt.keypoints3d.shape[1]}",
+        )
+    return gt
+
+
+def _num_frames(spec: dict, det_path: Path, detections: Detections, gt: GroundTruth | None) -> int:
+    """``num_frames`` of scene.json, else one past the last frame of any row."""
     num_frames = spec["num_frames"]
     if num_frames is None:
         candidates = [detections.frame.max(initial=-1) + 1]
@@ -401,17 +402,11 @@ def load_scene(root: str | os.PathLike) -> Scene:
             raise SceneFormatError(
                 det_path, "frame", f"expected frames below {MAX_FRAMES}, got {num_frames - 1}"
             )
-    # Every row is inside the scene: a row past num_frames is an error, never dropped.
-    _check_frames_in_scene(det_path, detections.frame, num_frames)
-    if gt is not None:
-        _check_frames_in_scene(gt_path, gt.frame, num_frames)
-    references = load_references(
-        root,
-        meta,
-        joint_set=joint_set.name,
-        num_frames=int(num_frames),
-        num_joints=joint_set.num_joints,
-    )
+    return int(num_frames)
+
+
+def _media(root: Path, spec: dict, rig: CameraRig) -> tuple[dict[str, Path], dict[str, Path]]:
+    """camera -> video file, camera -> image folder, for the cameras that have them."""
     videos, image_dirs = {}, {}
     if spec["videos"]:
         for cam in rig.names:
@@ -423,11 +418,38 @@ def load_scene(root: str | os.PathLike) -> Scene:
             p = root / spec["images"] / cam
             if p.is_dir():
                 image_dirs[cam] = p
+    return videos, image_dirs
+
+
+def load_scene(root: str | os.PathLike) -> Scene:
+    """Load and validate a scene directory."""
+    root = Path(root)
+    recover(root)  # a replacement of this scene interrupted by a kill is completed first
+    meta, spec = _read_scene_json(root)
+    joint_set = get_joint_set(spec["joint_set"])
+    rig = load_cameras(root / spec["cameras"])
+    det_path = root / spec["detections"]
+    detections = _load_detections(det_path, rig, joint_set)
+    gt_path = root / spec["gt"] if spec["gt"] else None
+    gt = _load_gt(gt_path, joint_set) if gt_path is not None else None
+    num_frames = _num_frames(spec, det_path, detections, gt)
+    # Every row is inside the scene: a row past num_frames is an error, never dropped.
+    _check_frames_in_scene(det_path, detections.frame, num_frames)
+    if gt is not None:
+        _check_frames_in_scene(gt_path, gt.frame, num_frames)
+    references = load_references(
+        root,
+        meta,
+        joint_set=joint_set.name,
+        num_frames=num_frames,
+        num_joints=joint_set.num_joints,
+    )
+    videos, image_dirs = _media(root, spec, rig)
     return Scene(
         root=root,
         name=spec["name"] or root.name,
-        fps=fps,
-        num_frames=int(num_frames),
+        fps=spec["fps"],
+        num_frames=num_frames,
         joint_set=joint_set,
         rig=rig,
         detections=detections,
