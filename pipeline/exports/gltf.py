@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import os
 import struct
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +37,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from pipeline.exports.common import gap_note
-from pipeline.exports.skeleton import track_skeleton
+from pipeline.exports.skeleton import TrackSkeleton, track_skeleton
 from pipeline.files import atomic_write
 from pipeline.palette import track_rgb
 from pipeline.smpl_fit import SmplFit
@@ -111,137 +112,141 @@ def _continuous(q: np.ndarray) -> np.ndarray:
     return q
 
 
-def glb_bytes(fit: SmplFit, tracks: list[int], *, fps: float) -> tuple[bytes, list[str]]:
-    """The GLB of ``tracks`` of ``fit`` (see the module docstring), and notes."""
-    if not fps > 0:
-        raise ValueError(f"fps must be > 0, got {fps}")
-    model = fit.model
-    faces = model.faces.numpy().astype(np.uint32)
-    joints8, weights8 = _influences(model.weights.numpy().astype(np.float64))
-    buf = _Buffer()
-    nodes: list[dict] = []
-    meshes: list[dict] = []
-    skins: list[dict] = []
-    materials: list[dict] = []
-    samplers: list[dict] = []
-    channels: list[dict] = []
-    roots: list[int] = []
-    notes: list[str] = []
-    F = fit.transl.shape[1]
-    times = buf.accessor((np.arange(F) / fps).astype(np.float32), FLOAT, "SCALAR", minmax=True)
-    indices = buf.accessor(faces.reshape(-1), UINT, "SCALAR", target=ELEMENT_ARRAY_BUFFER)
+@dataclass
+class _Gltf:
+    """The glTF document being built: its lists, in the order the indices refer to."""
 
-    def animate(node: int, path: str, values: np.ndarray, kind: str, interp: str = "LINEAR"):
-        out = buf.accessor(values.astype(np.float32), FLOAT, kind)
-        samplers.append({"input": times, "output": out, "interpolation": interp})
-        channels.append({"sampler": len(samplers) - 1, "target": {"node": node, "path": path}})
+    buf: _Buffer
+    times: int  # accessor of the animation's frame times
+    nodes: list[dict] = field(default_factory=list)
+    meshes: list[dict] = field(default_factory=list)
+    skins: list[dict] = field(default_factory=list)
+    materials: list[dict] = field(default_factory=list)
+    samplers: list[dict] = field(default_factory=list)
+    channels: list[dict] = field(default_factory=list)
+    roots: list[int] = field(default_factory=list)
 
-    for k in tracks:
-        skel = track_skeleton(fit, k)
-        J = len(skel.parents)
-        with torch.no_grad():
-            rest = model(torch.zeros(1, 72), torch.as_tensor(skel.betas[None], dtype=torch.float32))
-        verts = rest.vertices[0].double().numpy()
-        normals = trimesh.Trimesh(verts, faces, process=False).vertex_normals
-        # 1. joint nodes, parents before children; the track node above the root joint
-        track_node = len(nodes)
-        nodes.append({"name": f"track{k}", "children": []})
-        joint_nodes = list(range(len(nodes), len(nodes) + J))
-        quats = Rotation.from_matrix(skel.local_rotations.reshape(-1, 3, 3)).as_quat()
-        quats = quats.reshape(F, J, 4)  # x, y, z, w: glTF's order
-        first = int(np.argmax(skel.present))
-        for j in range(J):
-            t = skel.root_position[first] if j == 0 else skel.offsets[j]
-            nodes.append({
-                "name": f"track{k}_{skel.names[j]}",
-                "translation": [float(v) for v in t],
-                "rotation": [float(v) for v in quats[first, j]],
-            })  # fmt: skip
-        for j in range(1, J):
-            nodes[joint_nodes[skel.parents[j]]].setdefault("children", []).append(joint_nodes[j])
-        nodes[track_node]["children"] = [joint_nodes[0]]
-        # 2. the skinned mesh: rest body, inverse bind matrices T(-rest_joint)
-        ibm = np.tile(np.eye(4), (J, 1, 1))
-        ibm[:, :3, 3] = -skel.rest_joints
-        skins.append({
-            "name": f"track{k}_skin",
-            "joints": joint_nodes,
-            "skeleton": joint_nodes[0],
-            "inverseBindMatrices": buf.accessor(
-                np.transpose(ibm, (0, 2, 1)).astype(np.float32), FLOAT, "MAT4"
-            ),  # column-major
-        })  # fmt: skip
-        rgb = track_rgb(k)
-        materials.append({
-            "name": f"track{k}",
-            "pbrMetallicRoughness": {
-                "baseColorFactor": [*_srgb_to_linear(rgb).tolist(), 1.0],
-                "metallicFactor": 0.0, "roughnessFactor": 0.8,
-            },
-            "doubleSided": True,
-        })  # fmt: skip
-        attributes = {
-            "POSITION": buf.accessor(verts.astype(np.float32), FLOAT, "VEC3",
-                                     target=ARRAY_BUFFER, minmax=True),
-            "NORMAL": buf.accessor(normals.astype(np.float32), FLOAT, "VEC3",
-                                   target=ARRAY_BUFFER),
-            "JOINTS_0": buf.accessor(joints8[:, :4], UBYTE, "VEC4", target=ARRAY_BUFFER),
-            "WEIGHTS_0": buf.accessor(weights8[:, :4], FLOAT, "VEC4", target=ARRAY_BUFFER),
-            "JOINTS_1": buf.accessor(joints8[:, 4:], UBYTE, "VEC4", target=ARRAY_BUFFER),
-            "WEIGHTS_1": buf.accessor(weights8[:, 4:], FLOAT, "VEC4", target=ARRAY_BUFFER),
-        }  # fmt: skip
-        meshes.append({
-            "name": f"track{k}_body",
-            "primitives": [{"attributes": attributes, "indices": indices,
-                            "material": len(materials) - 1, "mode": 4}],
-        })  # fmt: skip
-        mesh_node = len(nodes)
-        nodes.append({"name": f"track{k}_body", "mesh": len(meshes) - 1, "skin": len(skins) - 1})
-        roots += [track_node, mesh_node]
-        # 3. the animation: root translation, every rotation, the span as a scale
-        animate(joint_nodes[0], "translation", skel.root_position, "VEC3")
-        for j in range(J):
-            animate(joint_nodes[j], "rotation", _continuous(quats[:, j]), "VEC4")
-        frames = np.flatnonzero(skel.present)
-        inside = np.zeros(F, bool)
-        inside[frames[0] : frames[-1] + 1] = True
-        if not inside.all():
-            scale = np.repeat(inside[:, None].astype(float), 3, axis=1)
-            animate(track_node, "scale", scale, "VEC3", "STEP")
-        held = np.flatnonzero(inside & ~skel.present)
-        nodes[track_node]["extras"] = {
-            "track": int(k),
-            "first_frame": int(frames[0]),
-            "last_frame": int(frames[-1]),
-            "held_frames": held.tolist(),
-        }
-        gap = gap_note(skel.present[inside], "the last fitted pose is held")
-        if gap:
-            notes.append(f"track {k}: {gap} (frames counted from {frames[0]})")
-        if not inside.all():
-            notes.append(f"track {k}: hidden (scale 0) outside frames {frames[0]}-{frames[-1]}")
+    def animate(self, node: int, path: str, values: np.ndarray, kind: str, interp: str = "LINEAR"):
+        out = self.buf.accessor(values.astype(np.float32), FLOAT, kind)
+        self.samplers.append({"input": self.times, "output": out, "interpolation": interp})
+        self.channels.append(
+            {"sampler": len(self.samplers) - 1, "target": {"node": node, "path": path}}
+        )
 
-    doc = {
-        "asset": {"version": "2.0", "generator": "mvviz export (pipeline/exports/gltf.py)"},
-        "scene": 0,
-        "scenes": [{
-            "name": "mvviz",
-            "nodes": roots,
-            "extras": {
-                "stage": fit.stage, "fps": float(fps), "frames": int(F),
-                "body_model": Path(str(model.source)).name,
-                "body_model_sha256": model.fingerprint, "convention": WORLD_NOTE,
-            },
-        }],
-        "nodes": nodes,
-        "meshes": meshes,
-        "skins": skins,
-        "materials": materials,
-        "animations": [{"name": "motion", "samplers": samplers, "channels": channels}],
-        "accessors": buf.accessors,
-        "bufferViews": buf.views,
+
+def _add_joint_nodes(g: _Gltf, k: int, skel: TrackSkeleton, quats: np.ndarray) -> list[int]:
+    """1. The track node, then its joint nodes, parents before children (the root joint
+    under the track node), posed at the first present frame; returns the joint nodes.
+    ``quats`` (F, J, 4) x, y, z, w local rotations."""
+    J = len(skel.parents)
+    track_node = len(g.nodes)
+    g.nodes.append({"name": f"track{k}", "children": []})
+    joint_nodes = list(range(len(g.nodes), len(g.nodes) + J))
+    first = int(np.argmax(skel.present))
+    for j in range(J):
+        t = skel.root_position[first] if j == 0 else skel.offsets[j]
+        g.nodes.append({
+            "name": f"track{k}_{skel.names[j]}",
+            "translation": [float(v) for v in t],
+            "rotation": [float(v) for v in quats[first, j]],
+        })  # fmt: skip
+    for j in range(1, J):
+        g.nodes[joint_nodes[skel.parents[j]]].setdefault("children", []).append(joint_nodes[j])
+    g.nodes[track_node]["children"] = [joint_nodes[0]]
+    return joint_nodes
+
+
+def _add_skinned_mesh(
+    g: _Gltf,
+    k: int,
+    skel: TrackSkeleton,
+    joint_nodes: list[int],
+    rest: tuple[np.ndarray, np.ndarray, int],
+    influences: tuple[np.ndarray, np.ndarray],
+) -> int:
+    """2. The skinned mesh: rest body (``rest``: (V, 3) vertices and normals, the face
+    index accessor), inverse bind matrices T(-rest_joint), the track's colour; returns
+    its node."""
+    verts, normals, indices = rest
+    joints8, weights8 = influences
+    ibm = np.tile(np.eye(4), (len(joint_nodes), 1, 1))
+    ibm[:, :3, 3] = -skel.rest_joints
+    buf = g.buf
+    g.skins.append({
+        "name": f"track{k}_skin",
+        "joints": joint_nodes,
+        "skeleton": joint_nodes[0],
+        "inverseBindMatrices": buf.accessor(
+            np.transpose(ibm, (0, 2, 1)).astype(np.float32), FLOAT, "MAT4"
+        ),  # column-major
+    })  # fmt: skip
+    rgb = track_rgb(k)
+    g.materials.append({
+        "name": f"track{k}",
+        "pbrMetallicRoughness": {
+            "baseColorFactor": [*_srgb_to_linear(rgb).tolist(), 1.0],
+            "metallicFactor": 0.0, "roughnessFactor": 0.8,
+        },
+        "doubleSided": True,
+    })  # fmt: skip
+    attributes = {
+        "POSITION": buf.accessor(verts.astype(np.float32), FLOAT, "VEC3",
+                                 target=ARRAY_BUFFER, minmax=True),
+        "NORMAL": buf.accessor(normals.astype(np.float32), FLOAT, "VEC3",
+                               target=ARRAY_BUFFER),
+        "JOINTS_0": buf.accessor(joints8[:, :4], UBYTE, "VEC4", target=ARRAY_BUFFER),
+        "WEIGHTS_0": buf.accessor(weights8[:, :4], FLOAT, "VEC4", target=ARRAY_BUFFER),
+        "JOINTS_1": buf.accessor(joints8[:, 4:], UBYTE, "VEC4", target=ARRAY_BUFFER),
+        "WEIGHTS_1": buf.accessor(weights8[:, 4:], FLOAT, "VEC4", target=ARRAY_BUFFER),
     }  # fmt: skip
-    blob = buf.blob()
+    g.meshes.append({
+        "name": f"track{k}_body",
+        "primitives": [{"attributes": attributes, "indices": indices,
+                        "material": len(g.materials) - 1, "mode": 4}],
+    })  # fmt: skip
+    mesh_node = len(g.nodes)
+    g.nodes.append({"name": f"track{k}_body", "mesh": len(g.meshes) - 1, "skin": len(g.skins) - 1})
+    return mesh_node
+
+
+def _add_animation(
+    g: _Gltf,
+    k: int,
+    skel: TrackSkeleton,
+    quats: np.ndarray,
+    track_node: int,
+    joint_nodes: list[int],
+) -> list[str]:
+    """3. The animation: root translation, every rotation, the span as a scale; the
+    track node's extras. Returns notes on the track's gaps and span."""
+    F = len(skel.present)
+    g.animate(joint_nodes[0], "translation", skel.root_position, "VEC3")
+    for j in range(len(joint_nodes)):
+        g.animate(joint_nodes[j], "rotation", _continuous(quats[:, j]), "VEC4")
+    frames = np.flatnonzero(skel.present)
+    inside = np.zeros(F, bool)
+    inside[frames[0] : frames[-1] + 1] = True
+    if not inside.all():
+        scale = np.repeat(inside[:, None].astype(float), 3, axis=1)
+        g.animate(track_node, "scale", scale, "VEC3", "STEP")
+    held = np.flatnonzero(inside & ~skel.present)
+    g.nodes[track_node]["extras"] = {
+        "track": int(k),
+        "first_frame": int(frames[0]),
+        "last_frame": int(frames[-1]),
+        "held_frames": held.tolist(),
+    }
+    notes = []
+    gap = gap_note(skel.present[inside], "the last fitted pose is held")
+    if gap:
+        notes.append(f"track {k}: {gap} (frames counted from {frames[0]})")
+    if not inside.all():
+        notes.append(f"track {k}: hidden (scale 0) outside frames {frames[0]}-{frames[-1]}")
+    return notes
+
+
+def _glb_container(doc: dict, blob: bytes) -> bytes:
+    """The binary glTF: header, the JSON chunk (space padded), the BIN chunk."""
     doc["buffers"] = [{"byteLength": len(blob)}]
     text = json.dumps(doc, separators=(",", ":")).encode()
     text += b" " * ((-len(text)) % 4)
@@ -249,7 +254,58 @@ def glb_bytes(fit: SmplFit, tracks: list[int], *, fps: float) -> tuple[bytes, li
     out = struct.pack("<III", _GLB_MAGIC, 2, total)
     out += struct.pack("<II", len(text), _JSON_CHUNK) + text
     out += struct.pack("<II", len(blob), _BIN_CHUNK) + blob
-    return out, notes
+    return out
+
+
+def glb_bytes(fit: SmplFit, tracks: list[int], *, fps: float) -> tuple[bytes, list[str]]:
+    """The GLB of ``tracks`` of ``fit`` (see the module docstring), and notes."""
+    if not fps > 0:
+        raise ValueError(f"fps must be > 0, got {fps}")
+    model = fit.model
+    faces = model.faces.numpy().astype(np.uint32)
+    influences = _influences(model.weights.numpy().astype(np.float64))
+    buf = _Buffer()
+    F = fit.transl.shape[1]
+    times = buf.accessor((np.arange(F) / fps).astype(np.float32), FLOAT, "SCALAR", minmax=True)
+    g = _Gltf(buf, times)
+    indices = buf.accessor(faces.reshape(-1), UINT, "SCALAR", target=ELEMENT_ARRAY_BUFFER)
+    notes: list[str] = []
+    for k in tracks:
+        skel = track_skeleton(fit, k)
+        with torch.no_grad():
+            rest = model(torch.zeros(1, 72), torch.as_tensor(skel.betas[None], dtype=torch.float32))
+        verts = rest.vertices[0].double().numpy()
+        normals = trimesh.Trimesh(verts, faces, process=False).vertex_normals
+        quats = Rotation.from_matrix(skel.local_rotations.reshape(-1, 3, 3)).as_quat()
+        quats = quats.reshape(F, len(skel.parents), 4)  # x, y, z, w: glTF's order
+        track_node = len(g.nodes)
+        joint_nodes = _add_joint_nodes(g, k, skel, quats)
+        mesh_node = _add_skinned_mesh(
+            g, k, skel, joint_nodes, (verts, normals, indices), influences
+        )
+        g.roots += [track_node, mesh_node]
+        notes += _add_animation(g, k, skel, quats, track_node, joint_nodes)
+    doc = {
+        "asset": {"version": "2.0", "generator": "mvviz export (pipeline/exports/gltf.py)"},
+        "scene": 0,
+        "scenes": [{
+            "name": "mvviz",
+            "nodes": g.roots,
+            "extras": {
+                "stage": fit.stage, "fps": float(fps), "frames": int(F),
+                "body_model": Path(str(model.source)).name,
+                "body_model_sha256": model.fingerprint, "convention": WORLD_NOTE,
+            },
+        }],
+        "nodes": g.nodes,
+        "meshes": g.meshes,
+        "skins": g.skins,
+        "materials": g.materials,
+        "animations": [{"name": "motion", "samplers": g.samplers, "channels": g.channels}],
+        "accessors": buf.accessors,
+        "bufferViews": buf.views,
+    }  # fmt: skip
+    return _glb_container(doc, buf.blob()), notes
 
 
 def write_glb(path: str | os.PathLike, fit: SmplFit, tracks: list[int], *, fps: float) -> list[str]:
