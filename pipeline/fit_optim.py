@@ -7,7 +7,8 @@ import math
 from collections.abc import Callable
 
 import torch
-from tqdm import tqdm
+
+from pipeline.progress import Progress, StageBar
 
 
 def cosine(it: int, total: int, floor: float = 0.05) -> float:
@@ -20,29 +21,25 @@ def adam_cosine(
     loss_fn: Callable[[], torch.Tensor],
     iterations: int,
     *,
-    progress: bool,
+    progress: Progress,
     desc: str,
 ) -> float:
     """Run Adam on ``groups`` (parameters, base learning rate) for ``iterations`` steps of
-    ``loss_fn()``, learning rates decayed by :func:`cosine`; returns the last loss."""
+    ``loss_fn()``, learning rates decayed by :func:`cosine`; returns the last loss.
+    ``progress`` (:mod:`pipeline.progress`) hears of every step as stage ``desc``."""
     opt = torch.optim.Adam([{"params": p, "lr": lr} for p, lr in groups])
     base = [lr for _, lr in groups]
-    bar = None
-    if progress:
-        bar = tqdm(total=iterations, desc=desc, leave=False)
     loss = torch.zeros(())
-    for it in range(iterations):
-        scale = cosine(it, iterations)
-        for g, lr in zip(opt.param_groups, base, strict=True):
-            g["lr"] = lr * scale
-        opt.zero_grad(set_to_none=True)
-        loss = loss_fn()
-        loss.backward()
-        opt.step()
-        if bar is not None:
+    with StageBar(desc, iterations, progress, leave=False) as bar:
+        for it in range(iterations):
+            scale = cosine(it, iterations)
+            for g, lr in zip(opt.param_groups, base, strict=True):
+                g["lr"] = lr * scale
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn()
+            loss.backward()
+            opt.step()
             bar.update()
-            if it % 20 == 0:
+            if it % 20 == 0 and progress is True:
                 bar.set_postfix(loss=f"{loss.item():.3g}")
-    if bar is not None:
-        bar.close()
     return float(loss.detach())

@@ -59,8 +59,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
+from pipeline.assignment import gated_assignment
 from pipeline.joint_sets import SMPL24, coco17_smpl24_pairs
 
 # SMPL-24 indices of the 12 joints COCO-17 also has (shoulders, elbows, wrists, hips,
@@ -222,14 +222,8 @@ def match_people(
         ``[(pred_index, gt_index), ...]`` sorted by ``pred_index``.
     """
     cost = mpjpe_matrix(pred, gt)
-    valid = np.isfinite(cost) & (cost <= max_mpjpe)
-    if not valid.any():
-        return []
-    # Invalid pairs cost more than any full set of valid ones, so the assignment
-    # never trades a valid match for a cheaper total.
-    big = (cost[valid].max() + 1.0) * (min(cost.shape) + 1)
-    rows, cols = linear_sum_assignment(np.where(valid, cost, big))
-    return [(int(p), int(g)) for p, g in zip(rows, cols, strict=True) if valid[p, g]]
+    rows, cols = gated_assignment(cost, cost <= max_mpjpe)
+    return [(int(p), int(g)) for p, g in zip(rows, cols, strict=True)]
 
 
 # ---------------------------------------------------------------------------

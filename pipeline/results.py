@@ -13,6 +13,7 @@ import functools
 import hashlib
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +22,9 @@ import numpy as np
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.files import SceneFormatError, load_npz, save_npz_atomic
+from pipeline.kalman import FilterResult
 from pipeline.pose_prior import load_prior, resolve_prior_path
+from pipeline.progress import Progress
 from pipeline.run import (
     FrameResult,
     SequenceResult,
@@ -35,7 +38,7 @@ from pipeline.scene import Scene
 from pipeline.smpl_fit import SmplFit, fit_sequence
 from pipeline.smpl_kinematics import SUPPORTED_JOINT_SETS
 
-RESULTS_VERSION = 4
+RESULTS_VERSION = 5  # 5: track_rejected
 FIT_JOINT_SETS = SUPPORTED_JOINT_SETS
 """Joint sets whose tracks get SMPL bodies: every set the body-model table
 (:mod:`pipeline.body_keypoints`) ties all limbs of."""
@@ -70,6 +73,7 @@ class PipelineResults:
     track_prior: np.ndarray  # (K, F, J, 3) predicted mean before each update
     track_innovation: np.ndarray  # (K, F, J, 3)
     track_mahalanobis: np.ndarray  # (K, F, J)
+    track_rejected: np.ndarray  # (K, F, J) bool: measurement present, rejected by the gate
     smpl: SmplFit | None = None  # step I fit to track_smoothed
     smpl_vae: SmplFit | None = None  # step I corrected by the VAE pose prior
     cache_key: str = ""
@@ -87,6 +91,76 @@ class PipelineResults:
 
     def people_in_frame(self, frame: int) -> np.ndarray:
         return np.flatnonzero(self.person_frame == frame)
+
+
+# Per person-frame (Q) and per affinity edge (E) fields, in the order of the class.
+PERSON_FIELDS = (
+    "person_frame", "person_joints", "person_reproj", "person_used", "person_members",
+    "person_linkage",
+)  # fmt: skip
+EDGE_FIELDS = ("edge_a", "edge_b", "edge_affinity", "edge_distance")
+
+
+@dataclass(frozen=True, eq=False)
+class FrameColumns:
+    """One frame's rows of the :class:`PipelineResults` person (Q) and edge (E) arrays;
+    P people, n detection rows, E edges (the pairs of rows with a finite affinity)."""
+
+    person_frame: np.ndarray  # (P,) int
+    person_joints: np.ndarray  # (P, J, 3) mm
+    person_reproj: np.ndarray  # (P, J, V) px
+    person_used: np.ndarray  # (P, J, V) bool
+    person_members: np.ndarray  # (P, V) detection row per view, -1
+    person_linkage: np.ndarray  # (P,)
+    edge_a: np.ndarray  # (E,) detection row
+    edge_b: np.ndarray  # (E,) detection row
+    edge_affinity: np.ndarray  # (E,)
+    edge_distance: np.ndarray  # (E,) mm
+
+
+def pack_frame(fr: FrameResult, num_views: int, num_joints: int) -> FrameColumns:
+    """``fr``'s association and triangulation as rows of the results' Q and E arrays
+    (detection indices are the scene's rows, ``fr.rows[...]``)."""
+    a, t = fr.association, fr.triangulation
+    P, V, J = a.num_people, num_views, num_joints
+    members = np.where(a.members >= 0, fr.rows[np.maximum(a.members, 0)], -1)
+    ia, ib = np.triu_indices(len(fr.rows), 1)
+    keep = np.isfinite(a.affinity[ia, ib])
+    ia, ib = ia[keep], ib[keep]
+    return FrameColumns(
+        person_frame=np.full(P, fr.frame, int),
+        person_joints=t.points.reshape(P, J, 3).astype(float),
+        person_reproj=t.reprojection_error.reshape(P, J, V).astype(float),
+        person_used=t.used.reshape(P, J, V).astype(bool),
+        person_members=members.reshape(P, V).astype(int),
+        person_linkage=np.asarray(a.linkage, float).reshape(P),
+        edge_a=fr.rows[ia].astype(int),
+        edge_b=fr.rows[ib].astype(int),
+        edge_affinity=a.affinity[ia, ib].astype(float),
+        edge_distance=a.ray_distance[ia, ib].astype(float),
+    )
+
+
+def _empty_columns(num_views: int, num_joints: int) -> FrameColumns:
+    V, J = num_views, num_joints
+    return FrameColumns(
+        np.zeros(0, int), np.zeros((0, J, 3)), np.zeros((0, J, V)), np.zeros((0, J, V), bool),
+        np.zeros((0, V), int), np.zeros(0), np.zeros(0, int), np.zeros(0, int), np.zeros(0),
+        np.zeros(0),
+    )  # fmt: skip
+
+
+def filter_arrays(filtered: FilterResult) -> dict[str, np.ndarray]:
+    """The ``track_*`` arrays of a Kalman run over (F, K, J, 3), tracks first."""
+    to_tracks = lambda x: np.moveaxis(x, 0, 1)  # (F, K, ...) -> (K, F, ...)  # noqa: E731
+    return {
+        "track_forward": to_tracks(filtered.forward),
+        "track_smoothed": to_tracks(filtered.filtered),
+        "track_prior": to_tracks(filtered.prior_mean),
+        "track_innovation": to_tracks(filtered.innovation),
+        "track_mahalanobis": to_tracks(filtered.mahalanobis),
+        "track_rejected": to_tracks(filtered.rejected),
+    }
 
 
 def pack(
@@ -107,14 +181,10 @@ def pack(
     det_person = np.full(num_detections, -1)
     det_flipped = np.zeros(num_detections, bool)
     det_joints2d = joints2d_all
-    cols: dict[str, list] = {
-        k: [] for k in ("frame", "joints", "reproj", "used", "members", "link")
-    }
-    edges: dict[str, list] = {k: [] for k in ("a", "b", "aff", "dist")}
+    cols = [_empty_columns(num_views, J)]
     q = 0
     for fr in frames:
-        a, t = fr.association, fr.triangulation
-        P = a.num_people
+        a = fr.association
         assigned = a.cluster >= 0
         det_person[fr.rows[assigned]] = q + a.cluster[assigned]
         if a.flipped.any():
@@ -123,26 +193,8 @@ def pack(
             rows = fr.rows[a.flipped]
             det_flipped[rows] = True
             det_joints2d[rows] = fr.joints2d[a.flipped]
-        members = np.where(a.members >= 0, fr.rows[np.maximum(a.members, 0)], -1)
-        cols["frame"].append(np.full(P, fr.frame))
-        cols["joints"].append(t.points.reshape(P, J, 3))
-        cols["reproj"].append(t.reprojection_error.reshape(P, J, num_views))
-        cols["used"].append(t.used.reshape(P, J, num_views))
-        cols["members"].append(members.reshape(P, num_views))
-        cols["link"].append(a.linkage)
-        ia, ib = np.triu_indices(len(fr.rows), 1)
-        keep = np.isfinite(a.affinity[ia, ib])
-        edges["a"].append(fr.rows[ia[keep]])
-        edges["b"].append(fr.rows[ib[keep]])
-        edges["aff"].append(a.affinity[ia[keep], ib[keep]])
-        edges["dist"].append(a.ray_distance[ia[keep], ib[keep]])
-        q += P
-
-    def cat(parts, shape, dtype=float):
-        return np.concatenate(parts).astype(dtype) if parts else np.zeros(shape, dtype)
-
-    f = seq.filtered
-    to_tracks = lambda x: np.moveaxis(x, 0, 1)  # (F, K, ...) -> (K, F, ...)  # noqa: E731
+        cols.append(pack_frame(fr, num_views, J))
+        q += a.num_people
     return PipelineResults(
         config=config,
         joint_set=joint_set,
@@ -152,25 +204,31 @@ def pack(
         det_restored=restored,
         det_person=det_person,
         det_flipped=det_flipped,
-        person_frame=cat(cols["frame"], (0,), int),
-        person_joints=cat(cols["joints"], (0, J, 3)),
-        person_reproj=cat(cols["reproj"], (0, J, num_views)),
-        person_used=cat(cols["used"], (0, J, num_views), bool),
-        person_members=cat(cols["members"], (0, num_views), int),
-        person_linkage=cat(cols["link"], (0,)),
+        **{k: np.concatenate([getattr(c, k) for c in cols]) for k in PERSON_FIELDS + EDGE_FIELDS},
         person_track=seq.person_track,
-        edge_a=cat(edges["a"], (0,), int),
-        edge_b=cat(edges["b"], (0,), int),
-        edge_affinity=cat(edges["aff"], (0,)),
-        edge_distance=cat(edges["dist"], (0,)),
         track_raw=seq.tracks.joints,
-        track_forward=to_tracks(f.forward),
-        track_smoothed=to_tracks(f.filtered),
-        track_prior=to_tracks(f.prior_mean),
-        track_innovation=to_tracks(f.innovation),
-        track_mahalanobis=to_tracks(f.mahalanobis),
+        **filter_arrays(seq.filtered),
         cache_key=cache_key,
     )
+
+
+def pack_run(
+    scene: Scene,
+    frames: list[FrameResult],
+    config: PipelineConfig,
+    joints2d_all: np.ndarray,
+    *,
+    restored: np.ndarray | None,
+    key: str = "",
+) -> PipelineResults:
+    """The sequence stages (tracking, filtering) over ``frames``, packed."""
+    js = source_joint_set(scene, config)
+    seq = run_sequence(frames, scene.num_frames, config, js)
+    return pack(
+        frames, seq, config=config, joint_set=js.name, num_frames=scene.num_frames,
+        num_views=len(scene.rig), num_detections=len(scene.detections), restored=restored,
+        joints2d_all=joints2d_all, cache_key=key,
+    )  # fmt: skip
 
 
 def scene_fingerprint(scene: Scene) -> str:
@@ -211,7 +269,7 @@ def code_digest() -> str:
 
 
 def fit_bodies(
-    results: PipelineResults, config: PipelineConfig, model: BodyModel, *, progress: bool = True
+    results: PipelineResults, config: PipelineConfig, model: BodyModel, *, progress: Progress = True
 ) -> PipelineResults:
     """Step I SMPL fit to the RTS-smoothed tracks, and its VAE-corrected version.
 
@@ -232,26 +290,38 @@ def fit_bodies(
     return dataclasses.replace(results, smpl=fit_i, smpl_vae=fit_vae)
 
 
+def run_stages(
+    scene: Scene,
+    config: PipelineConfig,
+    joints2d_all: np.ndarray,
+    *,
+    restored: np.ndarray | None,
+    key: str = "",
+    rows_per_frame: list[np.ndarray] | None = None,
+    cancelled: Callable[[], bool] | None = None,
+    progress: Progress = True,
+) -> PipelineResults | None:
+    """The stages after restoration: association and triangulation of every frame
+    (:func:`pipeline.run.run_frames`), then tracking and filtering, packed (no SMPL fit).
+    Returns None once ``cancelled()`` is true (checked between frames and after them)."""
+    frames = run_frames(
+        scene, config, joints2d_all, rows_per_frame=rows_per_frame, cancelled=cancelled,
+        progress=progress,
+    )  # fmt: skip
+    if frames is None or (cancelled is not None and cancelled()):
+        return None
+    return pack_run(scene, frames, config, joints2d_all, restored=restored, key=key)
+
+
 def run_pipeline(
-    scene: Scene, config: PipelineConfig, model: BodyModel, *, progress: bool = True
+    scene: Scene, config: PipelineConfig, model: BodyModel, *, progress: Progress = True
 ) -> PipelineResults:
     """All stages, from a loaded scene to :class:`PipelineResults`."""
     restored = restored_joints(scene, model)
     joints2d = select_2d(scene, config, restored)
-    frames = run_frames(scene, config, joints2d, progress=progress)
-    seq = run_sequence(frames, scene.num_frames, config, source_joint_set(scene, config))
-    packed = pack(
-        frames,
-        seq,
-        config=config,
-        joint_set=source_joint_set(scene, config).name,
-        num_frames=scene.num_frames,
-        num_views=len(scene.rig),
-        num_detections=len(scene.detections),
-        restored=restored,
-        joints2d_all=joints2d,
-        cache_key=cache_key(scene, config, model),
-    )
+    key = cache_key(scene, config, model)
+    packed = run_stages(scene, config, joints2d, restored=restored, key=key, progress=progress)
+    assert packed is not None  # nothing cancels it
     return fit_bodies(packed, config, model, progress=progress)
 
 
@@ -335,7 +405,7 @@ def run_or_load(
     model: BodyModel,
     *,
     out: str | os.PathLike | None = None,
-    progress: bool = True,
+    progress: Progress = True,
     force: bool = False,
 ) -> tuple[PipelineResults, bool]:
     """Load cached results if their key matches, else run and save. Returns (results, cached)."""

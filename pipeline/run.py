@@ -11,16 +11,17 @@ Units: mm, pixels, frames.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from pipeline.associate import Association, associate_frame
 from pipeline.body_model import BodyModel
 from pipeline.config import PipelineConfig
 from pipeline.joint_sets import SMPL24, JointSet
 from pipeline.kalman import FilterResult, kalman_filter
+from pipeline.progress import Progress, StageBar
 from pipeline.restore import restore_joints_2d, restore_mono_joints_2d
 from pipeline.scene import Scene
 from pipeline.track import Tracks, track_people
@@ -113,12 +114,22 @@ def enabled_view_mask(scene: Scene, config: PipelineConfig) -> np.ndarray:
     return np.array([c.name not in config.disabled_views for c in scene.rig])
 
 
+def group_by_frame(frame: np.ndarray, num_frames: int) -> list[np.ndarray]:
+    """Rows per frame: ``out[f]`` holds, in increasing order, the indices ``i`` with
+    ``frame[i] == f``, for ``f`` in ``range(num_frames)`` (rows of other frames are left out).
+
+    Args:
+        frame: (n,) int frame of each row.
+    """
+    frame = np.asarray(frame)
+    order = np.argsort(frame, kind="stable")
+    bounds = np.searchsorted(frame[order], np.arange(num_frames + 1))
+    return [order[bounds[i] : bounds[i + 1]] for i in range(num_frames)]
+
+
 def frame_rows(scene: Scene) -> list[np.ndarray]:
     """Detection rows per frame, computed once (index with the frame number)."""
-    f = scene.detections.frame
-    order = np.argsort(f, kind="stable")
-    bounds = np.searchsorted(f[order], np.arange(scene.num_frames + 1))
-    return [order[bounds[i] : bounds[i + 1]] for i in range(scene.num_frames)]
+    return group_by_frame(scene.detections.frame, scene.num_frames)
 
 
 def run_frame(
@@ -163,18 +174,36 @@ def run_frame(
     )
 
 
+FRAMES_STAGE = "associate+triangulate"  # the stage name :func:`run_frames` reports
+
+
 def run_frames(
     scene: Scene,
     config: PipelineConfig,
     joints2d_all: np.ndarray,
     *,
-    progress: bool = True,
-) -> list[FrameResult]:
-    rows = frame_rows(scene)
-    return [
-        run_frame(scene, f, config, joints2d_all, rows=rows[f])
-        for f in tqdm(range(scene.num_frames), desc="associate+triangulate", disable=not progress)
-    ]
+    rows_per_frame: list[np.ndarray] | None = None,
+    cancelled: Callable[[], bool] | None = None,
+    progress: Progress = True,
+) -> list[FrameResult] | None:
+    """Association and triangulation of every frame (:func:`run_frame`).
+
+    Args:
+        joints2d_all: (N, J, 3) the 2D joints of every detection row (:func:`select_2d`).
+        rows_per_frame: :func:`frame_rows` of ``scene``, if already computed.
+        cancelled: checked before each frame; once it returns true the run stops and
+            returns None.
+        progress: see :mod:`pipeline.progress` (stage :data:`FRAMES_STAGE`, in frames).
+    """
+    rows = frame_rows(scene) if rows_per_frame is None else rows_per_frame
+    frames: list[FrameResult] = []
+    with StageBar(FRAMES_STAGE, scene.num_frames, progress, unit="frame") as bar:
+        for f in range(scene.num_frames):
+            if cancelled is not None and cancelled():
+                return None
+            frames.append(run_frame(scene, f, config, joints2d_all, rows=rows[f]))
+            bar.update()
+    return frames
 
 
 def run_sequence(

@@ -16,7 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
+
+from pipeline.assignment import gated_assignment
 
 
 @dataclass(frozen=True)
@@ -60,7 +61,7 @@ class Tracks:
         return int(self.joints.shape[0])
 
 
-def _mean_joint_distance(a: np.ndarray, b: np.ndarray, min_shared: int = 3) -> np.ndarray:
+def mean_joint_distance(a: np.ndarray, b: np.ndarray, min_shared: int = 3) -> np.ndarray:
     """(A, J, 3), (B, J, 3) -> (A, B) mean distance over joints both have (inf if < min_shared)."""
     d = np.linalg.norm(a[:, None] - b[None], axis=-1)  # (A, B, J)
     ok = np.isfinite(d)
@@ -123,15 +124,11 @@ def track_people(
             # the real Pose2Sim demo) must not throw a track off its person.
             last = np.stack([last_pose[k] for k in active])
             cost = np.fmin(
-                _mean_joint_distance(pred, joints[rows]), _mean_joint_distance(last, joints[rows])
+                mean_joint_distance(pred, joints[rows]), mean_joint_distance(last, joints[rows])
             )  # (tracks, people)
             gate = params.max_distance_mm + params.gap_widening_mm * (gaps - 1)
-            big = 1e9
-            c = np.where(cost <= gate[:, None], cost, big)
-            ti, pi = linear_sum_assignment(c)
+            ti, pi = gated_assignment(cost, cost <= gate[:, None])
             for t, p in zip(ti, pi, strict=True):
-                if c[t, p] >= big:
-                    continue
                 k, r = active[t], rows[p]
                 new = joints[r]
                 dt = f - last_seen[k]
@@ -192,7 +189,7 @@ def _add_bones(bone_sum, bone_count, k, pose, bones) -> None:
 def _reidentify(unmatched, lost, joints, last_pose, bone_sum, bone_count, bones, params):
     """Hungarian between unmatched people and lost tracks on place + body proportions."""
     cost = np.full((len(lost), len(unmatched)), np.inf)
-    place = _mean_joint_distance(np.stack([last_pose[k] for k in lost]), joints[unmatched])
+    place = mean_joint_distance(np.stack([last_pose[k] for k in lost]), joints[unmatched])
     for i, k in enumerate(lost):
         mean_bones = np.where(bone_count[k] > 0, bone_sum[k] / np.maximum(bone_count[k], 1), np.nan)
         for j, r in enumerate(unmatched):
@@ -202,6 +199,26 @@ def _reidentify(unmatched, lost, joints, last_pose, bone_sum, bone_count, bones,
             bone_diff = float(np.nanmean(diff))
             if place[i, j] <= params.reid_radius_mm and bone_diff <= params.reid_bone_mm:
                 cost[i, j] = place[i, j] + 20.0 * bone_diff  # 1 mm of bone ~ 2 cm of place
-    c = np.where(np.isfinite(cost), cost, 1e12)
-    ti, pi = linear_sum_assignment(c)
-    return [(lost[t], unmatched[p]) for t, p in zip(ti, pi, strict=True) if c[t, p] < 1e12]
+    ti, pi = gated_assignment(cost)
+    return [(lost[t], unmatched[p]) for t, p in zip(ti, pi, strict=True)]
+
+
+def match_to_tracks(
+    people: np.ndarray, reference: np.ndarray, max_distance_mm: float, *, min_shared: int = 3
+) -> np.ndarray:
+    """Hungarian matching of people to tracks on the mean distance over shared joints.
+
+    Args:
+        people: (P, J, 3) mm, NaN where missing.
+        reference: (K, J, 3) mm, each track's pose in the same frame, NaN where unknown.
+        max_distance_mm: pairs farther apart (or sharing < ``min_shared`` joints) never match.
+    Returns:
+        (P,) track index per person, -1 where unmatched.
+    """
+    out = np.full(len(people), -1)
+    if len(people) == 0 or len(reference) == 0:
+        return out
+    cost = mean_joint_distance(people, reference, min_shared)
+    rows, cols = gated_assignment(cost, cost <= max_distance_mm)
+    out[rows] = cols
+    return out

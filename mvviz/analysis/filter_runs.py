@@ -53,22 +53,15 @@ def run_filter(track_raw: np.ndarray, params: KalmanParams) -> FilterRun:
 
 
 def results_run(results: PipelineResults) -> FilterRun:
-    """Filter A: the results' own arrays. A gate rejected exactly the measurements whose
-    Mahalanobis distance exceeds it (the initialising one has distance 0)."""
-    params = results.config.kalman
-    rejected = np.zeros(results.track_mahalanobis.shape, bool)
-    if params.gate is not None:
-        with np.errstate(invalid="ignore"):
-            rejected = results.track_mahalanobis > params.gate
-        rejected &= np.isfinite(results.track_raw).all(-1)
+    """Filter A: the results' own arrays."""
     return FilterRun(
-        params=params,
+        params=results.config.kalman,
         forward=results.track_forward,
         smoothed=results.track_smoothed,
         prior=results.track_prior,
         innovation=results.track_innovation,
         mahalanobis=results.track_mahalanobis,
-        rejected=rejected,
+        rejected=results.track_rejected,
     )
 
 
@@ -81,6 +74,7 @@ def with_filter(results: PipelineResults, run: FilterRun) -> PipelineResults:
         track_prior=run.prior,
         track_innovation=run.innovation,
         track_mahalanobis=run.mahalanobis,
+        track_rejected=run.rejected,
         config=dataclasses.replace(results.config, kalman=run.params),
         cache_key="",  # no longer what a pipeline run with the old key produced
     )

@@ -22,7 +22,6 @@ import numpy as np
 import rerun as rr
 import torch
 from rerun.chunk import RrdReader
-from tqdm import tqdm
 
 from mvviz.export.rerun import (  # noqa: F401  (re-exported: the names this module always had)
     APP_ID,
@@ -43,6 +42,7 @@ from mvviz.export.rerun import (  # noqa: F401  (re-exported: the names this mod
     track_color,
 )
 from pipeline.body_model import BodyModel
+from pipeline.progress import Progress, track
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
 from pipeline.video_crop import CalibratedFrames
@@ -226,7 +226,7 @@ def export_rrd(
     mesh_cell_mm: float | None = 25.0,
     extra_meshes: Mapping[str, MeshSequence] | None = None,
     plot_joints: Sequence[str] = DEFAULT_PLOT_JOINTS,
-    progress: bool = True,
+    progress: Progress = True,
 ) -> Path:
     """Write ``scene`` and its ``results`` to the recording ``path``, atomically.
 
@@ -277,7 +277,7 @@ def export_rrd(
         if images:
             sources = scene_frame_sources(scene)
             prefetch = _Prefetcher(sources, frame_ids, logger.cam_size, jpeg_quality)
-        for f in tqdm(frame_ids, desc="export rrd", unit="frame", disable=not progress):
+        for f in track(frame_ids, "export rrd", progress, unit="frame"):
             imgs = prefetch.next() if prefetch is not None else None
             logger.log_frame(int(f), images=imgs, gt_meshes=False, bodies=False)
         logger.send_gt_meshes(frame_ids)

@@ -8,7 +8,7 @@ per-frame rows replaced (:func:`patch_frame`, its people matched to the existing
 is swapped into the viewer's data in place of the results, and the viewer redraws.
 Meanwhile the sequence-wide stages run on a background thread with a progress bar:
 every frame's association and triangulation, tracking and Kalman filtering
-(:func:`rerun_sequence`), whose results replace the preview through
+(:func:`pipeline.results.run_stages`), whose results replace the preview through
 ``host.set_results``; then, if the config fits SMPL bodies, the fit, whose
 results replace those once more. A newer change cancels a run between frames and
 stages (latest wins; a fit in progress is finished and dropped). Frames the user
@@ -26,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,21 +33,24 @@ from typing import Any
 
 import numpy as np
 import viser
-from scipy.optimize import linear_sum_assignment
-from tqdm import tqdm
 
 from mvviz.panels.contract import PanelHost
-from mvviz.scene.geometry import ViewerData, detection_rays
+from mvviz.scene.geometry import ViewerData, detection_rays, person_indices
 from pipeline.body_model import BodyModel, load_body_model
-from pipeline.config import PipelineConfig, save_config
+from pipeline.config import CONFIG_FILE, PipelineConfig, save_config
 from pipeline.joint_sets import get_joint_set
+from pipeline.progress import LatestProgress
 from pipeline.results import (
+    EDGE_FIELDS,
     FIT_JOINT_SETS,
+    PERSON_FIELDS,
     PipelineResults,
     cache_key,
     default_results_path,
     fit_bodies,
-    pack,
+    pack_frame,
+    pack_run,
+    run_stages,
     save_results,
 )
 from pipeline.run import (
@@ -56,15 +58,11 @@ from pipeline.run import (
     frame_rows,
     restored_joints,
     run_frame,
-    run_sequence,
     select_2d,
     source_joint_set,
 )
 from pipeline.scene import Scene
-
-CONFIG_FILE = "mvviz_config.json"
-EXPORT_DESC = "export rrd"  # tqdm descriptions of export_rrd and the SMPL fit
-FIT_DESC = "SMPL fit"
+from pipeline.track import match_to_tracks
 
 # --------------------------------------------------------------------------- pure parts
 
@@ -104,32 +102,35 @@ def config_diff(run: PipelineConfig, current: PipelineConfig) -> list[str]:
     return lines
 
 
-def match_tracks(
-    people: np.ndarray, reference: np.ndarray, max_distance_mm: float, *, min_shared: int = 3
-) -> np.ndarray:
-    """Hungarian matching of people to tracks on the mean distance over shared joints.
+def _renumbered_people(
+    results: PipelineResults, frame: int, num_people: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the person-frame rows go when ``frame``'s are replaced by ``num_people`` new
+    ones: ``(before, after, det_person)``, the rows kept on each side of the frame and
+    the detections' person rows renumbered (-1 for the frame's own detections)."""
+    pf = results.person_frame
+    before, after = np.flatnonzero(pf < frame), np.flatnonzero(pf > frame)
+    n0 = len(before)
+    new_q = np.full(len(pf), -1)
+    new_q[before] = np.arange(n0)
+    new_q[after] = n0 + num_people + np.arange(len(after))
+    det_person = np.where(results.det_person >= 0, new_q[np.maximum(results.det_person, 0)], -1)
+    return before, after, det_person
 
-    Args:
-        people: (P, J, 3) mm, NaN where missing.
-        reference: (K, J, 3) mm, each track's pose in the same frame, NaN where unknown.
-        max_distance_mm: pairs farther apart (or sharing < ``min_shared`` joints) never match.
-    Returns:
-        (P,) track index per person, -1 where unmatched.
-    """
-    P, K = len(people), len(reference)
-    out = np.full(P, -1)
-    if P == 0 or K == 0:
-        return out
-    d = np.linalg.norm(people[:, None] - reference[None], axis=-1)  # (P, K, J)
-    ok = np.isfinite(d)
-    n = ok.sum(-1)
-    mean = np.where(ok, d, 0.0).sum(-1) / np.maximum(n, 1)
-    cost = np.where((n >= min_shared) & (mean <= max_distance_mm), mean, np.inf)
-    big = 1e9
-    rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, big))
-    good = cost[rows, cols] < big
-    out[rows[good]] = cols[good]
-    return out
+
+def _unmirrored(
+    results: PipelineResults, fr: FrameResult, joints2d_all: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(det_joints2d, det_flipped) with the left/right swaps of the other frames kept
+    and ``fr``'s frame taking its own."""
+    flip = get_joint_set(results.joint_set).flip_index
+    det_flipped = np.zeros(len(joints2d_all), bool)
+    if results.det_flipped is not None and len(results.det_flipped) == len(joints2d_all):
+        det_flipped[:] = results.det_flipped
+    det_flipped[fr.rows] = fr.association.flipped
+    det_joints2d = joints2d_all.copy()
+    det_joints2d[det_flipped] = joints2d_all[det_flipped][:, flip]
+    return det_joints2d, det_flipped
 
 
 def patch_frame(
@@ -140,11 +141,12 @@ def patch_frame(
 ) -> PipelineResults:
     """``results`` with frame ``fr.frame``'s per-frame stages replaced by ``fr``.
 
-    The frame's person-frame rows, detection assignments and affinity edges are replaced;
-    its new people take the tracks they match (:func:`match_tracks` against each track's
-    raw pose in that frame, else its filtered one, gated by the tracking distance) and
-    the tracks' raw joints in that frame follow; unmatched people are untracked. The
-    filtered trajectories are left as they were: they belong to the sequence stages.
+    The frame's person-frame rows, detection assignments and affinity edges are replaced
+    (:func:`~pipeline.results.pack_frame`); its new people take the tracks they match
+    (:func:`~pipeline.track.match_to_tracks` against each track's raw pose in that
+    frame, else its filtered one, gated by the tracking distance) and the tracks' raw
+    joints in that frame follow; unmatched people are untracked. The filtered
+    trajectories are left as they were: they belong to the sequence stages.
 
     Args:
         results: results of the same joint set as ``joints2d_all``.
@@ -158,80 +160,40 @@ def patch_frame(
             f"joints2d_all has shape {joints2d_all.shape}; the results' joint set needs "
             f"(N, {results.det_joints2d.shape[1]}, 3)"
         )
-    f, V = fr.frame, results.num_views
-    a, t = fr.association, fr.triangulation
-    P, J = a.num_people, joints2d_all.shape[1]
-    points = t.points.reshape(P, J, 3)
-    pf = results.person_frame
-    before, after = np.flatnonzero(pf < f), np.flatnonzero(pf > f)
+    f, a = fr.frame, fr.association
+    cols = pack_frame(fr, results.num_views, joints2d_all.shape[1])
     # 1. person-frame rows: those before the frame, the frame's new people, those after
-    n0 = len(before)
-    new_q = np.full(len(pf), -1)
-    new_q[before] = np.arange(n0)
-    new_q[after] = n0 + P + np.arange(len(after))
-    det_person = np.where(results.det_person >= 0, new_q[np.maximum(results.det_person, 0)], -1)
+    before, after, det_person = _renumbered_people(results, f, a.num_people)
     det_person[fr.rows] = -1
     assigned = a.cluster >= 0
-    det_person[fr.rows[assigned]] = n0 + a.cluster[assigned]
+    det_person[fr.rows[assigned]] = len(before) + a.cluster[assigned]
 
     def splice(old: np.ndarray, new: np.ndarray) -> np.ndarray:
         return np.concatenate([old[before], np.asarray(new, old.dtype), old[after]])
 
-    # Left/right swaps: the other frames keep theirs, this frame takes its own.
-    flip = get_joint_set(results.joint_set).flip_index
-    det_flipped = np.zeros(len(joints2d_all), bool)
-    if results.det_flipped is not None and len(results.det_flipped) == len(joints2d_all):
-        det_flipped[:] = results.det_flipped
-    det_flipped[fr.rows] = a.flipped
-    det_joints2d = joints2d_all.copy()
-    det_joints2d[det_flipped] = joints2d_all[det_flipped][:, flip]
-
     # 2. tracks: match the new people to each track's pose in this frame
+    points = cols.person_joints
     raw, filt = results.track_raw[:, f], results.track_filtered[:, f]  # (K, J, 3)
     reference = np.where(np.isfinite(raw), raw, filt)
-    track = match_tracks(points, reference, config.tracking.max_distance_mm)
+    track = match_to_tracks(points, reference, config.tracking.max_distance_mm)
     track_raw = results.track_raw.copy()
     track_raw[:, f] = np.nan
     track_raw[track[track >= 0], f] = points[track >= 0]
-    # 3. affinity edges of the frame
+    # 3. affinity edges: the other frames' ones, then the frame's
     keep = ~np.isin(results.edge_a, fr.rows)
-    ia, ib = np.triu_indices(len(fr.rows), 1)
-    has = np.isfinite(a.affinity[ia, ib])
-    ia, ib = ia[has], ib[has]
-    members = np.where(a.members >= 0, fr.rows[np.maximum(a.members, 0)], -1)
+    det_joints2d, det_flipped = _unmirrored(results, fr, joints2d_all)
     return dataclasses.replace(
         results,
         config=config,
         det_joints2d=det_joints2d,
         det_flipped=det_flipped,
         det_person=det_person,
-        person_frame=splice(pf, np.full(P, f)),
-        person_joints=splice(results.person_joints, points),
-        person_reproj=splice(results.person_reproj, t.reprojection_error.reshape(P, J, V)),
-        person_used=splice(results.person_used, t.used.reshape(P, J, V)),
-        person_members=splice(results.person_members, members.reshape(P, V)),
-        person_linkage=splice(results.person_linkage, a.linkage),
+        **{k: splice(getattr(results, k), getattr(cols, k)) for k in PERSON_FIELDS},
         person_track=splice(results.person_track, track),
-        edge_a=np.concatenate([results.edge_a[keep], fr.rows[ia]]),
-        edge_b=np.concatenate([results.edge_b[keep], fr.rows[ib]]),
-        edge_affinity=np.concatenate([results.edge_affinity[keep], a.affinity[ia, ib]]),
-        edge_distance=np.concatenate([results.edge_distance[keep], a.ray_distance[ia, ib]]),
+        **{k: np.concatenate([getattr(results, k)[keep], getattr(cols, k)]) for k in EDGE_FIELDS},
         track_raw=track_raw,
         cache_key="",
     )
-
-
-def _pack(
-    scene: Scene, frames: list[FrameResult], config: PipelineConfig, joints2d_all: np.ndarray,
-    restored: np.ndarray | None, key: str,
-) -> PipelineResults:  # fmt: skip
-    js = source_joint_set(scene, config)
-    seq = run_sequence(frames, scene.num_frames, config, js)
-    return pack(
-        frames, seq, config=config, joint_set=js.name, num_frames=scene.num_frames,
-        num_views=len(scene.rig), num_detections=len(scene.detections), restored=restored,
-        joints2d_all=joints2d_all, cache_key=key,
-    )  # fmt: skip
 
 
 def frame_only_results(
@@ -240,49 +202,13 @@ def frame_only_results(
 ) -> PipelineResults:  # fmt: skip
     """Results holding only frame ``fr.frame`` (each of its people a track): the preview
     when the joint set changed (another 2D source), so no stored frame fits beside it."""
-    return _pack(scene, [fr], config, joints2d_all, restored, "")
-
-
-def rerun_sequence(
-    scene: Scene,
-    config: PipelineConfig,
-    joints2d_all: np.ndarray,
-    *,
-    restored: np.ndarray | None,
-    rows_per_frame: list[np.ndarray] | None = None,
-    key: str = "",
-    cancelled: Callable[[], bool] = lambda: False,
-    progress: Callable[[int, int], None] | None = None,
-) -> PipelineResults | None:
-    """The stages of :func:`pipeline.results.run_pipeline` after restoration, frame by
-    frame: equal to it for the same config and 2D joints. Returns None once
-    ``cancelled()`` is true (checked between frames); ``progress(done, total)`` after
-    each frame."""
-    rows = frame_rows(scene) if rows_per_frame is None else rows_per_frame
-    F, frames = scene.num_frames, []
-    for f in range(F):
-        if cancelled():
-            return None
-        frames.append(run_frame(scene, f, config, joints2d_all, rows=rows[f]))
-        if progress is not None:
-            progress(f + 1, F)
-    if cancelled():
-        return None
-    return _pack(scene, frames, config, joints2d_all, restored, key)
+    return pack_run(scene, [fr], config, joints2d_all, restored=restored)
 
 
 def preview_data(data: ViewerData, results: PipelineResults) -> ViewerData:
     """``data`` showing ``results`` that keep its joint set, tracks and SMPL fits (a
     :func:`patch_frame` preview): the per-results indices of :func:`~mvviz.scene.geometry.prepare`
     are recomputed, the bodies reused (``prepare`` would skin every fit again)."""
-    F = data.num_frames
-    pf, pt = results.person_frame, results.person_track
-    det_track = np.append(pt, -1)[np.where(results.det_person >= 0, results.det_person, -1)]
-    order = np.argsort(pf, kind="stable")
-    bounds = np.searchsorted(pf[order], np.arange(F + 1))
-    track_person = np.full((results.num_tracks, F), -1)
-    tracked = np.flatnonzero(pt >= 0)
-    track_person[pt[tracked], pf[tracked]] = tracked
     # rays and image-plane points again only for the detections whose 2D joints changed
     # (another 2D source changes them all; a frame re-run with the same source, none)
     old, new = data.results.det_joints2d[..., :2], results.det_joints2d[..., :2]
@@ -298,22 +224,10 @@ def preview_data(data: ViewerData, results: PipelineResults) -> ViewerData:
         results=results,
         det_rays=det_rays,
         det_plane=det_plane,
-        people_per_frame=[order[bounds[i] : bounds[i + 1]] for i in range(F)],
-        det_track=det_track,
-        track_person=track_person,
+        **person_indices(results, data.num_frames),
         filtered=results.track_filtered,
         min_confidence=results.config.triangulation.min_confidence,
     )
-
-
-def tqdm_progress(prefix: str) -> tuple[str, int, int] | None:
-    """(description, n, total) of a live tqdm bar whose description starts with
-    ``prefix``, or None: export_rrd and the SMPL fit report progress only that way."""
-    for bar in list(getattr(tqdm, "_instances", ())):
-        desc = str(getattr(bar, "desc", ""))
-        if desc.startswith(prefix) and bar.total:
-            return desc, int(bar.n), int(bar.total)
-    return None
 
 
 # --------------------------------------------------------------------------- GUI
@@ -706,7 +620,7 @@ class PipelinePanel:
         cancelled = lambda: self._generation != gen  # noqa: E731
         last = [-100.0]
 
-        def progress(done: int, total: int) -> None:
+        def progress(_stage: str, done: int, total: int) -> None:
             pct = 100.0 * done / total
             if pct - last[0] >= 2.0:
                 last[0] = pct
@@ -720,7 +634,7 @@ class PipelinePanel:
         js = source_joint_set(self.scene, config).name
         fits = config.fit_smpl and js in FIT_JOINT_SETS
         key = cache_key(self.scene, config, self.model)
-        res = rerun_sequence(
+        res = run_stages(
             self.scene, config, joints2d, restored=self._restored, rows_per_frame=self._rows,
             key=key, cancelled=cancelled, progress=progress,
         )  # fmt: skip
@@ -734,11 +648,11 @@ class PipelinePanel:
                 self._show(res, full=True)
                 self._set_progress(30.0, "fitting SMPL bodies…")
         if fits:
-            done = threading.Event()
-            watch = threading.Thread(target=self._watch_fit, args=(gen, done), daemon=True)
+            done, latest = threading.Event(), LatestProgress()
+            watch = threading.Thread(target=self._watch_fit, args=(gen, done, latest), daemon=True)
             watch.start()
             try:
-                res = fit_bodies(res, config, self.model, progress=True)
+                res = fit_bodies(res, config, self.model, progress=latest)
             finally:
                 done.set()
                 watch.join()
@@ -755,9 +669,9 @@ class PipelinePanel:
                 msg += "; " + self._save_results()
             self._set_progress(None, msg)
 
-    def _watch_fit(self, gen: int, done: threading.Event) -> None:
+    def _watch_fit(self, gen: int, done: threading.Event, latest: LatestProgress) -> None:
         while not done.wait(0.25):
-            p = tqdm_progress(FIT_DESC)
+            p = latest.value
             with self._lock:
                 if p is not None and gen == self._generation:
                     desc, n, total = p
@@ -799,14 +713,14 @@ class PipelinePanel:
                 self._cv.wait_for(lambda: self._job is None and not self._running)
                 results = self.base
             g.export_status.content = f"exporting to `{path}`…"
-            done = threading.Event()
-            watch = threading.Thread(target=self._watch_export, args=(done,), daemon=True)
+            done, latest = threading.Event(), LatestProgress()
+            watch = threading.Thread(target=self._watch_export, args=(done, latest), daemon=True)
             watch.start()
             try:
                 # rerun (~0.3 s to import) loads on the first export, not at every start
                 from mvviz.export.rrd import export_rrd  # noqa: PLC0415
 
-                export_rrd(self.scene, results, self.model, path, progress=True)
+                export_rrd(self.scene, results, self.model, path, progress=latest)
             finally:
                 done.set()
                 watch.join()
@@ -819,10 +733,10 @@ class PipelinePanel:
             g.export_progress.visible = False
             g.export.disabled = False
 
-    def _watch_export(self, done: threading.Event) -> None:
+    def _watch_export(self, done: threading.Event, latest: LatestProgress) -> None:
         g = self.gui
         while not done.wait(0.25):
-            p = tqdm_progress(EXPORT_DESC)
+            p = latest.value
             if p is not None:
                 _, n, total = p
                 g.export_progress.value = 100.0 * n / total

@@ -24,7 +24,7 @@ from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 from pipeline.palette import TRACK_PALETTE
 from pipeline.results import PipelineResults
-from pipeline.run import frame_rows
+from pipeline.run import frame_rows, group_by_frame
 from pipeline.scene import Scene
 
 MM = 1e-3  # millimetres -> metres
@@ -218,26 +218,13 @@ def prepare(
             f"are not of this scene ({F} frames, {len(scene.detections)} detections)"
         )
     joint_set = get_joint_set(results.joint_set)
-    det_person = results.det_person
-    det_track = np.full(len(det_person), -1)
-    assigned = det_person >= 0
-    det_track[assigned] = results.person_track[det_person[assigned]]
-    order = np.argsort(results.person_frame, kind="stable")
-    bounds = np.searchsorted(results.person_frame[order], np.arange(F + 1))
-    people = [order[bounds[i] : bounds[i + 1]] for i in range(F)]
-    track_person = np.full((results.num_tracks, F), -1)
-    tracked = np.flatnonzero(results.person_track >= 0)
-    track_person[results.person_track[tracked], results.person_frame[tracked]] = tracked
-
     gt, gt_points, gt_js, gt_rows = scene.gt, None, SMPL24, [np.zeros(0, int)] * F
     if gt is not None:
         if gt.keypoints3d is not None and results.joint_set == scene.joint_set.name:
             gt_points, gt_js = gt.keypoints3d, scene.joint_set
         else:
             gt_points = gt.joints3d
-        o = np.argsort(gt.frame, kind="stable")
-        b = np.searchsorted(gt.frame[o], np.arange(F + 1))
-        gt_rows = [o[b[i] : b[i + 1]] for i in range(F)]
+        gt_rows = group_by_frame(gt.frame, F)
 
     centers = scene.rig.centers * MM
     pts = results.track_raw.reshape(-1, 3)
@@ -262,12 +249,10 @@ def prepare(
         joint_set=joint_set,
         gt_joint_set=gt_js,
         rows_per_frame=frame_rows(scene),
-        people_per_frame=people,
+        **person_indices(results, F),
         gt_rows_per_frame=gt_rows,
-        det_track=det_track,
         det_rays=det_rays,
         det_plane=det_plane,
-        track_person=track_person,
         filtered=results.track_filtered,
         gt_points=gt_points,
         cameras=cameras,
@@ -278,6 +263,23 @@ def prepare(
         spread=spread,
         extent=extent,
     )
+
+
+def person_indices(results: PipelineResults, num_frames: int) -> dict[str, object]:
+    """The :class:`ViewerData` indices of ``results``' people (F = ``num_frames``):
+    ``people_per_frame`` (F lists of person-frame rows), ``det_track`` (N,) the track of
+    each detection's person (-1 untracked or unassigned) and ``track_person`` (K, F)
+    each track's person-frame row (-1)."""
+    pf, pt = results.person_frame, results.person_track
+    det_track = np.append(pt, -1)[np.where(results.det_person >= 0, results.det_person, -1)]
+    track_person = np.full((results.num_tracks, num_frames), -1)
+    tracked = np.flatnonzero(pt >= 0)
+    track_person[pt[tracked], pf[tracked]] = tracked
+    return {
+        "people_per_frame": group_by_frame(pf, num_frames),
+        "det_track": det_track,
+        "track_person": track_person,
+    }
 
 
 def detection_rays(

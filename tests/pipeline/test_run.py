@@ -12,7 +12,7 @@ from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.evaluate import evaluate
 from pipeline.results import load_results, run_or_load, run_pipeline, save_results
-from pipeline.run import run_frame
+from pipeline.run import FRAMES_STAGE, run_frame, run_frames
 from pipeline.scene import Detections, Scene, load_scene
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from pipeline.triangulate import triangulate_people
@@ -123,6 +123,7 @@ def test_results_round_trip_and_cache(tmp_path, model, campus):
     back = load_results(path)
     np.testing.assert_array_equal(back.person_joints, results.person_joints)
     np.testing.assert_array_equal(back.track_smoothed, results.track_smoothed)
+    np.testing.assert_array_equal(back.track_rejected, results.track_rejected)
     assert back.config == results.config
     assert back.smpl is not None and back.smpl_vae is not None
     np.testing.assert_array_equal(back.smpl_vae.pose_rotvecs, results.smpl_vae.pose_rotvecs)
@@ -189,3 +190,19 @@ def test_smpl_rows_keep_proportions_and_plausible_joints(which, request):
     # The fits follow the joints: within a few mm of the filtered input's accuracy.
     assert ev.stages["smpl"]["mpjpe"] < ev.stages["kalman"]["mpjpe"] + 3
     assert ev.stages["smpl_vae"]["mpjpe"] < ev.stages["kalman"]["mpjpe"] + 3
+
+
+def test_run_frames_reports_progress_and_stops_when_cancelled(campus):
+    scene, results, _ = campus
+    heard: list[tuple[str, int, int]] = []
+    frames = run_frames(
+        scene, results.config, results.det_joints2d, progress=lambda *a: heard.append(a)
+    )
+    F = scene.num_frames
+    assert frames is not None and [fr.frame for fr in frames] == list(range(F))
+    assert heard == [(FRAMES_STAGE, f + 1, F) for f in range(F)]
+    calls = []
+    stop_at_3 = lambda: len(calls.append(0) or calls) > 3  # noqa: E731  (true at the 4th check)
+    assert run_frames(scene, results.config, results.det_joints2d, cancelled=stop_at_3,
+                      progress=False) is None  # fmt: skip
+    assert len(calls) == 4

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.track import TrackingParams, track_people
+from pipeline.assignment import gated_assignment
+from pipeline.track import TrackingParams, match_to_tracks, track_people
 
 
 def _walkers(num_frames: int, sep_mm: float, seed: int = 0) -> np.ndarray:
@@ -62,3 +63,21 @@ def test_people_with_too_few_joints_are_not_tracked():
 def test_empty_input():
     tr = track_people(np.zeros(0, int), np.zeros((0, 17, 3)), 5)
     assert tr.num_tracks == 0 and tr.joints.shape == (0, 5, 17, 3)
+
+
+def test_match_to_tracks_gates_and_assigns_one_to_one():
+    ref = np.zeros((3, 5, 3))
+    ref[1] += 1000.0
+    ref[2] = np.nan  # a track absent in this frame
+    people = np.stack([ref[1] + 10.0, ref[0] + 5.0, ref[0] + 3000.0])
+    assert match_to_tracks(people, ref, 400.0).tolist() == [1, 0, -1]
+
+
+def test_gated_assignment_maximises_matches_before_cost():
+    # the cheapest single pair (0, 0) would leave row 1 unmatched: two matches win
+    cost = np.array([[1.0, 5.0], [2.0, np.inf]])
+    rows, cols = gated_assignment(cost)
+    assert rows.tolist() == [0, 1] and cols.tolist() == [1, 0]
+    rows, cols = gated_assignment(cost, cost < 3.0)  # (0, 1) not allowed: one match
+    assert len(rows) == 1 and cost[rows[0], cols[0]] < 3.0
+    assert [len(x) for x in gated_assignment(np.full((2, 3), np.inf))] == [0, 0]

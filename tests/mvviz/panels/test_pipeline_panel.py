@@ -18,7 +18,6 @@ from mvviz.panels import pipeline_panel
 from mvviz.panels.pipeline_panel import (
     PipelinePanel,
     config_diff,
-    match_tracks,
     patch_frame,
     preview_data,
 )
@@ -112,14 +111,6 @@ def test_config_diff_lists_exactly_the_changed_fields():
     assert config_diff(back, run) == ["disabled cameras: none (run config: 1)"]
 
 
-def test_match_tracks_gates_and_assigns_one_to_one():
-    ref = np.zeros((3, 5, 3))
-    ref[1] += 1000.0
-    ref[2] = np.nan  # a track absent in this frame
-    people = np.stack([ref[1] + 10.0, ref[0] + 5.0, ref[0] + 3000.0])
-    assert match_tracks(people, ref, 400.0).tolist() == [1, 0, -1]
-
-
 def test_patch_frame_equals_a_full_rerun_in_that_frame(viewer_scene):
     scene, results, model = viewer_scene
     cfg = dataclasses.replace(results.config, disabled_views=(scene.rig.names[0],))
@@ -201,13 +192,13 @@ def test_disabling_a_camera_reruns_the_current_frame(app):
 
 def test_frames_reached_while_pending_are_rerun(app, monkeypatch):
     gate = threading.Event()
-    real = pipeline_panel.rerun_sequence
+    real = pipeline_panel.run_stages
 
     def held(*args, **kwargs):  # the sequence re-run waits until the test lets it go
         gate.wait(60)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(pipeline_panel, "rerun_sequence", held)
+    monkeypatch.setattr(pipeline_panel, "run_stages", held)
     panel, v, later, never = app.pipeline_panel, 0, FRAME + 3, FRAME + 6
     run = app.state.results
     assert (run.person_members[people(run, never), v] >= 0).any()
