@@ -144,6 +144,92 @@ def _float(path: Path, lineno: int, what: str, text: str) -> float:
     return value
 
 
+def _joint_name(
+    path: Path,
+    lineno: int,
+    tok: list[str],
+    stack: list[int],
+    names: list[str],
+    end_site: list[bool],
+) -> str:
+    """The name a ``ROOT``, ``JOINT`` or ``End Site`` line declares (an End Site: its
+    parent's name + ``_end``), after checking where it stands."""
+    key = tok[0].upper()
+    where = f"line {lineno} ({tok[0]})"
+    if key == "ROOT" and stack:
+        raise SceneFormatError(path, f"line {lineno} (ROOT)", "ROOT inside another joint")
+    if key != "ROOT" and not stack:
+        raise SceneFormatError(path, where, f"{tok[0]} outside any ROOT's braces")
+    if stack and end_site[stack[-1]]:
+        raise SceneFormatError(path, where, "a joint inside an End Site")
+    if key == "END":
+        name = f"{names[stack[-1]]}_end"
+    elif len(tok) < 2:
+        raise SceneFormatError(path, where, "joint without a name")
+    else:
+        name = " ".join(tok[1:])
+    if name in names:
+        raise SceneFormatError(path, where, f"joint {name!r} named twice")
+    return name
+
+
+def _open_joint(path: Path, lineno: int, what: str, stack: list[int]) -> int:
+    """The innermost open joint, which a ``what`` line (OFFSET, CHANNELS) belongs to."""
+    if not stack:
+        raise SceneFormatError(path, f"line {lineno} ({what})", f"{what} outside a joint")
+    return stack[-1]
+
+
+def _offset(path: Path, lineno: int, tok: list[str]) -> list[float]:
+    """The three numbers of an ``OFFSET x y z`` line."""
+    if len(tok) != 4:
+        raise SceneFormatError(
+            path, f"line {lineno} (OFFSET)", f"expected 3 numbers, got {len(tok) - 1}"
+        )
+    return [_float(path, lineno, "OFFSET", t) for t in tok[1:]]
+
+
+def _channels(path: Path, lineno: int, tok: list[str]) -> tuple[str, ...]:
+    """The canonical channel names of a ``CHANNELS n name...`` line."""
+    where = f"line {lineno} (CHANNELS)"
+    if len(tok) < 2:
+        raise SceneFormatError(path, where, "missing channel count")
+    try:
+        n = int(tok[1])
+    except ValueError:
+        raise SceneFormatError(path, where, f"expected a channel count, got {tok[1]!r}") from None
+    given = tok[2:]
+    if n != len(given) or not 0 <= n <= 6:
+        raise SceneFormatError(
+            path, where,
+            f"count says {n} channels, {len(given)} are named" if n != len(given)
+            else f"expected 0 to 6 channels, got {n}",
+        )  # fmt: skip
+    bad = [c for c in given if c.lower() not in _CANONICAL]
+    if bad:
+        raise SceneFormatError(
+            path, where, f"unknown channel {bad[0]!r}; expected {', '.join(CHANNEL_NAMES)}"
+        )
+    canon = tuple(_CANONICAL[c.lower()] for c in given)
+    if len(set(canon)) != len(canon):
+        raise SceneFormatError(path, where, "a channel listed twice")
+    return canon
+
+
+def _check_closed(
+    path: Path, lineno: int, names: list[str], stack: list[int], pending: int | None
+) -> None:
+    """At ``MOTION``: every joint closed, and there is one."""
+    if stack or pending is not None:
+        open_name = names[stack[-1] if stack else pending]
+        raise SceneFormatError(
+            path, f"line {lineno} (MOTION)",
+            f"unbalanced braces: joint {open_name!r} is not closed before MOTION",
+        )  # fmt: skip
+    if not names:
+        raise SceneFormatError(path, f"line {lineno} (MOTION)", "no ROOT in HIERARCHY")
+
+
 def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[dict, int]:
     """Joints of the HIERARCHY section and the index of the ``MOTION`` line."""
     names: list[str] = []
@@ -168,14 +254,7 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[dict, int]:
             seen_hierarchy = True
             continue
         if key == "MOTION":
-            if stack or pending is not None:
-                open_name = names[stack[-1] if stack else pending]
-                raise SceneFormatError(
-                    path, f"line {lineno} (MOTION)",
-                    f"unbalanced braces: joint {open_name!r} is not closed before MOTION",
-                )  # fmt: skip
-            if not names:
-                raise SceneFormatError(path, f"line {lineno} (MOTION)", "no ROOT in HIERARCHY")
+            _check_closed(path, lineno, names, stack, pending)
             return {
                 "names": names, "parents": parents, "offsets": offsets,
                 "channels": channels, "end_site": end_site,
@@ -188,26 +267,7 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[dict, int]:
             )
         if key in ("ROOT", "JOINT") or (key == "END" and len(tok) > 1 and tok[1].upper() == "SITE"):
             is_end = key == "END"
-            if key == "ROOT" and stack:
-                raise SceneFormatError(path, f"line {lineno} (ROOT)", "ROOT inside another joint")
-            if key != "ROOT" and not stack:
-                raise SceneFormatError(
-                    path, f"line {lineno} ({tok[0]})", f"{tok[0]} outside any ROOT's braces"
-                )
-            if stack and end_site[stack[-1]]:
-                raise SceneFormatError(
-                    path, f"line {lineno} ({tok[0]})", "a joint inside an End Site"
-                )
-            if is_end:
-                name = f"{names[stack[-1]]}_end"
-            elif len(tok) < 2:
-                raise SceneFormatError(path, f"line {lineno} ({tok[0]})", "joint without a name")
-            else:
-                name = " ".join(tok[1:])
-            if name in names:
-                raise SceneFormatError(
-                    path, f"line {lineno} ({tok[0]})", f"joint {name!r} named twice"
-                )
+            name = _joint_name(path, lineno, tok, stack, names, end_site)
             names.append(name)
             parents.append(stack[-1] if stack else -1)
             offsets.append(None)
@@ -228,57 +288,24 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[dict, int]:
             if offsets[j] is None:
                 raise SceneFormatError(path, f"line {lineno}", f"joint {names[j]!r} has no OFFSET")
         elif key == "OFFSET":
-            if not stack:
-                raise SceneFormatError(path, f"line {lineno} (OFFSET)", "OFFSET outside a joint")
-            if len(tok) != 4:
-                raise SceneFormatError(
-                    path, f"line {lineno} (OFFSET)", f"expected 3 numbers, got {len(tok) - 1}"
-                )
-            offsets[stack[-1]] = [_float(path, lineno, "OFFSET", t) for t in tok[1:]]
+            offsets[_open_joint(path, lineno, "OFFSET", stack)] = _offset(path, lineno, tok)
         elif key == "CHANNELS":
-            if not stack:
-                raise SceneFormatError(
-                    path, f"line {lineno} (CHANNELS)", "CHANNELS outside a joint"
-                )
-            j = stack[-1]
+            j = _open_joint(path, lineno, "CHANNELS", stack)
             if end_site[j]:
                 raise SceneFormatError(
                     path, f"line {lineno} (CHANNELS)", "an End Site has no channels"
                 )
-            if len(tok) < 2:
-                raise SceneFormatError(path, f"line {lineno} (CHANNELS)", "missing channel count")
-            try:
-                n = int(tok[1])
-            except ValueError:
-                raise SceneFormatError(
-                    path, f"line {lineno} (CHANNELS)", f"expected a channel count, got {tok[1]!r}"
-                ) from None
-            given = tok[2:]
-            if n != len(given) or not 0 <= n <= 6:
-                raise SceneFormatError(
-                    path, f"line {lineno} (CHANNELS)",
-                    f"count says {n} channels, {len(given)} are named" if n != len(given)
-                    else f"expected 0 to 6 channels, got {n}",
-                )  # fmt: skip
-            bad = [c for c in given if c.lower() not in _CANONICAL]
-            if bad:
-                raise SceneFormatError(
-                    path, f"line {lineno} (CHANNELS)",
-                    f"unknown channel {bad[0]!r}; expected {', '.join(CHANNEL_NAMES)}",
-                )  # fmt: skip
-            canon = tuple(_CANONICAL[c.lower()] for c in given)
-            if len(set(canon)) != len(canon):
-                raise SceneFormatError(path, f"line {lineno} (CHANNELS)", "a channel listed twice")
-            channels[j] = canon
+            channels[j] = _channels(path, lineno, tok)
         else:
             raise SceneFormatError(path, f"line {lineno}", f"unexpected {tok[0]!r} in HIERARCHY")
     if not seen_hierarchy:
         raise SceneFormatError(path, "HIERARCHY", "empty file (expected 'HIERARCHY')")
-    if stack or pending is not None:
-        raise SceneFormatError(
-            path, "HIERARCHY", "unbalanced braces: the file ends inside a joint (no MOTION)"
-        )
-    raise SceneFormatError(path, "MOTION", "missing MOTION section")
+    inside = stack or pending is not None
+    raise SceneFormatError(
+        path, "HIERARCHY" if inside else "MOTION",
+        "unbalanced braces: the file ends inside a joint (no MOTION)" if inside
+        else "missing MOTION section",
+    )  # fmt: skip
 
 
 def _header_value(path: Path, lines: list[str], i: int, label: str) -> tuple[str, int]:
