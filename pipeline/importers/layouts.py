@@ -232,6 +232,60 @@ def facing_evidence(keypoints: np.ndarray, js: JointSet) -> tuple[int, int]:
     return int(front.sum()), int((ls > rs).sum())
 
 
+def _candidates(count: int, *, source, field: str, forced: str | None) -> tuple[JointSet, ...]:
+    """The layouts of ``count`` keypoints to score (``forced`` must be one of them)."""
+    if forced is not None:
+        js = SOURCE_LAYOUTS.get(forced.lower())
+        if js is None:
+            raise SceneFormatError(
+                source,
+                "layout",
+                f"unknown layout {forced!r}; expected one of {sorted(SOURCE_LAYOUTS)}",
+            )
+        if js.num_joints != count:
+            raise SceneFormatError(
+                source,
+                field,
+                f"expected {js.num_joints} keypoints ({js.name}, forced), got {count}",
+            )
+        return CANDIDATES_BY_COUNT[count]
+    candidates = CANDIDATES_BY_COUNT.get(count, ())
+    if not candidates:
+        raise SceneFormatError(
+            source,
+            field,
+            f"cannot tell the layout of {count} keypoints; known layouts: "
+            + ", ".join(f"{js.name} ({js.num_joints})" for js in SOURCE_LAYOUTS.values())
+            + "; name one with --layout",
+        )
+    return candidates
+
+
+def _weak_evidence(
+    num_detections: int,
+    best: JointSet,
+    second: JointSet | None,
+    scores: dict[str, float],
+    tests: dict[str, int],
+) -> list[str]:
+    """Why the evidence does not single out ``best`` (empty: it does)."""
+    weak = []
+    if num_detections < MIN_DETECTIONS:
+        weak.append(f"only {num_detections} detections (need {MIN_DETECTIONS})")
+    if tests[best.name] < MIN_TESTS:
+        weak.append(f"only {tests[best.name]} tests could be made (need {MIN_TESTS})")
+    if scores[best.name] < MIN_SCORE:
+        weak.append(
+            f"the best, {best.name}, holds in {scores[best.name]:.0%} (need {MIN_SCORE:.0%})"
+        )
+    if second is not None and scores[best.name] - scores[second.name] < MIN_MARGIN:
+        weak.append(
+            f"{best.name} ({scores[best.name]:.0%}) and {second.name} "
+            f"({scores[second.name]:.0%}) are too close (need {MIN_MARGIN:.0%} apart)"
+        )
+    return weak
+
+
 def identify_layout(
     keypoints: np.ndarray, *, source, field: str = "keypoints", forced: str | None = None
 ) -> LayoutDecision:
@@ -252,31 +306,7 @@ def identify_layout(
             source, field, f"expected (N, K, 3) keypoints, got {keypoints.shape}"
         )
     count = keypoints.shape[1]
-    if forced is not None:
-        js = SOURCE_LAYOUTS.get(forced.lower())
-        if js is None:
-            raise SceneFormatError(
-                source,
-                "layout",
-                f"unknown layout {forced!r}; expected one of {sorted(SOURCE_LAYOUTS)}",
-            )
-        if js.num_joints != count:
-            raise SceneFormatError(
-                source,
-                field,
-                f"expected {js.num_joints} keypoints ({js.name}, forced), got {count}",
-            )
-        candidates: tuple[JointSet, ...] = CANDIDATES_BY_COUNT[count]
-    else:
-        candidates = CANDIDATES_BY_COUNT.get(count, ())
-        if not candidates:
-            raise SceneFormatError(
-                source,
-                field,
-                f"cannot tell the layout of {count} keypoints; known layouts: "
-                + ", ".join(f"{js.name} ({js.num_joints})" for js in SOURCE_LAYOUTS.values())
-                + "; name one with --layout",
-            )
+    candidates = _candidates(count, source=source, field=field, forced=forced)
     scores, tests = {}, {}
     for js in candidates:
         families = anatomy_tests(keypoints, js)
@@ -309,20 +339,7 @@ def identify_layout(
     )
     if forced is not None:
         return _with(decision, f"layout {best.name} forced by --layout")
-    weak = []
-    if len(keypoints) < MIN_DETECTIONS:
-        weak.append(f"only {len(keypoints)} detections (need {MIN_DETECTIONS})")
-    if tests[best.name] < MIN_TESTS:
-        weak.append(f"only {tests[best.name]} tests could be made (need {MIN_TESTS})")
-    if scores[best.name] < MIN_SCORE:
-        weak.append(
-            f"the best, {best.name}, holds in {scores[best.name]:.0%} (need {MIN_SCORE:.0%})"
-        )
-    if second is not None and scores[best.name] - scores[second.name] < MIN_MARGIN:
-        weak.append(
-            f"{best.name} ({scores[best.name]:.0%}) and {second.name} "
-            f"({scores[second.name]:.0%}) are too close (need {MIN_MARGIN:.0%} apart)"
-        )
+    weak = _weak_evidence(len(keypoints), best, second, scores, tests)
     if weak:
         raise SceneFormatError(
             source,
