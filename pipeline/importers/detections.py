@@ -381,6 +381,70 @@ def _camera_files(root: Path, names: list[str], single_file: bool) -> tuple[dict
     return files, missing
 
 
+def _check_count(
+    path: Path,
+    field: str,
+    count: int,
+    forced: JointSet | None,
+    first: tuple[Path, int] | None,
+) -> tuple[Path, int]:
+    """A person's keypoint ``count`` is the forced layout's, or known and the same as in
+    the ``first`` file that had people; returns that first (file, count)."""
+    if forced is not None and count != forced.num_joints:
+        raise SceneFormatError(
+            path,
+            field,
+            f"expected {forced.num_joints} keypoints ({forced.name}, forced), got {count}",
+        )
+    if first is None:
+        if count not in CANDIDATES_BY_COUNT:
+            raise SceneFormatError(
+                path,
+                field,
+                f"cannot tell the layout of {count} keypoints; known: "
+                + ", ".join(f"{js.name} ({js.num_joints})" for js in SOURCE_LAYOUTS.values())
+                + "; name one with --layout",
+            )
+        return path, count
+    if count != first[1]:
+        raise SceneFormatError(
+            path,
+            field,
+            f"expected {first[1]} keypoints (as in {first[0].name}), "
+            f"got {count}: one layout per scene",
+        )
+    return first
+
+
+def _converted(
+    rows: list[np.ndarray],
+    frames: list[int],
+    views: list[int],
+    *,
+    root: Path,
+    layout: str | None,
+    forced: JointSet | None,
+    dst: JointSet | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, JointSet, LayoutDecision | None]:
+    """The people's keypoints (each (K, 3)) in the identified layout converted to ``dst``
+    (default: the scene joint set of that layout), sorted by frame then view: frame,
+    view, keypoints, the joint set and the layout decision (None without people)."""
+    if not rows:
+        if dst is None:
+            dst = COCO17 if forced is None else forced
+        empty = np.zeros(0, np.int64)
+        return empty, empty, np.zeros((0, dst.num_joints, 3)), dst, None
+    raw = np.stack(rows)
+    decision = identify_layout(raw, source=root, field="keypoints", forced=layout)
+    src = SOURCE_LAYOUTS[decision.layout]
+    if dst is None:
+        dst = get_joint_set(DEFAULT_SCENE_JOINT_SET.get(src.name, src.name))
+    keypoints = convert_keypoints(raw, src, dst)
+    frame, view = np.asarray(frames, np.int64), np.asarray(views, np.int64)
+    order = np.lexsort((view, frame))
+    return frame[order], view[order], keypoints[order], dst, decision
+
+
 def _read_folders(
     root: str | os.PathLike,
     camera_names: Sequence[str],
@@ -421,32 +485,7 @@ def _read_folders(
                     num_frames, last = f + 1, path
             frames_read += len(covered)
             for f, field, kp in people:
-                if forced is not None and kp.shape[0] != forced.num_joints:
-                    raise SceneFormatError(
-                        path,
-                        field,
-                        f"expected {forced.num_joints} keypoints ({forced.name}, forced), "
-                        f"got {kp.shape[0]}",
-                    )
-                if first is None:
-                    first = (path, kp.shape[0])
-                    if kp.shape[0] not in CANDIDATES_BY_COUNT:
-                        raise SceneFormatError(
-                            path,
-                            field,
-                            f"cannot tell the layout of {kp.shape[0]} keypoints; known: "
-                            + ", ".join(
-                                f"{js.name} ({js.num_joints})" for js in SOURCE_LAYOUTS.values()
-                            )
-                            + "; name one with --layout",
-                        )
-                elif kp.shape[0] != first[1]:
-                    raise SceneFormatError(
-                        path,
-                        field,
-                        f"expected {first[1]} keypoints (as in {first[0].name}), "
-                        f"got {kp.shape[0]}: one layout per scene",
-                    )
+                first = _check_count(path, field, kp.shape[0], forced, first)
                 frames.append(f)
                 views.append(v)
                 rows.append(kp)
@@ -458,22 +497,9 @@ def _read_folders(
             f"expected frame numbers up to {frame_limit(frames_read)} for {frames_read} frames "
             f"read, got {num_frames - 1}: renumber the files from 0",
         )
-    decision = None
-    if rows:
-        raw = np.stack(rows)
-        decision = identify_layout(raw, source=root, field="keypoints", forced=layout)
-        src = SOURCE_LAYOUTS[decision.layout]
-        if dst is None:
-            dst = get_joint_set(DEFAULT_SCENE_JOINT_SET.get(src.name, src.name))
-        keypoints = convert_keypoints(raw, src, dst)
-        frame, view = np.asarray(frames, np.int64), np.asarray(views, np.int64)
-        order = np.lexsort((view, frame))
-        frame, view, keypoints = frame[order], view[order], keypoints[order]
-    else:
-        if dst is None:
-            dst = COCO17 if forced is None else forced
-        frame = view = np.zeros(0, np.int64)
-        keypoints = np.zeros((0, dst.num_joints, 3))
+    frame, view, keypoints, dst, decision = _converted(
+        rows, frames, views, root=root, layout=layout, forced=forced, dst=dst
+    )
     detections = check_detections(
         {"frame": frame, "view": view, "keypoints": keypoints},
         source=root,
