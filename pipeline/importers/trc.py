@@ -102,20 +102,9 @@ def _split(line: str) -> list[str]:
     return [c.strip() for c in line.rstrip("\r\n").split("\t")]
 
 
-def read_trc(path: str | os.PathLike) -> TrcData:
-    """Read a TRC file; checks the header against the data (see the module docstring)."""
-    path = Path(path)
-    lines = read_text_lines(path)
-    names = ("PathFileType", "header keys", "header values", "Frame#", "coordinate labels")
-    for i, what in enumerate(names):
-        if i >= len(lines):
-            raise SceneFormatError(path, what, f"missing header line {i + 1} ({what})")
-    if _split(lines[0])[0] != "PathFileType":
-        raise SceneFormatError(
-            path, "PathFileType", f"line 1 should start with 'PathFileType', got {lines[0][:40]!r}"
-        )
-
-    # 1. header fields: a line of keys, a line of values
+def _header(path: Path, lines: list[str]) -> tuple[float, int, int, str]:
+    """1. Header fields, a line of keys and a line of values: (DataRate, NumFrames,
+    NumMarkers, Units)."""
     keys, values = _split(lines[1]), _split(lines[2])
     for k in _REQUIRED_KEYS:
         if k not in keys:
@@ -132,8 +121,11 @@ def read_trc(path: str | os.PathLike) -> TrcData:
     units = header["Units"]
     if units not in UNIT_MM:
         raise SceneFormatError(path, "Units", f"expected one of {sorted(UNIT_MM)}, got {units!r}")
+    return rate, num_frames, num_markers, units
 
-    # 2. marker names and coordinate labels
+
+def _marker_names(path: Path, lines: list[str], num_markers: int) -> tuple[str, ...]:
+    """2. Marker names (line 4), checked against the coordinate labels (line 5)."""
     name_cells = _split(lines[3])
     if name_cells[:2] != ["Frame#", "Time"]:
         raise SceneFormatError(
@@ -157,8 +149,15 @@ def read_trc(path: str | os.PathLike) -> TrcData:
             f"expected {3 * num_markers} coordinate columns (X1 Y1 Z1 ... for "
             f"{num_markers} markers) on line 5, got {len(labels)}",
         )
+    return markers
 
-    # 3. data rows; empty lines (OpenSim writes one after the labels) are skipped
+
+def _data_rows(
+    path: Path, lines: list[str], num_frames: int, markers: tuple[str, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """3. Data rows; empty lines (OpenSim writes one after the labels) are skipped.
+    Returns frame numbers (F,), times (F,) s and points (F, 3 * M), NaN where empty."""
+    num_markers = len(markers)
     width = 2 + 3 * num_markers
     rows = [(i, line) for i, line in enumerate(lines[5:], start=6) if line.strip()]
     if len(rows) != num_frames:
@@ -189,6 +188,24 @@ def read_trc(path: str | os.PathLike) -> TrcData:
     if np.isinf(points).any():
         r, c = np.argwhere(np.isinf(points))[0]
         raise SceneFormatError(path, f"line {rows[r][0]} {markers[c // 3]}", "infinite value")
+    return frames, times, points
+
+
+def read_trc(path: str | os.PathLike) -> TrcData:
+    """Read a TRC file; checks the header against the data (see the module docstring)."""
+    path = Path(path)
+    lines = read_text_lines(path)
+    names = ("PathFileType", "header keys", "header values", "Frame#", "coordinate labels")
+    for i, what in enumerate(names):
+        if i >= len(lines):
+            raise SceneFormatError(path, what, f"missing header line {i + 1} ({what})")
+    if _split(lines[0])[0] != "PathFileType":
+        raise SceneFormatError(
+            path, "PathFileType", f"line 1 should start with 'PathFileType', got {lines[0][:40]!r}"
+        )
+    rate, num_frames, num_markers, units = _header(path, lines)
+    markers = _marker_names(path, lines, num_markers)
+    frames, times, points = _data_rows(path, lines, num_frames, markers)
     return TrcData(
         path=path,
         marker_names=markers,
