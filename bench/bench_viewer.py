@@ -58,6 +58,7 @@ from mvviz.scene.images import FrameStore  # noqa: E402
 from mvviz.state import ViewerState  # noqa: E402
 from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
+from pipeline.files import CACHE_DIR  # noqa: E402
 from pipeline.results import run_or_load  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 
@@ -385,7 +386,7 @@ def main(argv: list[str] | None = None) -> dict:
     scene = load_scene(args.scene)
     model = load_body_model()
     results, _ = run_or_load(scene, PipelineConfig(), model, progress=False)
-    frames = FrameStore(scene, cache_dir=scene.root / ".mvviz" / "frames").start()
+    frames = FrameStore(scene, cache_dir=scene.root / CACHE_DIR / "frames").start()
     assert frames.wait(600), "decoding the videos took too long"
     rng = np.random.default_rng(args.seed)
     changes = rng.integers(0, scene.num_frames, args.changes)

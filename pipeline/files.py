@@ -26,6 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
+CACHE_DIR = ".mvviz"
+"""``SCENE/.mvviz/``: what mvviz computes for a scene (results, caches, notes, exports)."""
+
 
 def _umask() -> int:
     mask = os.umask(0)

@@ -21,7 +21,7 @@ import numpy as np
 
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.files import SceneFormatError, load_npz, save_npz_atomic
+from pipeline.files import CACHE_DIR, SceneFormatError, load_npz, save_npz_atomic
 from pipeline.kalman import FilterResult
 from pipeline.pose_prior import load_prior, resolve_prior_path
 from pipeline.progress import Progress
@@ -39,6 +39,7 @@ from pipeline.smpl_fit import SmplFit, fit_sequence
 from pipeline.smpl_kinematics import SUPPORTED_JOINT_SETS
 
 RESULTS_VERSION = 5  # 5: track_rejected
+RESULTS_FILE = "results.npz"  # in the scene's CACHE_DIR
 FIT_JOINT_SETS = SUPPORTED_JOINT_SETS
 """Joint sets whose tracks get SMPL bodies: every set the body-model table
 (:mod:`pipeline.body_keypoints`) ties all limbs of."""
@@ -396,7 +397,7 @@ def load_results(path: str | os.PathLike, *, model: BodyModel | None = None) -> 
 
 
 def default_results_path(scene: Scene) -> Path:
-    return scene.root / ".mvviz" / "results.npz"
+    return scene.root / CACHE_DIR / RESULTS_FILE
 
 
 def run_or_load(

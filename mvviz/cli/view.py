@@ -9,9 +9,10 @@ from pathlib import Path
 from mvviz.app import ViewerApp
 from mvviz.scene.images import FrameStore
 from mvviz.state import ViewerState
+from pipeline.files import CACHE_DIR
 from pipeline.results import run_or_load
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]  # mvviz/cli/view.py -> the repository
 DEFAULT_SCENE = REPO_ROOT / "sample_data" / "shelf_synth"
 
 
@@ -77,7 +78,7 @@ def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
         scene, config, model, out=args.out, progress=progress, force=args.force
     )
     print(f"{'cached' if cached else 'computed'} results: {results.num_tracks} tracks")
-    frames = FrameStore(scene, cache_dir=scene.root / ".mvviz" / "frames").start()
+    frames = FrameStore(scene, cache_dir=scene.root / CACHE_DIR / "frames").start()
     state = ViewerState.create(scene, results, model)
     app = ViewerApp(state, host=args.host, port=args.port, frames=frames, model=model)
     app.wait_idle(30)

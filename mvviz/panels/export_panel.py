@@ -19,6 +19,7 @@ import viser
 
 from mvviz.panels.contract import PanelHost
 from pipeline.exports import EXTENSIONS, FORMATS, ExportedFile, export_results, stages_for
+from pipeline.files import CACHE_DIR
 from pipeline.results import PipelineResults
 
 LAST = "last"
@@ -80,7 +81,7 @@ class ExportPanel:
     def __init__(self, host: PanelHost) -> None:
         self.host = host
         self.scene = host.state.scene
-        self.out_dir = self.scene.root / ".mvviz" / "export"
+        self.out_dir = self.scene.root / CACHE_DIR / "export"
         results = host.state.results
         self.gui = make_export_handles(
             host.server, results, default_path(self.out_dir, self.scene.name, "glb", LAST)

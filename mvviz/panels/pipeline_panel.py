@@ -38,6 +38,7 @@ from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import ViewerData, detection_rays, person_indices
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import CONFIG_FILE, PipelineConfig, save_config
+from pipeline.files import CACHE_DIR
 from pipeline.joint_sets import get_joint_set
 from pipeline.progress import LatestProgress
 from pipeline.results import (
@@ -364,7 +365,7 @@ class PipelinePanel:
         sources = ("keypoints", "smpl") if has_smpl else ("keypoints",)
         if self.run_config.source not in sources:
             sources += (self.run_config.source,)
-        rrd = self.scene.root / ".mvviz" / "run.rrd"
+        rrd = self.scene.root / CACHE_DIR / "run.rrd"
         self.gui = make_pipeline_handles(
             host.server, self.scene, self.run_config, sources=sources, export_path=rrd
         )

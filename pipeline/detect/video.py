@@ -30,7 +30,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from pipeline.cameras import CameraRig, load_cameras
 from pipeline.detect.blazepose import (
@@ -43,8 +42,9 @@ from pipeline.detect.blazepose import (
     mono_joints_smpl24,
     square_bbox,
 )
-from pipeline.files import SceneFormatError, atomic_write, load_npz, save_npz_atomic
+from pipeline.files import CACHE_DIR, SceneFormatError, atomic_write, load_npz, save_npz_atomic
 from pipeline.joint_sets import BLAZEPOSE33, COCO17, convert_keypoints
+from pipeline.progress import StageBar
 from pipeline.restore import fit_weak_perspective
 from pipeline.scene import check_detections
 from pipeline.video_crop import VideoCrop, resolve_video_crop
@@ -316,13 +316,7 @@ def detect_camera(
     if done and todo:
         log(f"  {desc}: resuming, {len(done & set(range(num_frames)))} frames cached")
     since_save = 0
-    with tqdm(
-        total=num_frames,
-        initial=num_frames - len(todo),
-        desc=desc,
-        unit="frame",
-        disable=not progress,
-    ) as bar:
+    with StageBar(desc, num_frames, progress, unit="frame", initial=num_frames - len(todo)) as bar:
         if todo:
             start = todo[0] * every
             for index, image in iter_frames(
@@ -647,7 +641,7 @@ def detect_scene(
     models = model_digest()
     arrays, rows_per, with_people = _detect_cameras(
         detector, rig, infos, crops, num_frames=num_frames,
-        settings=settings, cache_dir=scene_dir / ".mvviz" / "detect", models=models,
+        settings=settings, cache_dir=scene_dir / CACHE_DIR / "detect", models=models,
         progress=progress, log=log,
     )  # fmt: skip
     check_detections(arrays, source=det_path, num_joints=COCO17.num_joints, num_views=len(rig))

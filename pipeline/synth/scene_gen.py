@@ -15,12 +15,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from pipeline.body_keypoints import KeypointRegressor, keypoint_regressor, layout_keypoints
 from pipeline.body_model import BodyModel
 from pipeline.cameras import Camera, CameraRig
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
+from pipeline.progress import track
 from pipeline.scene import SMPL_FIELDS, Detections, GroundTruth, write_scene
 from pipeline.synth.detectors import DetectorNoise, simulate_keypoints, simulate_regressor
 from pipeline.synth.motion import (
@@ -327,7 +327,7 @@ def synthesize(
     rows: dict[str, list] = {k: [] for k in columns}
     betas_t = torch.as_tensor(people.betas, dtype=torch.float32)
     frames = range(config.num_frames)
-    for f in tqdm(frames, desc="synth frames", disable=not progress, unit="frame"):
+    for f in track(frames, "synth frames", progress, unit="frame"):
         # 1. pose the bodies, 2. render each view (and write its video frame), 3. detect
         with torch.no_grad():
             out = model(torch.as_tensor(people.pose[:, f], dtype=torch.float32), betas_t)

@@ -9,9 +9,10 @@ from dataclasses import asdict, dataclass
 from datetime import datetime
 from pathlib import Path
 
-from pipeline.files import SceneFormatError, atomic_write
+from pipeline.files import CACHE_DIR, SceneFormatError, atomic_write
 
 NOTES_VERSION = 1
+NOTES_FILE = "notes.json"  # in the scene's CACHE_DIR
 
 
 @dataclass(frozen=True)
@@ -29,7 +30,7 @@ def new_note(frame: int, text: str) -> Note:
 
 def notes_path(scene_root: str | os.PathLike) -> Path:
     """Where a scene's notes live: ``SCENE/.mvviz/notes.json`` (beside the results)."""
-    return Path(scene_root) / ".mvviz" / "notes.json"
+    return Path(scene_root) / CACHE_DIR / NOTES_FILE
 
 
 def load_notes(path: str | os.PathLike) -> list[Note]:
