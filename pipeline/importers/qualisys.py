@@ -187,18 +187,10 @@ def read_qualisys_calibration(
     return _check_rig(cameras, path, "cameras")
 
 
-def _read_camera(
-    element: ET.Element, name: str, path: Path, size_arg: tuple[int, int] | None
-) -> Camera:
-    rotation = _attr(element, "viewrotation", path, name, default=0)
-    if rotation != 0:
-        raise SceneFormatError(
-            path,
-            f"{name}.viewrotation",
-            f"view rotation {rotation:g} is not supported (only 0); rotate the calibration "
-            "with the videos before converting",
-        )
-
+def _window_intrinsics(
+    element: ET.Element, name: str, path: Path
+) -> tuple[tuple[float, float], np.ndarray, np.ndarray]:
+    """(width, height) of the video window, its K (3, 3) and distortion (k1, k2, p1, p2, k3)."""
     # 1. Image size: inclusive pixel bounds of the video window on the sensor.
     fov = _child(element, "fov_video", path, name)
     field = f"{name}.fov_video"
@@ -234,6 +226,23 @@ def _read_camera(
     )
     k3 = _attr(intrinsic, "radialDistortion3", path, field, default=0)
     K = np.array([[fx, 0.0, cu - left], [0.0, fy, cv - top], [0.0, 0.0, 1.0]])
+    return (width, height), K, np.array([k1, k2, p1, p2, k3])
+
+
+def _read_camera(
+    element: ET.Element, name: str, path: Path, size_arg: tuple[int, int] | None
+) -> Camera:
+    rotation = _attr(element, "viewrotation", path, name, default=0)
+    if rotation != 0:
+        raise SceneFormatError(
+            path,
+            f"{name}.viewrotation",
+            f"view rotation {rotation:g} is not supported (only 0); rotate the calibration "
+            "with the videos before converting",
+        )
+
+    # 1. Image size and 2. intrinsics, in pixels of the video window.
+    (width, height), K, dist = _window_intrinsics(element, name, path)
 
     # 3. Extrinsics: camera pose in the world (Qualisys camera axes) -> OpenCV world-to-camera.
     transform = _child(element, "transform", path, name)
@@ -244,7 +253,7 @@ def _read_camera(
         name=name,
         size=(int(width), int(height)),
         K=K,
-        dist=np.array([k1, k2, p1, p2, k3]),
+        dist=dist,
         R=_FLIP_YZ @ M,
         center=center,
         source=path,
