@@ -89,7 +89,8 @@ def test_camera_knocked_mid_capture_shows_a_step():
     kp = det.keypoints.copy()
     gt = scene.gt
     rows = np.flatnonzero((det.view == 3) & (det.frame >= 125) & (det.gt_person_id >= 0))
-    slot = {(int(f), int(p)): i for i, (f, p) in enumerate(zip(gt.frame, gt.person_id, strict=True))}
+    who = zip(gt.frame, gt.person_id, strict=True)
+    slot = {(int(f), int(p)): i for i, (f, p) in enumerate(who)}
     for r in rows:
         g = slot[(int(det.frame[r]), int(det.gt_person_id[r]))]
         truth_px = cam.project(gt.keypoints3d[g])
