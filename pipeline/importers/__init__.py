@@ -232,6 +232,39 @@ def read_detections(
     return fmt.read(Path(path), camera_names, joint_set, layout=layout)
 
 
+def _check_convert_args(
+    meta_path: Path,
+    fps: float,
+    detections_format: str | None,
+    detections_path: str | os.PathLike | None,
+) -> None:
+    """The arguments of :func:`convert_scene` that can be checked before reading anything."""
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not math.isfinite(fps):
+        raise SceneFormatError(meta_path, "fps", f"expected a positive number, got {fps!r}")
+    if fps <= 0:
+        raise SceneFormatError(meta_path, "fps", f"expected a positive number, got {fps!r}")
+    if (detections_format is None) != (detections_path is None):
+        raise SceneFormatError(
+            detections_path or meta_path,
+            "detections",
+            "give both the detections format and the detections path, or neither",
+        )
+
+
+def _detections_source(
+    detections_format: str, detections_path: str | os.PathLike, imported: ImportedDetections
+) -> dict:
+    """What ``scene.json`` records of imported detections (``imported_from.detections``)."""
+    decision = imported.layout_decision
+    return {
+        "format": detections_format,
+        "path": str(detections_path),
+        "layout": imported.source_layout,
+        "layout_decision": None if decision is None else decision.to_json(),
+        "missing_views": list(imported.missing_views),
+    }
+
+
 def convert_scene(
     *,
     calib_format: str,
@@ -266,17 +299,7 @@ def convert_scene(
     if out_dir.exists() and not overwrite and (not out_dir.is_dir() or any(out_dir.iterdir())):
         raise FileExistsError(f"{out_dir} exists and is not empty (pass overwrite to replace it)")
     js = None if joint_set is None else resolve_joint_set(joint_set, meta_path)
-    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not math.isfinite(fps):
-        raise SceneFormatError(meta_path, "fps", f"expected a positive number, got {fps!r}")
-    if fps <= 0:
-        raise SceneFormatError(meta_path, "fps", f"expected a positive number, got {fps!r}")
-    if (detections_format is None) != (detections_path is None):
-        raise SceneFormatError(
-            detections_path or meta_path,
-            "detections",
-            "give both the detections format and the detections path, or neither",
-        )
-
+    _check_convert_args(meta_path, fps, detections_format, detections_path)
     rig = read_calibration(calib_format, calib_paths, image_size=image_size)
     source = {
         "calibration": {"format": calib_format, "paths": [str(p) for p in calib_paths]},
@@ -284,14 +307,7 @@ def convert_scene(
     if detections_format is not None:
         imported = read_detections(detections_format, detections_path, rig.names, js, layout=layout)
         detections, num_frames, js = imported.detections, imported.num_frames, imported.joint_set
-        decision = imported.layout_decision
-        source["detections"] = {
-            "format": detections_format,
-            "path": str(detections_path),
-            "layout": imported.source_layout,
-            "layout_decision": None if decision is None else decision.to_json(),
-            "missing_views": list(imported.missing_views),
-        }
+        source["detections"] = _detections_source(detections_format, detections_path, imported)
     else:
         js = js if js is not None else resolve_joint_set("coco17", meta_path)
         detections = Detections(
