@@ -78,6 +78,51 @@ def bone_lengths(joints: np.ndarray, bones: np.ndarray) -> np.ndarray:
     return np.linalg.norm(joints[..., bones[:, 0], :] - joints[..., bones[:, 1], :], axis=-1)
 
 
+def _match_active(
+    f: int,
+    rows: np.ndarray,
+    active: list[int],
+    joints: np.ndarray,
+    last_pose: list[np.ndarray],
+    velocity: list[np.ndarray],
+    last_seen: list[int],
+    params: TrackingParams,
+) -> list[tuple[int, int]]:
+    """Gated Hungarian between the ``active`` tracks and frame ``f``'s people ``rows``:
+    (track, row) pairs."""
+    gaps = np.array([f - last_seen[k] for k in active])
+    damp = params.velocity_damping ** np.maximum(gaps - 1, 0)
+    pred = np.stack(
+        [last_pose[k] + velocity[k] * g * d for k, g, d in zip(active, gaps, damp, strict=True)]
+    )
+    # Where the motion predicts, or where it was last seen: a velocity from one
+    # noisy step (a joint re-solved from another camera pair jumps by 10-25 cm on
+    # the real Pose2Sim demo) must not throw a track off its person.
+    last = np.stack([last_pose[k] for k in active])
+    cost = np.fmin(
+        mean_joint_distance(pred, joints[rows]), mean_joint_distance(last, joints[rows])
+    )  # (tracks, people)
+    gate = params.max_distance_mm + params.gap_widening_mm * (gaps - 1)
+    ti, pi = gated_assignment(cost, cost <= gate[:, None])
+    return [(active[t], rows[p]) for t, p in zip(ti, pi, strict=True)]
+
+
+def _follow(
+    k: int,
+    dt: int,
+    new: np.ndarray,
+    last_pose: list[np.ndarray],
+    velocity: list[np.ndarray],
+    params: TrackingParams,
+) -> None:
+    """Track ``k`` moves to pose ``new`` (J, 3), ``dt`` frames after it was last seen: its
+    velocity (mm/frame) only where both poses have a joint (else damped), its old
+    estimate kept (extrapolated) for joints missing now."""
+    step = (new - last_pose[k]) / dt
+    velocity[k] = np.where(np.isfinite(step), step, velocity[k] * params.velocity_damping)
+    last_pose[k] = np.where(np.isfinite(new), new, last_pose[k] + velocity[k] * dt)
+
+
 def track_people(
     frames: np.ndarray,
     joints: np.ndarray,
@@ -111,37 +156,14 @@ def track_people(
         active = [k for k in range(len(last_seen)) if f - last_seen[k] <= params.max_gap]
         matched_rows: set[int] = set()
         if rows.size and active:
-            gaps = np.array([f - last_seen[k] for k in active])
-            damp = params.velocity_damping ** np.maximum(gaps - 1, 0)
-            pred = np.stack(
-                [
-                    last_pose[k] + velocity[k] * g * d
-                    for k, g, d in zip(active, gaps, damp, strict=True)
-                ]
-            )
-            # Where the motion predicts, or where it was last seen: a velocity from one
-            # noisy step (a joint re-solved from another camera pair jumps by 10-25 cm on
-            # the real Pose2Sim demo) must not throw a track off its person.
-            last = np.stack([last_pose[k] for k in active])
-            cost = np.fmin(
-                mean_joint_distance(pred, joints[rows]), mean_joint_distance(last, joints[rows])
-            )  # (tracks, people)
-            gate = params.max_distance_mm + params.gap_widening_mm * (gaps - 1)
-            ti, pi = gated_assignment(cost, cost <= gate[:, None])
-            for t, p in zip(ti, pi, strict=True):
-                k, r = active[t], rows[p]
-                new = joints[r]
-                dt = f - last_seen[k]
-                step = (new - last_pose[k]) / dt
-                # Keep the old estimate for joints missing now; velocity only where both exist.
-                velocity[k] = np.where(
-                    np.isfinite(step), step, velocity[k] * params.velocity_damping
-                )
-                last_pose[k] = np.where(np.isfinite(new), new, last_pose[k] + velocity[k] * dt)
+            for k, r in _match_active(
+                f, rows, active, joints, last_pose, velocity, last_seen, params
+            ):
+                _follow(k, f - last_seen[k], joints[r], last_pose, velocity, params)
                 last_seen[k] = f
                 track_of[r] = k
                 matched_rows.add(int(r))
-                _add_bones(bone_sum, bone_count, k, new, bones)
+                _add_bones(bone_sum, bone_count, k, joints[r], bones)
         unmatched = [int(r) for r in rows if int(r) not in matched_rows]
         lost = [
             k
@@ -158,7 +180,7 @@ def track_people(
                 track_of[r] = k
                 _add_bones(bone_sum, bone_count, k, joints[r], bones)
                 unmatched.remove(r)
-        for r in unmatched:
+        for r in unmatched:  # a new track
             track_of[r] = len(last_seen)
             last_pose.append(joints[r].copy())
             velocity.append(np.zeros_like(joints[r]))
