@@ -20,6 +20,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -46,6 +47,7 @@ from pipeline.body_model import BodyModel
 from pipeline.results import PipelineResults
 
 STATS_INTERVAL_S = 1.0  # the render-time line updates at most this often
+P = TypeVar("P", bound=Panel)
 
 # --------------------------------------------------------------------------- rendering
 
@@ -123,7 +125,8 @@ class ViewerApp:
         for folder in (self.pipeline_panel.gui.folder, self.export_panel.gui.folder):
             folder.expand_by_default = True  # alone in its tab: open
 
-    def _add(self, panel):
+    def _add(self, panel: P) -> P:
+        """Keep ``panel`` for :meth:`stop`."""
         self.panels.append(panel)
         return panel
 
