@@ -253,10 +253,7 @@ def export_rrd(
     path = Path(path)
     check_inputs(scene, results)
     frame_ids = select_frames(frames, scene.num_frames)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    tmp = Path(tmp_name)
+    tmp = _temp_beside(path)
     rec = rr.RecordingStream(APP_ID)
     sources: dict[str, FrameSource] = {}
     prefetch: _Prefetcher | None = None
@@ -277,18 +274,8 @@ def export_rrd(
         if images:
             sources = scene_frame_sources(scene)
             prefetch = _Prefetcher(sources, frame_ids, logger.cam_size, jpeg_quality)
-        for f in track(frame_ids, "export rrd", progress, unit="frame"):
-            imgs = prefetch.next() if prefetch is not None else None
-            logger.log_frame(int(f), images=imgs, gt_meshes=False, bodies=False)
-        logger.send_gt_meshes(frame_ids)
-        logger.send_bodies(frame_ids)
-        logger.send_plots(frame_ids)
-        rec.flush()
-        rec.disconnect()  # closes the file and writes its footer
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
-        os.replace(tmp, path)
+        _log_frames(logger, frame_ids, prefetch, progress)
+        _complete(rec, tmp, path)
     except BaseException:
         try:
             rec.disconnect()
@@ -302,6 +289,39 @@ def export_rrd(
         for src in sources.values():
             src.close()
     return path
+
+
+def _temp_beside(path: Path) -> Path:
+    """A new empty temporary file in ``path``'s directory (created if missing)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    return Path(tmp_name)
+
+
+def _log_frames(
+    logger: SceneLogger,
+    frame_ids: np.ndarray,
+    prefetch: _Prefetcher | None,
+    progress: Progress,
+) -> None:
+    """Every frame (with its prefetched images), then the GT meshes, bodies and plots."""
+    for f in track(frame_ids, "export rrd", progress, unit="frame"):
+        imgs = prefetch.next() if prefetch is not None else None
+        logger.log_frame(int(f), images=imgs, gt_meshes=False, bodies=False)
+    logger.send_gt_meshes(frame_ids)
+    logger.send_bodies(frame_ids)
+    logger.send_plots(frame_ids)
+
+
+def _complete(rec: rr.RecordingStream, tmp: Path, path: Path) -> None:
+    """Close the recording in ``tmp`` and move it to ``path``, synced, in the usual mode."""
+    rec.flush()
+    rec.disconnect()  # closes the file and writes its footer
+    with open(tmp, "rb+") as fh:
+        os.fsync(fh.fileno())
+    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
+    os.replace(tmp, path)
 
 
 def _umask() -> int:
