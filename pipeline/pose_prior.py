@@ -43,10 +43,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from pipeline import mocap, pose_limits
 from pipeline.files import SceneFormatError
+from pipeline.progress import StageBar
 from pipeline.smpl_kinematics import (
     matrix_to_rot6d,
     matrix_to_rotvec,
@@ -299,9 +299,7 @@ def train_prior(
         opt = torch.optim.Adam(net.parameters(), lr=lr)
         steps_per_epoch = max(1, int(np.ceil(len(R_train) / batch_size)))
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs * steps_per_epoch, lr * 0.05)
-        bar = None
-        if progress:
-            bar = tqdm(total=epochs, desc="train pose prior", unit="epoch")
+        bar = StageBar("train pose prior", epochs, progress, unit="epoch")
         rec_sum = kl_sum = 0.0
         for _epoch in range(epochs):
             perm = torch.randperm(len(R_train), generator=gen)
@@ -315,13 +313,9 @@ def train_prior(
                 sched.step()
                 rec_sum += float(rec.detach()) * len(batch)
                 kl_sum += float(kl.detach()) * len(batch)
-            if bar is not None:
-                bar.update()
-                bar.set_postfix(
-                    rec=f"{rec_sum / len(R_train):.4f}", kl=f"{kl_sum / len(R_train):.2f}"
-                )
-        if bar is not None:
-            bar.close()
+            bar.update()
+            bar.set_postfix(rec=f"{rec_sum / len(R_train):.4f}", kl=f"{kl_sum / len(R_train):.2f}")
+        bar.close()
         net.eval()
         with torch.no_grad():
             hold = (

@@ -43,6 +43,7 @@ import torch
 from pipeline import pose_limits
 from pipeline.fit_optim import adam_cosine
 from pipeline.limit_penalty import limit_penalty
+from pipeline.progress import Progress
 from pipeline.smpl_kinematics import NUM_JOINTS, matrix_to_rot6d, rot6d_to_matrix
 
 if TYPE_CHECKING:
@@ -76,7 +77,7 @@ def correct_with_prior(
     row_residual: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     free_weight: torch.Tensor,
     params: FitParams,
-    progress: bool = False,
+    progress: Progress = False,
 ) -> Correction:
     """Phases 2a-2c (module docstring).
 

@@ -93,6 +93,7 @@ from pipeline.fit_optim import adam_cosine
 from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
 from pipeline.limit_penalty import limit_penalty
 from pipeline.prior_correction import correct_with_prior
+from pipeline.progress import Progress
 from pipeline.smpl_kinematics import (
     NUM_JOINTS,
     KeypointBuffers,
@@ -611,7 +612,7 @@ def fit_sequence(
     prior: PosePrior | None = None,
     params: FitParams = FitParams(),  # noqa: B008  (frozen dataclass)
     weights: np.ndarray | None = None,
-    progress: bool = True,
+    progress: Progress = True,
 ) -> tuple[SmplFit, SmplFit | None]:
     """Fit SMPL bodies to 3D joint tracks; see the module docstring for the phases.
 
@@ -639,7 +640,7 @@ def _fit(
     prior: PosePrior | None,
     params: FitParams,
     weights: np.ndarray | None,
-    progress: bool,
+    progress: Progress,
 ) -> tuple[SmplFit, SmplFit | None]:
     prob = _pack(x, None if weights is None else np.asarray(weights, float), buf.fitted)
     N = len(prob.track)

@@ -15,7 +15,7 @@ from pipeline.smpl_kinematics import SUPPORTED_JOINT_SETS
 from pipeline.synth.detectors import DetectorNoise
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 
-RIGS_DIR = Path(__file__).resolve().parents[1] / "sample_data" / "rigs"
+RIGS_DIR = Path(__file__).resolve().parents[2] / "sample_data" / "rigs"  # from mvviz/cli/
 
 
 def load_rig(spec: str):

@@ -45,12 +45,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from pipeline.body_model import BodyModel
 from pipeline.cameras import CameraRig
 from pipeline.joint_sets import COCO17, SMPL24
 from pipeline.mocap import FitParams, MocapClip, fit_clips, load_mocap_clip
+from pipeline.progress import track
 from pipeline.scene import SMPL_FIELD_WIDTH, SMPL_FIELDS, Detections, GroundTruth, write_scene
 from pipeline.synth.detectors import DetectorNoise, simulate_keypoints, simulate_regressor
 from pipeline.synth.render import MeshInstance, occluded_by_other, render_meshes, visible_mask
@@ -278,7 +278,7 @@ def synthesize_from_mocap(
     rows: dict[str, list] = {
         k: [] for k in ("frame", "view", "keypoints", "gt_person_id") + SMPL_FIELDS
     }
-    for f in tqdm(range(config.num_frames), desc="mocap synth", disable=not progress):
+    for f in track(range(config.num_frames), "mocap synth", progress, unit="frame"):
         live = np.flatnonzero(people.present[:, f])
         if live.size == 0:
             continue
