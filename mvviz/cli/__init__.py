@@ -2,7 +2,7 @@
 
 One module per subcommand group (``convert``, ``reference``, ``synth`` /
 ``synth_mocap``, ``detect``, ``run`` (also ``eval``), ``export_rrd``, ``export_formats``,
-``view``, ``prior``). The command line is the top of the import graph: it may import
+``diagnose``, ``view``, ``prior``). The command line is the top of the import graph: it may import
 everything; nothing in :mod:`mvviz` outside this package imports it (``app.py`` at the
 repository root does).
 
@@ -26,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     from mvviz.cli import (  # noqa: PLC0415  (keeps --help fast)
         convert,
         detect,
+        diagnose,
         export_formats,
         export_rrd,
         prior,
@@ -48,6 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
         run,
         export_rrd,
         export_formats,
+        diagnose,
         view,
         prior,
     ):

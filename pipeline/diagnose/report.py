@@ -1,0 +1,102 @@
+"""All diagnoses of one run, composed in one place: what ``mvviz diagnose`` prints and
+writes as JSON (``{"sync": {CAMERA: ...}, "calibration": {CAMERA: ...}, "floor": ...}``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from pipeline.diagnose.calibration import CalibrationFinding, check_calibration
+from pipeline.diagnose.floor import FloorEstimate, estimate_floor
+from pipeline.diagnose.sync import MAX_SHIFT, SyncEstimate, estimate_offsets, offsets_over_windows
+from pipeline.results import PipelineResults
+from pipeline.scene import Scene
+
+
+@dataclass(frozen=True, eq=False)
+class Diagnosis:
+    sync: dict[str, SyncEstimate]
+    calibration: dict[str, CalibrationFinding]
+    floor: FloorEstimate | None
+    sync_windows: list = field(default_factory=list)  # (start, stop, {camera: SyncEstimate})
+
+    def to_json(self) -> dict:
+        out = {
+            "sync": {k: e.to_dict() for k, e in self.sync.items()},
+            "calibration": {k: f.to_dict() for k, f in self.calibration.items()},
+            "floor": None if self.floor is None else self.floor.to_dict(),
+        }
+        if self.sync_windows:
+            out["sync_windows"] = [
+                {"start": a, "stop": b, "offset_frames": {
+                    k: round(e.offset_frames, 3) for k, e in est.items()}}
+                for a, b, est in self.sync_windows
+            ]  # fmt: skip
+        return out
+
+    def lines(self) -> list[str]:
+        """The findings for a person: one line per camera and check, problems marked."""
+        out = ["sync (positive: the camera's frames lag the others):"]
+        for name, e in self.sync.items():
+            verdict = (
+                "LATE" if e.offset and e.offset_frames > 0
+                else "EARLY" if e.offset
+                else "in sync" if e.trusted
+                else "cannot tell (too little motion or too few views)"
+            )  # fmt: skip
+            out.append(
+                f"  {name:>10}: {e.offset_frames:+6.2f} frames +- {e.offset_std_frames:.2f}"
+                f" (confidence {e.confidence:.2f}; residual {e.residual_zero_px:.1f} px as"
+                f" recorded, {e.residual_best_px:.1f} px shifted)  {verdict}"
+            )
+        for a, b, est in self.sync_windows:
+            offs = ", ".join(f"{k} {e.offset_frames:+.2f}" for k, e in est.items())
+            out.append(f"  frames {a}-{b - 1}: {offs}")
+        out.append("calibration (each camera against the joints the others triangulate):")
+        for name, f in self.calibration.items():
+            line = (
+                f"  {name:>10}: residual {f.residual_px:.1f} px, systematic "
+                f"{f.systematic_px:.1f} px (others {f.others_systematic_px:.1f})"
+            )
+            if f.suspect:
+                line += (
+                    f"  SUSPECT: off by {f.rotation_error_deg:.2f} deg / "
+                    f"{f.translation_error_mm:.0f} mm; refined: {f.residual_after_px:.1f} px"
+                )
+            if f.step is not None:
+                line += (
+                    f"  MOVED at frame {f.step.frame} ({f.step.before_px:.1f} -> "
+                    f"{f.step.after_px:.1f} px)"
+                )
+            out.append(line)
+        if self.floor is None:
+            out.append("floor: cannot tell (no tracks with shoulders and ankles)")
+        else:
+            f = self.floor
+            state = "ok" if f.ok else "NOT z-up with the floor at 0"
+            out.append(
+                f"floor ({f.method}, {f.points} samples): up {f.up.round(3).tolist()}, "
+                f"{f.angle_to_z_deg:.1f} deg from +z, floor at {f.height_mm:.0f} mm: {state}"
+            )
+        return out
+
+
+def diagnose(
+    scene: Scene,
+    results: PipelineResults,
+    *,
+    max_shift: int = MAX_SHIFT,
+    window: int | None = None,
+    refine: bool = True,
+    refine_focal: bool = False,
+) -> Diagnosis:
+    """Sync, calibration and floor of one run (``window``: also sync per window)."""
+    windows = []
+    if window:
+        windows = offsets_over_windows(scene, results, window=window, max_shift=max_shift)
+    return Diagnosis(
+        sync=estimate_offsets(scene, results, max_shift=max_shift),
+        calibration=check_calibration(scene, results, refine=refine, refine_focal=refine_focal),
+        floor=estimate_floor(results.track_smoothed, scene.joint_set.names),
+        sync_windows=windows,
+    )
