@@ -12,21 +12,41 @@ at the scene's fps covers every file frame from the first to the last it interpo
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 
 
 def training_frames(sources: list[dict]) -> set[tuple[str, int]]:
-    """(clip file name, file frame) of every BVH frame a prior was trained on
-    (``sources`` = a checkpoint's ``info["sources"]``; generated sources have no file
-    frames and add nothing)."""
+    """(file name, file frame) of every recorded frame a prior was trained on (``sources``
+    = a checkpoint's ``info["sources"]``: a BVH clip or a file of fitted poses, each with
+    ``source_frames``; generated sources have no file frames and add nothing)."""
     out: set[tuple[str, int]] = set()
     for s in sources:
         name = Path(str(s.get("file", ""))).name
-        if name.lower().endswith(".bvh"):
+        if name.lower().endswith((".bvh", ".npz")) and "source_frames" in s:
             out.update((name, i) for i in range(int(s["source_frames"])))
     return out
+
+
+def source_activities(source: dict) -> set[str]:
+    """The activities of one training source: its ``activities`` list, else its
+    ``activity`` text ("start, walk, stop"; "walk, reach (where)") split at commas, with
+    parentheses, "start" and "stop" dropped."""
+    if "activities" in source:
+        return {str(a) for a in source["activities"]}
+    text = re.sub(r"\([^)]*\)", "", str(source.get("activity", "")))
+    words = {w.strip() for w in text.split(",")}
+    return words - {"", "start", "stop", "unknown"}
+
+
+def check_activity_held_out(sources: list[dict], activity: str) -> None:
+    """Raise ``ValueError`` if any training source of a prior shows ``activity`` (a
+    leave-one-activity-out split must not have seen it in any source)."""
+    seen = [str(s.get("file", "?")) for s in sources if activity in source_activities(s)]
+    if seen:
+        raise ValueError(f"the prior was trained on {activity!r} motion (sources {seen})")
 
 
 def scene_frames(synth: dict) -> set[tuple[str, int]]:

@@ -51,7 +51,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
+from pipeline.body_keypoints import keypoint_regressor, layout_keypoints
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.files import SceneFormatError
 from pipeline.importers.bvh import bvh_to_world_mm, read_bvh, world_axes
@@ -268,6 +270,52 @@ def load_mocap_clip(
         coco17=coco17_from_skeleton(world, motion.names, head_R),
         activity=str(clip_meta.get("activity", "unknown")),
         licence=str(side.get("licence", "unknown")),
+    )
+
+
+def clip_from_body(
+    name: str,
+    pose_rotvecs: np.ndarray,
+    betas: np.ndarray,
+    transl_mm: np.ndarray,
+    model: BodyModel,
+    *,
+    fps: float,
+    activity: str,
+    licence: str,
+    source_frames: int | None = None,
+    source_fps: float | None = None,
+) -> MocapClip:
+    """A clip whose skeleton is our body model posed by ``pose_rotvecs`` (F, 24, 3) with
+    ``betas`` (10,) and ``transl_mm`` (F, 3): motion of the synthetic library or fitted
+    poses of a real trial, played by :mod:`pipeline.synth.mocap_scene` like a BVH clip.
+    ``smpl24`` are the model's joints, ``coco17`` its COCO regressor's keypoints (all
+    measured: no derived face), ``skeleton`` = ``smpl24`` (root ``pelvis``); world mm, the
+    lowest vertex of the clip on the floor (z = 0). ``path`` is ``Path(name)``."""
+    pose = np.asarray(pose_rotvecs, float).reshape(-1, 24, 3)
+    F = len(pose)
+    reg = keypoint_regressor(model, COCO17.name)
+    with torch.no_grad():
+        out = model(
+            torch.as_tensor(pose, dtype=torch.float32),
+            torch.as_tensor(np.tile(np.asarray(betas, float), (F, 1)), dtype=torch.float32),
+        )
+        kp = layout_keypoints(reg, out.vertices, out.joints).double().numpy() * 1000.0
+    t = np.asarray(transl_mm, float).reshape(F, 1, 3).copy()
+    t[..., 2] -= float((out.vertices.double().numpy() * 1000.0 + t)[..., 2].min())
+    joints = out.joints.double().numpy() * 1000.0 + t
+    return MocapClip(
+        path=Path(name),
+        name=name,
+        fps=float(fps),
+        source_fps=float(source_fps or fps),
+        source_frames=int(source_frames or F),
+        skeleton=joints,
+        joint_names=tuple(SMPL24.names),
+        smpl24=joints,
+        coco17=kp + t,
+        activity=activity,
+        licence=licence,
     )
 
 

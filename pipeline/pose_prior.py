@@ -53,7 +53,7 @@ from pipeline.smpl_kinematics import (
     rot6d_to_matrix,
     rotvec_to_matrix,
 )
-from pipeline.synth.motion import sample_pose_library
+from pipeline.synth.motion import LIBRARY_ACTIVITIES, sample_pose_library
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_PRIOR_PATH = REPO_ROOT / "sample_data" / "priors" / "pose_vae.pt"
@@ -230,10 +230,13 @@ def perturb_poses(poses: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return out[keep].reshape(-1, 72)
 
 
-def default_training_poses(num_poses: int = 60000, seed: int = 0) -> np.ndarray:
-    """(M, 72) the default training set: half library poses, half their perturbations."""
+def default_training_poses(
+    num_poses: int = 60000, seed: int = 0, *, kinds: tuple[str, ...] = LIBRARY_ACTIVITIES
+) -> np.ndarray:
+    """(M, 72) the default training set: half library poses (of the activities ``kinds``),
+    half their perturbations."""
     rng = np.random.default_rng(seed)
-    lib = sample_pose_library(num_poses // 2, seed=seed)
+    lib = sample_pose_library(num_poses // 2, seed=seed, kinds=tuple(kinds))
     return np.concatenate([lib, perturb_poses(lib, rng)])
 
 

@@ -133,10 +133,11 @@ class FitParams:
     """|R - I|_F^2 of the joints the target set leaves free (``body_keypoints.free_joints``)."""
     iters_refine: int = 60
     """Adam iterations of the prior's joint refinement (:mod:`pipeline.prior_correction`)."""
-    lr_refine: float = 0.1
+    lr_refine: float = 0.2
     """Factor on ``lr_rot`` and ``lr_transl_m`` in the refinement: it starts at step I's
-    optimum, and a full first Adam step throws the body off it (noisy sample: 14.7 mm with
-    1.0, 13.8 with 0.1, step I 13.8)."""
+    optimum, and a full first Adam step throws the body off it (noisy sample, the former
+    pull: 14.7 mm with 1.0, 13.8 with 0.1, step I 13.8; with the pull below 13.6 with 0.1
+    and 0.2, 0.2 removing more limit violations)."""
     lr_latent: float = 0.05
     w_latent: float = 1e-4
     """|z|^2 of the latent code (the VAE's N(0, I) prior)."""

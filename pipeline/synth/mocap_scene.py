@@ -57,7 +57,7 @@ from pipeline.synth.render import MeshInstance, occluded_by_other, render_meshes
 from pipeline.synth.scene_gen import visible_floor_area
 
 MIN_PELVIS_DISTANCE_MM = 650.0
-_PELVIS_PROXY = "Hips"  # the mocap root: the path that is placed in the visible area
+_PELVIS_PROXY = ("Hips", "pelvis")  # the root (BVH, body-model clip), placed in the visible area
 
 
 @dataclass(frozen=True)
@@ -191,7 +191,8 @@ def plan_people_from_mocap(
     P, F = config.num_people, config.num_frames
     area = visible_floor_area(rig, min_views=config.min_views)
     segs = _segments(clips, P, F)
-    root = [c.joint_names.index(_PELVIS_PROXY) for c in clips]
+    root = [next(c.joint_names.index(n) for n in _PELVIS_PROXY if n in c.joint_names)
+            for c in clips]  # fmt: skip
     paths = [clips[c].skeleton[s : s + F, root[c], :2] for c, s in segs]
     places = plan_placements(rng, area, paths, tries=config.placement_tries)
     joints = np.full((P, F, SMPL24.num_joints, 3), np.nan)
@@ -260,16 +261,25 @@ def _ghost_rows(
 
 
 def synthesize_from_mocap(
-    rig: CameraRig, model: BodyModel, config: MocapSceneConfig, *, progress: bool = True
+    rig: CameraRig,
+    model: BodyModel,
+    config: MocapSceneConfig,
+    *,
+    progress: bool = True,
+    clips: list[MocapClip] | None = None,
 ) -> tuple[MocapPeople, list[MocapClip], Detections]:
-    """Plan people from the clips, render the proxy bodies for occlusion, detect."""
-    if not config.motions:
+    """Plan people from the clips, render the proxy bodies for occlusion, detect.
+
+    ``clips``: already loaded clips (e.g. :func:`pipeline.mocap.clip_from_body`) instead
+    of ``config.motions``."""
+    if clips is None and not config.motions:
         raise ValueError("no motion clips given")
     if config.num_people < 1 or config.num_frames < 1:
         raise ValueError("num_people and num_frames must be >= 1")
     rng = np.random.default_rng(config.seed)
     noise = config.noise
-    clips = [load_mocap_clip(m, fps=config.fps) for m in config.motions]
+    if clips is None:
+        clips = [load_mocap_clip(m, fps=config.fps) for m in config.motions]
     people = plan_people_from_mocap(clips, rig, model, config, rng, progress=False)
     area = visible_floor_area(rig, min_views=config.min_views)
     pool = np.concatenate([c.coco17[:: max(1, c.num_frames // 50)] for c in clips])
@@ -357,10 +367,14 @@ def write_mocap_scene(
     name: str | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    clips: list[MocapClip] | None = None,
 ) -> Path:
-    """Synthesise from motion capture and write a native scene directory atomically."""
+    """Synthesise from motion capture (or ``clips``) and write a native scene directory
+    atomically."""
     out_dir = Path(out_dir)
-    people, clips, detections = synthesize_from_mocap(rig, model, config, progress=progress)
+    people, clips, detections = synthesize_from_mocap(
+        rig, model, config, progress=progress, clips=clips
+    )
     return write_scene(
         out_dir,
         name=name or out_dir.name,

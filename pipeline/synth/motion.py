@@ -304,14 +304,21 @@ def plan_people(
     return people
 
 
-def sample_pose_library(num_poses: int, seed: int = 0) -> np.ndarray:
-    """(num_poses, 72) body poses drawn from all activities, root rotation zeroed.
+LIBRARY_ACTIVITIES = ("walk", "reach", "crouch", "stand", "wave")
+
+
+def sample_pose_library(
+    num_poses: int, seed: int = 0, *, kinds: tuple[str, ...] = LIBRARY_ACTIVITIES
+) -> np.ndarray:
+    """(num_poses, 72) body poses drawn from the activities ``kinds`` (default all, in
+    equal parts), root rotation zeroed.
 
     The default training data of the pose prior.
     """
     rng = np.random.default_rng(seed)
     out = []
-    kinds = ["walk", "reach", "crouch", "stand", "wave"]
+    if not kinds or set(kinds) - set(LIBRARY_ACTIVITIES):
+        raise ValueError(f"kinds must be among {LIBRARY_ACTIVITIES}, got {kinds}")
     per = int(np.ceil(num_poses / len(kinds)))
     for kind in kinds:
         if kind == "walk":

@@ -1,0 +1,208 @@
+"""What the pose prior learns from: its training sources, the mixes held-out splits train
+on, and the broadest mix that is shipped (issue 19).
+
+Sources (:data:`SOURCE_NAMES`), each a :class:`PoseSource`: poses (N, 72) axis-angle and
+the record that goes into a checkpoint's ``info["sources"]`` (file, frames, activities,
+licence; :mod:`pipeline.heldout` reads it back):
+
+* ``library``: the synthetic motion library (:mod:`pipeline.synth.motion`: walk, reach,
+  crouch, stand, wave, in equal parts) plus its perturbations inside the joint limits
+  (:func:`pipeline.pose_prior.default_training_poses`); generated, no licence needed.
+* ``cmu``: the CMU 131 clips of ``sample_data/mocap/cmu131`` (131_01, 131_02 walking,
+  131_03 hopping; real motion capture of one person), our body model fitted to their
+  joints at 30 fps (:func:`pipeline.mocap.bvh_training_poses`); CMU's terms (NOTICE).
+* ``balancing``: the Pose2Sim balancing trial (``sample_data/pose2sim_balancing``: real
+  video, real OpenPose 2D of one person balancing), the step-I SMPL poses
+  the pipeline fits to its subject (no prior: a prior's output would be the prior
+  learning from itself), 100 frames at 60 fps; stored in
+  ``sample_data/mocap/pose2sim_balancing/balancing_trial_poses.npz`` by
+  :func:`make_balancing_poses`; BSD-3-Clause.
+
+The real sources are few poses beside the library's 42,000, so :func:`mix_poses` repeats
+each to at least ``min_real_poses`` (the record says how often: ``repeat``).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.pose_prior import PosePrior, default_training_poses, train_prior
+from pipeline.synth.motion import LIBRARY_ACTIVITIES
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+CMU_DIR = REPO_ROOT / "sample_data" / "mocap" / "cmu131"
+BALANCING_DIR = REPO_ROOT / "sample_data" / "mocap" / "pose2sim_balancing"
+BALANCING_POSES = BALANCING_DIR / "balancing_trial_poses.npz"
+SOURCE_NAMES = ("library", "cmu", "balancing")
+CMU_CLIPS = {"131_01.bvh": ("walk",), "131_02.bvh": ("walk",), "131_03.bvh": ("hop",)}
+BALANCING_LICENCE = (
+    "BSD-3-Clause (Pose2Sim demo data, credited to @aaiaueil, Universite Gustave Eiffel; "
+    "sample_data/pose2sim_balancing/NOTICE.txt)"
+)
+
+
+@dataclass(frozen=True, eq=False)
+class PoseSource:
+    """Training poses of one source. N poses.
+
+    Attributes:
+        name: ``library``, ``cmu`` or ``balancing`` (:data:`SOURCE_NAMES`).
+        poses: (N, 72) axis-angle, SMPL layout (root included, the prior ignores it).
+        record: the checkpoint record (``file``, ``frames``, ``activities``, ``licence``;
+            a recorded source also ``source_frames``, what :mod:`pipeline.heldout` checks).
+    """
+
+    name: str
+    poses: np.ndarray
+    record: dict
+
+    @property
+    def real(self) -> bool:
+        return self.name != "library"
+
+
+def library_source(
+    *, num_poses: int = 60000, seed: int = 0, kinds: tuple[str, ...] = LIBRARY_ACTIVITIES
+) -> PoseSource:
+    """The synthetic library of the activities ``kinds`` plus perturbations."""
+    poses = default_training_poses(num_poses, seed=seed, kinds=tuple(kinds))
+    return PoseSource(
+        "library",
+        poses,
+        {
+            "source": "library",
+            "file": f"synthetic library ({num_poses} poses, seed {seed}) + perturbations",
+            "frames": int(len(poses)),
+            "activities": list(kinds),
+            "activity": ", ".join(kinds) + " (pipeline/synth/motion.py)",
+            "licence": "generated",
+        },
+    )
+
+
+@functools.cache
+def _bvh_poses(path: str) -> tuple[np.ndarray, dict]:
+    from pipeline.mocap import bvh_training_poses  # noqa: PLC0415  (mocap imports smpl_fit)
+
+    poses, info, _ = bvh_training_poses(path)
+    return poses, info
+
+
+def cmu_source(clip: str) -> PoseSource:
+    """One CMU 131 clip (``"131_01.bvh"``), fitted at 30 fps (cached per process)."""
+    path = CMU_DIR / clip
+    poses, info = _bvh_poses(str(path))
+    rec = dict(info, source="cmu", file=str(path.relative_to(REPO_ROOT)))
+    rec["activities"] = list(CMU_CLIPS[clip])
+    return PoseSource("cmu", poses, rec)
+
+
+def balancing_source(path: str | os.PathLike = BALANCING_POSES) -> PoseSource:
+    """The balancing trial's fitted poses (:func:`make_balancing_poses`)."""
+    path = Path(path)
+    with np.load(path, allow_pickle=False) as z:
+        poses = np.asarray(z["poses"], float)
+        meta = json.loads(str(z["meta"]))
+    rec = dict(meta, source="balancing", file=str(path.relative_to(REPO_ROOT)))
+    rec.update(frames=int(len(poses)), source_frames=int(len(poses)))
+    return PoseSource("balancing", poses, rec)
+
+
+def make_balancing_poses(
+    scene_dir: str | os.PathLike = REPO_ROOT / "sample_data" / "pose2sim_balancing",
+    out: str | os.PathLike = BALANCING_POSES,
+) -> Path:
+    """Run the pipeline (no prior) on the balancing trial and store its subject's step-I
+    poses as an AMASS-style npz: ``poses`` (F, 72), ``trans`` (F, 3) m, ``betas`` (10,),
+    ``mocap_framerate``, ``meta`` (JSON: activity, licence, how it was made, fit residual).
+    The subject is the track with the most fitted frames."""
+    from pipeline.body_model import load_body_model  # noqa: PLC0415  (heavy imports)
+    from pipeline.config import PipelineConfig  # noqa: PLC0415
+    from pipeline.results import run_pipeline  # noqa: PLC0415
+    from pipeline.scene import load_scene  # noqa: PLC0415
+
+    scene = load_scene(scene_dir)
+    results = run_pipeline(
+        scene, PipelineConfig(use_pose_prior=False), load_body_model(), progress=False
+    )
+    fit = results.smpl
+    k = int(fit.present.sum(1).argmax())
+    rows = fit.present[k]
+    meta = {
+        "activity": "balance (Pose2Sim's BalancingTrial: one person, real video)",
+        "activities": ["balance"],
+        "licence": BALANCING_LICENCE,
+        "made_by": "pipeline.prior_sources.make_balancing_poses: mvviz run (no prior), "
+        "step-I SMPL fit of the longest track",
+        "scene": "sample_data/pose2sim_balancing",
+        "track": k,
+        "fps": float(scene.fps),
+        "fit_residual_mm": round(float(np.nanmean(fit.residual[k][rows])), 1),
+    }
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        out,
+        poses=fit.pose_rotvecs[k][rows].reshape(-1, 72),
+        trans=fit.transl[k][rows] / 1000.0,
+        betas=fit.betas[k],
+        mocap_framerate=np.float64(scene.fps),
+        meta=np.array(json.dumps(meta)),
+    )
+    return out
+
+
+def sources_for(
+    *,
+    exclude_sources: tuple[str, ...] = (),
+    exclude_activities: tuple[str, ...] = (),
+    num_poses: int = 60000,
+    seed: int = 0,
+) -> list[PoseSource]:
+    """Every source but ``exclude_sources``, each without the motion of
+    ``exclude_activities`` (library activities dropped from the sampler, CMU clips and the
+    balancing trial dropped whole)."""
+    bad = set(exclude_sources) - set(SOURCE_NAMES)
+    if bad:
+        raise ValueError(f"unknown sources {sorted(bad)}; known {SOURCE_NAMES}")
+    out = []
+    if "library" not in exclude_sources:
+        kinds = tuple(k for k in LIBRARY_ACTIVITIES if k not in exclude_activities)
+        if kinds:
+            out.append(library_source(num_poses=num_poses, seed=seed, kinds=kinds))
+    if "cmu" not in exclude_sources:
+        out += [
+            cmu_source(c)
+            for c, acts in CMU_CLIPS.items()
+            if not set(acts) & set(exclude_activities)
+        ]
+    if "balancing" not in exclude_sources and "balance" not in exclude_activities:
+        out.append(balancing_source())
+    return out
+
+
+def mix_poses(
+    sources: list[PoseSource], *, min_real_poses: int = 3000
+) -> tuple[np.ndarray, list[dict]]:
+    """(M, 72) poses of all sources, each real one repeated ``ceil(min_real_poses / N)``
+    times; and their records (with ``repeat``)."""
+    parts, records = [], []
+    for s in sources:
+        rep = int(np.ceil(min_real_poses / len(s.poses))) if s.real and len(s.poses) else 1
+        parts.append(np.tile(s.poses.reshape(-1, 72), (rep, 1)))
+        records.append(dict(s.record, repeat=rep))
+    return np.concatenate(parts), records
+
+
+def train_on(sources: list[PoseSource], *, min_real_poses: int = 3000, **train_kwargs) -> PosePrior:
+    """Train a prior (:func:`pipeline.pose_prior.train_prior`) on the mix of ``sources``;
+    the records go into ``info["sources"]``."""
+    poses, records = mix_poses(sources, min_real_poses=min_real_poses)
+    name = "; ".join(f"{r['file']} x{r['repeat']}" for r in records)
+    return train_prior(poses, data_name=name, sources=records, **train_kwargs)
