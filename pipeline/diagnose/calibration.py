@@ -302,6 +302,67 @@ def _observations(scene, results, view, exclude, *, seed=0) -> _Observations:
     )  # fmt: skip
 
 
+@dataclass(frozen=True, eq=False)
+class _CameraAdjustment:
+    """The bundle adjustment's parameters ``x = [w (3), t (3), (focal scale), X (P, 3)]``:
+    the camera's rotation is ``exp([w]) R0`` (w starts at 0), the other cameras fixed.
+    Residuals are px (normalised coordinates times the focal length), each observation
+    weighted by the square root of its confidence."""
+
+    obs: _Observations
+    R0: np.ndarray  # (3, 3) the camera's recorded rotation
+    Rs: np.ndarray  # (O, 3, 3) the observing camera's rotation (fixed ones)
+    ts: np.ndarray  # (O, 3)
+    mine: np.ndarray  # (O,) bool: seen by the refined camera
+    n_cam: int  # 6, or 7 with the focal scale
+    sw: np.ndarray  # (O, 1)
+
+    @property
+    def own(self) -> np.ndarray:
+        return np.flatnonzero(self.mine)
+
+    def camera_frame(self, x: np.ndarray):
+        R, t = self.Rs.copy(), self.ts.copy()
+        R[self.mine] = Rotation.from_rotvec(x[:3]).as_matrix() @ self.R0
+        t[self.mine] = x[3:6]
+        X = x[self.n_cam :].reshape(-1, 3)[self.obs.point]
+        return R, X, np.einsum("oij,oj->oi", R, X) + t
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        _, _, Xc = self.camera_frame(x)
+        uv = Xc[:, :2] / Xc[:, 2:3]
+        if self.n_cam == 7:
+            uv[self.mine] *= x[6]  # the focal's relative change scales the normalised plane
+        return ((uv - self.obs.normalised) * self.sw).ravel()
+
+    def jacobian(self, x: np.ndarray):
+        R, X, Xc = self.camera_frame(x)
+        own, n_cam, O = self.own, self.n_cam, len(Xc)
+        z = Xc[:, 2]
+        dpi = np.zeros((O, 2, 3))  # d(x/z, y/z) / d Xc
+        dpi[:, 0, 0] = dpi[:, 1, 1] = 1 / z
+        dpi[:, 0, 2] = -Xc[:, 0] / z**2
+        dpi[:, 1, 2] = -Xc[:, 1] / z**2
+        focal = np.where(self.mine, x[6], 1.0)[:, None, None] if n_cam == 7 else 1.0
+        d_xc = dpi * self.sw[:, :, None] * focal  # (O, 2, 3)
+        RX = np.einsum("oij,oj->oi", R[own], X[own])
+        skew = np.zeros((len(own), 3, 3))  # d(exp([w]) R0 X)/dw ~ -[R X]x near the solution
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = RX[:, 2], -RX[:, 1], RX[:, 0]
+        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -RX[:, 2], RX[:, 1], -RX[:, 0]
+        blocks = [d_xc[own] @ skew, d_xc[own]]  # rotation, translation
+        if n_cam == 7:
+            blocks.append((Xc[own, :2] / Xc[own, 2:3] * self.sw[own])[:, :, None])
+        r2 = 2 * np.arange(O)[:, None] + np.arange(2)  # (O, 2) residual rows
+        rows = np.concatenate([np.repeat(r2.ravel(), 3), np.repeat(r2[own].ravel(), n_cam)])
+        pcols = n_cam + 3 * self.obs.point[:, None, None] + np.arange(3)  # (O, 1, 3)
+        cols = np.concatenate([
+            np.broadcast_to(pcols, (O, 2, 3)).ravel(),
+            np.broadcast_to(np.arange(n_cam), (len(own), 2, n_cam)).ravel(),
+        ])  # fmt: skip
+        vals = np.concatenate([(d_xc @ R).ravel(), np.concatenate(blocks, axis=2).ravel()])
+        return coo_matrix((vals, (rows, cols)), shape=(2 * O, len(x))).tocsr()
+
+
 def refine_camera(
     scene: Scene,
     results: PipelineResults,
@@ -313,81 +374,32 @@ def refine_camera(
     """Camera ``view`` with its pose (and focal length) refined by bundle adjustment."""
     obs = _observations(scene, results, view, exclude)
     cam = scene.rig[view]
-    P = len(obs.start)
-    if P < 10:
+    if len(obs.start) < 10:
         raise ValueError(f"camera {cam.name}: too few joints seen with other cameras to refine")
-    Rs = np.stack([c.R for c in scene.rig])[obs.view]  # (O, 3, 3) fixed cameras
-    ts = np.stack([c.t for c in scene.rig])[obs.view]
-    mine = obs.view == view
-    own = np.flatnonzero(mine)
-    n_cam = 7 if refine_focal else 6
-    # The camera's rotation is R = exp([w]) R0 with w (3,) the parameter, started at 0.
-    x0 = np.concatenate([np.zeros(3), cam.t, [1.0] if refine_focal else [], obs.start.ravel()])
-    sw = (np.sqrt(obs.weight) * obs.scale)[:, None]  # residuals in px, confidence-weighted
-
-    def camera_frame(x: np.ndarray):
-        R, t = Rs.copy(), ts.copy()
-        R[mine] = Rotation.from_rotvec(x[:3]).as_matrix() @ cam.R
-        t[mine] = x[3:6]
-        X = x[n_cam:].reshape(P, 3)[obs.point]
-        return R, X, np.einsum("oij,oj->oi", R, X) + t
-
-    def residuals(x: np.ndarray) -> np.ndarray:
-        _, _, Xc = camera_frame(x)
-        uv = Xc[:, :2] / Xc[:, 2:3]
-        if refine_focal:
-            uv[mine] *= x[6]  # the focal's relative change scales the normalised plane
-        return ((uv - obs.normalised) * sw).ravel()
-
-    def jacobian(x: np.ndarray):
-        R, X, Xc = camera_frame(x)
-        z = Xc[:, 2]
-        dpi = np.zeros((len(z), 2, 3))  # d(x/z, y/z) / d Xc
-        dpi[:, 0, 0] = dpi[:, 1, 1] = 1 / z
-        dpi[:, 0, 2] = -Xc[:, 0] / z**2
-        dpi[:, 1, 2] = -Xc[:, 1] / z**2
-        scale = sw[:, :, None] * (np.where(mine, x[6], 1.0)[:, None, None] if refine_focal else 1)
-        d_xc = dpi * scale  # (O, 2, 3)
-        d_point = d_xc @ R  # d Xc / d X = R
-        RX = np.einsum("oij,oj->oi", R[own], X[own])
-        skew = np.zeros((len(own), 3, 3))  # d(exp([w]) R0 X)/dw ~ -[R X]x near the solution
-        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = RX[:, 2], -RX[:, 1], RX[:, 0]
-        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -RX[:, 2], RX[:, 1], -RX[:, 0]
-        blocks = [d_xc[own] @ skew, d_xc[own]]  # rotation, translation
-        if refine_focal:
-            uv = Xc[own, :2] / Xc[own, 2:3]
-            blocks.append((uv * sw[own])[:, :, None])
-        d_cam = np.concatenate(blocks, axis=2)  # (n_own, 2, n_cam)
-        r2 = 2 * np.arange(len(z))[:, None] + np.arange(2)  # (O, 2) residual rows
-        rows = np.concatenate([np.repeat(r2.ravel(), 3), np.repeat(r2[own].ravel(), n_cam)])
-        pcols = n_cam + 3 * obs.point[:, None, None] + np.arange(3)  # (O, 1, 3)
-        cols = np.concatenate([
-            np.broadcast_to(pcols, (len(z), 2, 3)).ravel(),
-            np.broadcast_to(np.arange(n_cam), (len(own), 2, n_cam)).ravel(),
-        ])  # fmt: skip
-        vals = np.concatenate([d_point.ravel(), d_cam.ravel()])
-        return coo_matrix((vals, (rows, cols)), shape=(2 * len(z), len(x))).tocsr()
-
+    ba = _CameraAdjustment(
+        obs=obs, R0=cam.R, Rs=np.stack([c.R for c in scene.rig])[obs.view],
+        ts=np.stack([c.t for c in scene.rig])[obs.view], mine=obs.view == view,
+        n_cam=7 if refine_focal else 6, sw=(np.sqrt(obs.weight) * obs.scale)[:, None],
+    )  # fmt: skip
+    cam0 = np.concatenate([np.zeros(3), cam.t, [1.0] if refine_focal else []])
+    points0 = obs.start.ravel()
     # 1. Resection: the camera alone against the other cameras' joints (dense, 6-7
     # parameters). A pose off by a degree puts all its residuals far out in the robust
     # loss's tail, where the joint problem creeps; this brings them into its core.
-    own_rows = (2 * own[:, None] + np.arange(2)).ravel()
-    points0 = x0[n_cam:]
+    rows = (2 * ba.own[:, None] + np.arange(2)).ravel()
     resect = least_squares(
-        lambda c: residuals(np.concatenate([c, points0]))[own_rows],
-        x0[:n_cam],
-        jac=lambda c: jacobian(np.concatenate([c, points0]))[own_rows][:, :n_cam].toarray(),
+        lambda c: ba.residuals(np.concatenate([c, points0]))[rows],
+        cam0,
+        jac=lambda c: ba.jacobian(np.concatenate([c, points0]))[rows][:, : ba.n_cam].toarray(),
         loss="soft_l1", f_scale=4 * HUBER_PX, x_scale="jac", max_nfev=50,
     )  # fmt: skip
     # 2. The bundle adjustment: that camera and every joint, all observations.
     fit = least_squares(
-        residuals, np.concatenate([resect.x, points0]), jac=jacobian, loss="huber",
+        ba.residuals, np.concatenate([resect.x, points0]), jac=ba.jacobian, loss="huber",
         f_scale=HUBER_PX, x_scale="jac", method="trf", tr_solver="lsmr", max_nfev=50,
     )  # fmt: skip
     K = cam.K.copy()
     if refine_focal:
-        K[0, 0] *= fit.x[6]
-        K[1, 1] *= fit.x[6]
-        K[0, 1] *= fit.x[6]
+        K[:2, :2] *= fit.x[6]
     R = Rotation.from_rotvec(fit.x[:3]).as_matrix() @ cam.R
     return dataclasses.replace(cam, R=R, t=fit.x[3:6].copy(), K=K)
