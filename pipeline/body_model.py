@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from pipeline.files import SceneFormatError
+from pipeline.rotations import axis_angle_to_matrix
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_MODEL_PATH = REPO_ROOT / "sample_data" / "body_models" / "open_body_24.npz"
@@ -33,24 +34,6 @@ REQUIRED_KEYS = ("v_template", "shapedirs", "J_regressor", "weights", "kintree_t
 
 
 # --------------------------------------------------------------------------- pure functions
-
-
-def axis_angle_to_matrix(rotvecs: torch.Tensor) -> torch.Tensor:
-    """Rodrigues' formula. (..., 3) axis-angle -> (..., 3, 3) rotation matrices.
-
-    Differentiable at zero (the small-angle branch uses the Taylor series).
-    """
-    angle_sq = (rotvecs * rotvecs).sum(-1, keepdim=True)[..., None]  # (..., 1, 1)
-    angle = torch.sqrt(angle_sq.clamp_min(1e-24))
-    small = angle_sq < 1e-8
-    # sin(a)/a and (1-cos(a))/a^2 with their series near 0.
-    a = torch.where(small, 1 - angle_sq / 6, torch.sin(angle) / angle)
-    b = torch.where(small, 0.5 - angle_sq / 24, (1 - torch.cos(angle)) / angle_sq.clamp_min(1e-24))
-    x, y, z = rotvecs.unbind(-1)
-    zero = torch.zeros_like(x)
-    skew = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(rotvecs.shape + (3,))
-    eye = torch.eye(3, dtype=rotvecs.dtype, device=rotvecs.device).expand_as(skew)
-    return eye + a * skew + b * (skew @ skew)
 
 
 def kinematic_levels(parents: np.ndarray) -> list[np.ndarray]:
@@ -64,34 +47,63 @@ def kinematic_levels(parents: np.ndarray) -> list[np.ndarray]:
     return [np.flatnonzero(depth == d) for d in range(depth.max() + 1)]
 
 
-def rigid_chain(
-    rot_mats: torch.Tensor, rest_joints: torch.Tensor, parents: np.ndarray, levels: list[np.ndarray]
+@dataclass(frozen=True, eq=False)
+class KinematicTree:
+    """A kinematic tree as index tensors for :func:`forward_kinematics` (built once per
+    model): the joints of each depth level, each one's parent as a position in the level
+    above, and the permutation from the level-concatenated order back to joint order."""
+
+    parents: np.ndarray  # (J,) parent joint, -1 for the root
+    level_joints: tuple[torch.Tensor, ...]
+    level_parents: tuple[torch.Tensor, ...]
+    level_order: torch.Tensor  # (J,)
+
+    @classmethod
+    def from_parents(cls, parents: np.ndarray) -> KinematicTree:
+        levels = kinematic_levels(parents)
+        joints, up = [], []
+        for d, lv in enumerate(levels):
+            joints.append(torch.as_tensor(lv, dtype=torch.long))
+            prev = list(levels[d - 1]) if d else []
+            up.append(torch.as_tensor([prev.index(parents[j]) for j in lv] if d else [],
+                                      dtype=torch.long))  # fmt: skip
+        order = torch.as_tensor(np.argsort(np.concatenate(levels)), dtype=torch.long)
+        return cls(np.asarray(parents), tuple(joints), tuple(up), order)
+
+
+def forward_kinematics(
+    rot_mats: torch.Tensor, rest_joints: torch.Tensor, tree: KinematicTree
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Forward kinematics.
+    """Forward kinematics, composed one tree level at a time (9 levels for SMPL): the one
+    implementation the body model, the fit and the viewer's bone posing share.
 
     Args:
-        rot_mats: (B, J, 3, 3) local joint rotations.
-        rest_joints: (B, J, 3) joint positions in the rest pose.
+        rot_mats: (B, J, 3, 3) local joint rotations; rest_joints: (B, J, 3).
     Returns:
-        posed_joints (B, J, 3) and global transforms (B, J, 4, 4) of each joint frame
-        (rotation about the joint's rest position composed down the chain).
+        global rotations (B, J, 3, 3) of the joint frames and posed joints (B, J, 3),
+        no translation (the root stays at its rest position).
     """
+    rots, poss = [], []
+    for d, (lv, par) in enumerate(zip(tree.level_joints, tree.level_parents, strict=True)):
+        R = rot_mats[:, lv]
+        if d == 0:
+            rots.append(R)
+            poss.append(rest_joints[:, lv])
+            continue
+        Rp = rots[-1][:, par]
+        offset = rest_joints[:, lv] - rest_joints[:, tree.level_joints[d - 1][par]]
+        rots.append(Rp @ R)
+        poss.append(poss[-1][:, par] + (Rp @ offset[..., None])[..., 0])
+    return torch.cat(rots, 1)[:, tree.level_order], torch.cat(poss, 1)[:, tree.level_order]
+
+
+def rigid_chain(
+    rot_mats: torch.Tensor, rest_joints: torch.Tensor, tree: KinematicTree
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`forward_kinematics` as posed joints (B, J, 3) and (B, J, 4, 4) transforms
+    of each joint frame (rotation about the joint's rest position composed down the chain)."""
+    R, posed = forward_kinematics(rot_mats, rest_joints, tree)
     B, J = rot_mats.shape[:2]
-    rel = rest_joints.clone()
-    rel[:, 1:] = rest_joints[:, 1:] - rest_joints[:, parents[1:]]
-    glob_rot = [None] * J
-    glob_pos = [None] * J
-    for level in levels:
-        for j in level:  # a level's joints are independent; J is small, keep it simple
-            p = parents[j]
-            if p < 0:
-                glob_rot[j] = rot_mats[:, j]
-                glob_pos[j] = rel[:, j]
-            else:
-                glob_rot[j] = glob_rot[p] @ rot_mats[:, j]
-                glob_pos[j] = glob_pos[p] + (glob_rot[p] @ rel[:, j, :, None])[..., 0]
-    R = torch.stack(glob_rot, 1)  # (B, J, 3, 3)
-    posed = torch.stack(glob_pos, 1)  # (B, J, 3)
     T = torch.zeros(B, J, 4, 4, dtype=rot_mats.dtype, device=rot_mats.device)
     T[..., :3, :3] = R
     T[..., :3, 3] = posed
@@ -129,7 +141,7 @@ class BodyModel(torch.nn.Module):
         parents = a["kintree_table"][0].astype(np.int64)
         parents[0] = -1
         self.parents = parents
-        self.levels = kinematic_levels(parents)
+        self.tree = KinematicTree.from_parents(parents)
         f32 = torch.float32
         self.register_buffer("v_template", torch.as_tensor(a["v_template"], dtype=f32))
         self.register_buffer("shapedirs", torch.as_tensor(a["shapedirs"], dtype=f32))
@@ -187,9 +199,7 @@ class BodyModel(torch.nn.Module):
             (B, 24, 3) posed joints, metres.
         """
         pose, betas, transl = self._prepare(pose, betas, transl)
-        posed, _ = rigid_chain(
-            axis_angle_to_matrix(pose), self.rest_joints(betas), self.parents, self.levels
-        )
+        posed, _ = rigid_chain(axis_angle_to_matrix(pose), self.rest_joints(betas), self.tree)
         return posed if transl is None else posed + transl[:, None]
 
     def forward(self, pose, betas=None, transl=None) -> BodyOutput:
@@ -206,7 +216,7 @@ class BodyModel(torch.nn.Module):
             feat = (rot_mats[:, 1:] - eye).reshape(B, -1)
             v_shaped = v_shaped + (feat @ self.posedirs).reshape(B, -1, 3)
         # 3. forward kinematics; joint transforms relative to the rest pose
-        posed, T = rigid_chain(rot_mats, rest, self.parents, self.levels)
+        posed, T = rigid_chain(rot_mats, rest, self.tree)
         rel_t = posed - (T[..., :3, :3] @ rest[..., None])[..., 0]  # (B, J, 3)
         # 4. blend per-vertex transforms by the skinning weights
         Rv = torch.einsum("vj,njab->nvab", self.weights, T[..., :3, :3])

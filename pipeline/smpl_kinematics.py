@@ -4,8 +4,8 @@
 needs precomputed once: the layout's keypoints (:mod:`pipeline.body_keypoints`, a mix
 of vertex-regressor rows and SMPL-joint rows) folded into the skinning weights, see the
 docstring of :mod:`pipeline.smpl_fit`; :func:`predict_targets` and
-:func:`forward_kinematics` are the batched forward pass of the fit; the 6D rotation
-representation (Zhou et al. 2019) is what the fit and the pose prior optimise.
+:func:`~pipeline.body_model.forward_kinematics` are the batched forward pass of the fit
+(rotation conversions live in :mod:`pipeline.rotations`).
 Units: metres (the body model's).
 """
 
@@ -15,7 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 
 from pipeline.body_keypoints import (
     FITTABLE_JOINT_SETS,
@@ -24,8 +23,14 @@ from pipeline.body_keypoints import (
     lever_arms,
     torso_points,
 )
-from pipeline.body_model import BodyModel
+from pipeline.body_model import BodyModel, KinematicTree, forward_kinematics
 from pipeline.joint_sets import SMPL24, get_joint_set
+from pipeline.rotations import (  # noqa: F401  (re-exported: the fit's and the prior's)
+    matrix_to_rot6d,
+    matrix_to_rotvec,
+    rot6d_to_matrix,
+    rotvec_to_matrix,
+)
 
 NUM_JOINTS = SMPL24.num_joints
 SUPPORTED_JOINT_SETS = FITTABLE_JOINT_SETS
@@ -49,45 +54,6 @@ median 16.2 mm from the RTS joints instead of 21.2 mm. The ankle keypoint itself
 offset, so it still pins the SMPL ankle."""
 
 
-# --------------------------------------------------------------------------- rotations
-
-
-def rot6d_to_matrix(rot6d: torch.Tensor) -> torch.Tensor:
-    """Zhou et al.'s 6D representation -> rotation matrices by Gram-Schmidt.
-
-    Args:
-        rot6d: (..., 6), the first two columns ``(a1, a2)`` of a matrix, concatenated.
-    Returns:
-        (..., 3, 3) with columns ``b1 = a1/|a1|``, ``b2`` = unit part of ``a2`` orthogonal
-        to ``b1``, ``b3 = b1 x b2``.
-    """
-    a1, a2 = rot6d[..., :3], rot6d[..., 3:]
-    b1 = a1 * torch.rsqrt((a1 * a1).sum(-1, keepdim=True).clamp_min(1e-12))
-    u2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
-    b2 = u2 * torch.rsqrt((u2 * u2).sum(-1, keepdim=True).clamp_min(1e-12))
-    x1, y1, z1 = b1.unbind(-1)
-    x2, y2, z2 = b2.unbind(-1)
-    b3 = torch.stack([y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2], -1)
-    return torch.stack([b1, b2, b3], -1)
-
-
-def matrix_to_rot6d(rotmats: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) -> (..., 6): the first two columns, concatenated."""
-    return torch.cat([rotmats[..., :, 0], rotmats[..., :, 1]], -1)
-
-
-def matrix_to_rotvec(rotmats: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) -> (..., 3) axis-angle (angle in [0, pi])."""
-    R = np.asarray(rotmats, float)
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
-
-
-def rotvec_to_matrix(rotvecs: np.ndarray) -> np.ndarray:
-    """(..., 3) axis-angle -> (..., 3, 3)."""
-    r = np.asarray(rotvecs, float)
-    return Rotation.from_rotvec(r.reshape(-1, 3)).as_matrix().reshape(r.shape[:-1] + (3, 3))
-
-
 # --------------------------------------------------------------------------- kinematics
 
 
@@ -102,9 +68,7 @@ class KeypointBuffers:
 
     joint_set: str
     parents: np.ndarray  # (J,) kinematic parent, -1 for the root
-    level_joints: tuple[torch.Tensor, ...]  # per tree level: joint indices
-    level_parents: tuple[torch.Tensor, ...]  # per level: parent's position in the level above
-    level_order: torch.Tensor  # (J,) position of each joint in the level-concatenated order
+    tree: KinematicTree  # the model's, for body_model.forward_kinematics
     J_template: torch.Tensor  # (J, 3)
     J_shapedirs: torch.Tensor  # (J, 3, B)
     A: torch.Tensor | None  # (T, J) blended skinning weights; None: targets = the 24 joints
@@ -162,17 +126,6 @@ def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
     if key in _BUFFER_CACHE:
         return _BUFFER_CACHE[key]
     parents = model.parents
-    levels = model.levels
-    level_joints, level_parents = [], []
-    for d, lv in enumerate(levels):
-        level_joints.append(torch.as_tensor(lv, dtype=torch.long))
-        if d > 0:
-            prev = list(levels[d - 1])
-            level_parents.append(torch.as_tensor([prev.index(parents[j]) for j in lv]))
-        else:
-            level_parents.append(torch.zeros(0, dtype=torch.long))
-    order = np.concatenate(levels)
-    level_order = torch.as_tensor(np.argsort(order), dtype=torch.long)
     reg = keypoint_regressor(model, js.name)
     with torch.no_grad():
         A = D0 = Dbeta = E = rowsum = None
@@ -200,9 +153,7 @@ def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
     buf = KeypointBuffers(
         joint_set=js.name,
         parents=np.asarray(parents),
-        level_joints=tuple(level_joints),
-        level_parents=tuple(level_parents),
-        level_order=level_order,
+        tree=model.tree,
         J_template=model.J_template.detach().clone(),
         J_shapedirs=model.J_shapedirs.detach().clone(),
         A=A,
@@ -229,32 +180,6 @@ def rest_joints(betas: torch.Tensor, buf: KeypointBuffers) -> torch.Tensor:
     return buf.J_template + torch.einsum("jcb,nb->njc", buf.J_shapedirs, betas)
 
 
-def forward_kinematics(
-    rotmats: torch.Tensor, rest: torch.Tensor, buf: KeypointBuffers
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Forward kinematics composed one tree level at a time (9 levels for SMPL).
-
-    Args:
-        rotmats: (N, 24, 3, 3) local rotations; rest: (N, 24, 3) rest joints.
-    Returns:
-        glob_rot (N, 24, 3, 3) and posed joints (N, 24, 3), metres, no translation.
-    """
-    rots, poss = [], []
-    for d, (lv, par) in enumerate(zip(buf.level_joints, buf.level_parents, strict=True)):
-        R = rotmats[:, lv]
-        if d == 0:
-            rots.append(R)
-            poss.append(rest[:, lv])
-            continue
-        Rp = rots[-1][:, par]
-        offset = rest[:, lv] - rest[:, buf.level_joints[d - 1][par]]
-        rots.append(Rp @ R)
-        poss.append(poss[-1][:, par] + (Rp @ offset[..., None])[..., 0])
-    glob = torch.cat(rots, 1)[:, buf.level_order]
-    posed = torch.cat(poss, 1)[:, buf.level_order]
-    return glob, posed
-
-
 def predict_targets(
     rotmats: torch.Tensor,
     betas: torch.Tensor,
@@ -274,7 +199,7 @@ def predict_targets(
         targets (N, T, 3) in ``buf.joint_set`` and joints (N, 24, 3), metres, world.
     """
     rest = rest_joints(betas, buf)
-    glob, posed = forward_kinematics(rotmats, rest, buf)
+    glob, posed = forward_kinematics(rotmats, rest, buf.tree)
     joints = posed + transl[:, None]
     if buf.A is None:
         if offsets is None:

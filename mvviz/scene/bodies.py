@@ -16,8 +16,9 @@ import numpy as np
 import torch
 import viser.transforms as vtf
 
-from pipeline.body_model import BodyModel, axis_angle_to_matrix, rigid_chain
+from pipeline.body_model import BodyModel, rigid_chain
 from pipeline.results import PipelineResults
+from pipeline.rotations import axis_angle_to_matrix
 from pipeline.scene import Scene
 
 MM = 1e-3  # millimetres -> metres
@@ -73,7 +74,7 @@ def skinned_bodies(
         # 1. forward kinematics of every row
         rot = axis_angle_to_matrix(torch.as_tensor(pose, dtype=torch.float32).reshape(-1, 24, 3))
         rest = model.rest_joints(betas_tensor(betas))
-        posed, T = rigid_chain(rot, rest, model.parents, model.levels)
+        posed, T = rigid_chain(rot, rest, model.tree)
         glob_rot = T[..., :3, :3].numpy().astype(np.float64)
         pos = posed.numpy() + transl_mm[:, None, :] * MM
         # 2. bind pose per body, from its first row

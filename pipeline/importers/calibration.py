@@ -36,10 +36,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from pipeline.cameras import Camera, CameraRig, make_camera
 from pipeline.files import SceneFormatError, atomic_write
+from pipeline.rotations import matrix_to_rotvec, rotvec_to_matrix
 from pipeline.schema import check_numbers
 
 MM_PER_M = 1000.0
@@ -147,16 +147,6 @@ def nearest_rotation(R: np.ndarray) -> np.ndarray:
     U, _, Vt = np.linalg.svd(R)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
     return U @ D @ Vt
-
-
-def rotvec_to_matrix(rvec: np.ndarray) -> np.ndarray:
-    """(3,) Rodrigues / axis-angle vector -> (3, 3) rotation."""
-    return Rotation.from_rotvec(np.asarray(rvec, float).reshape(3)).as_matrix()
-
-
-def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation -> (3,) Rodrigues vector; accurate near pi, unlike ``cv2.Rodrigues``."""
-    return Rotation.from_matrix(np.asarray(R, float)).as_rotvec()
 
 
 def _build_camera(

@@ -27,10 +27,11 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from pipeline.body_model import BodyModel, axis_angle_to_matrix, rigid_chain
+from pipeline.body_model import BodyModel, rigid_chain
 from pipeline.cameras import Camera
 from pipeline.joint_sets import _HAND_POINTS, COCO17, SMPL24, JointSet
 from pipeline.restore import fit_weak_perspective
+from pipeline.rotations import axis_angle_to_matrix
 
 
 @dataclass(frozen=True)
@@ -214,7 +215,7 @@ def flip_limb_depths(
         rows = np.flatnonzero(flip[:, li])
         if rows.size == 0:
             continue
-        pos, T = rigid_chain(torch.as_tensor(local[rows]), rest_t[rows], parents, model.levels)
+        pos, T = rigid_chain(torch.as_tensor(local[rows]), rest_t[rows], model.tree)
         pos, G = pos.numpy(), T[..., :3, :3].numpy()
         bone = pos[:, b] - pos[:, a]
         bone /= np.linalg.norm(bone, axis=-1, keepdims=True)

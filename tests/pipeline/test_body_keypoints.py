@@ -17,8 +17,9 @@ from pipeline.body_keypoints import (
     layout_keypoints,
     layout_ties,
 )
-from pipeline.body_model import BodyModel, axis_angle_to_matrix, load_body_model, rigid_chain
+from pipeline.body_model import BodyModel, load_body_model, rigid_chain
 from pipeline.joint_sets import JOINT_SETS, SMPL24, get_joint_set
+from pipeline.rotations import axis_angle_to_matrix
 from pipeline.scene import load_scene
 from pipeline.smpl_fit import FitParams, fit_sequence
 from pipeline.smpl_kinematics import keypoint_buffers, predict_targets
@@ -107,9 +108,8 @@ def test_landmarks_follow_their_segment_when_posed(model):
     with torch.no_grad():
         out = model(pose)
         _, T = rigid_chain(
-            axis_angle_to_matrix(pose), model.rest_joints(torch.zeros(1, 10)),
-            model.parents, model.levels,
-        )  # fmt: skip
+            axis_angle_to_matrix(pose), model.rest_joints(torch.zeros(1, 10)), model.tree
+        )
     v_rest = model.v_template.double().numpy()
     v_posed = out.vertices[0].double().numpy()
     J_rest = model.J_template.double().numpy()

@@ -13,12 +13,12 @@ import torch
 from pipeline.body_model import (
     DEFAULT_MODEL_PATH,
     BodyModel,
-    axis_angle_to_matrix,
     load_body_model,
     load_body_model_arrays,
 )
 from pipeline.files import SceneFormatError
 from pipeline.joint_sets import SMPL24
+from pipeline.rotations import axis_angle_to_matrix
 
 torch.manual_seed(0)
 

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body_model import BodyModel, axis_angle_to_matrix, load_body_model
+from pipeline.body_model import BodyModel, load_body_model
 from pipeline.evaluate import ground_truth_slots, gt_per_frame, stage_metrics
 from pipeline.joint_sets import SMPL24, get_joint_set
+from pipeline.rotations import axis_angle_to_matrix
 from pipeline.scene import load_scene
 from pipeline.smpl_fit import FitParams, SmplFit, fit_sequence, plausibility, target_slots
 from pipeline.smpl_kinematics import (

@@ -7,7 +7,8 @@ import numpy as np
 import torch
 
 from mvviz.export.rerun.layout import MM_TO_M
-from pipeline.body_model import BodyModel, axis_angle_to_matrix, rigid_chain
+from pipeline.body_model import BodyModel, rigid_chain
+from pipeline.rotations import axis_angle_to_matrix
 
 
 def decimate_mesh(
@@ -80,7 +81,7 @@ def skin_subset(
     v_shaped = bm.v_template[idx] + torch.einsum("vcb,nb->nvc", bm.shapedirs[idx], b)
     rest = bm.rest_joints(b)
     # 2. forward kinematics; joint transforms relative to the rest pose
-    posed, T = rigid_chain(axis_angle_to_matrix(pose), rest, bm.parents, bm.levels)
+    posed, T = rigid_chain(axis_angle_to_matrix(pose), rest, bm.tree)
     rel_t = posed - (T[..., :3, :3] @ rest[..., None])[..., 0]  # (B, J, 3)
     # 3. blend per-vertex transforms by the skinning weights
     w = bm.weights[idx]
