@@ -243,6 +243,51 @@ def default_training_poses(
 # --------------------------------------------------------------------------- training
 
 
+def _training_data(poses, seed: int) -> tuple[np.ndarray, str]:
+    """(N, 24, 3) training poses and a description, from what :func:`train_prior` takes."""
+    if poses is None:
+        data, source = default_training_poses(seed=seed), "synthetic library + perturbations"
+    elif isinstance(poses, (str, os.PathLike)):
+        data, source = load_pose_data(poses), str(poses)
+    elif isinstance(poses, Sequence) and poses and isinstance(poses[0], (str, os.PathLike)):
+        data = np.concatenate([load_pose_data(p) for p in poses])
+        source = ", ".join(str(p) for p in poses)
+    else:
+        data, source = _as_poses(poses).reshape(-1, 72), "array"
+    return _as_poses(data), source
+
+
+def _train_epochs(
+    net: PoseVAE, R_train: torch.Tensor, config: PriorConfig, gen: torch.Generator, progress
+) -> tuple[float, float]:
+    """Adam with cosine decay over ``config.epochs``; the last epoch's summed
+    reconstruction and KL losses (times the batch sizes)."""
+    batch_size, lr = config.batch_size, config.lr
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    steps_per_epoch = max(1, int(np.ceil(len(R_train) / batch_size)))
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(
+        opt, config.epochs * steps_per_epoch, lr * 0.05
+    )
+    bar = StageBar("train pose prior", config.epochs, progress, unit="epoch")
+    rec_sum = kl_sum = 0.0
+    for _epoch in range(config.epochs):
+        perm = torch.randperm(len(R_train), generator=gen)
+        rec_sum = kl_sum = 0.0
+        for s in range(steps_per_epoch):
+            batch = R_train[perm[s * batch_size : (s + 1) * batch_size]]
+            loss, rec, kl = vae_loss(net, batch, config.alpha, gen)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            rec_sum += float(rec.detach()) * len(batch)
+            kl_sum += float(kl.detach()) * len(batch)
+        bar.update()
+        bar.set_postfix(rec=f"{rec_sum / len(R_train):.4f}", kl=f"{kl_sum / len(R_train):.2f}")
+    bar.close()
+    return rec_sum, kl_sum
+
+
 def train_prior(
     poses: np.ndarray | str | os.PathLike | Sequence[str | os.PathLike] | None = None,
     *,
@@ -273,16 +318,7 @@ def train_prior(
         (reconstruction, KL) and the wall time.
     """
     t0 = time.perf_counter()
-    if poses is None:
-        data, source = default_training_poses(seed=seed), "synthetic library + perturbations"
-    elif isinstance(poses, (str, os.PathLike)):
-        data, source = load_pose_data(poses), str(poses)
-    elif isinstance(poses, Sequence) and poses and isinstance(poses[0], (str, os.PathLike)):
-        data = np.concatenate([load_pose_data(p) for p in poses])
-        source = ", ".join(str(p) for p in poses)
-    else:
-        data, source = _as_poses(poses).reshape(-1, 72), "array"
-    data = _as_poses(data)
+    data, source = _training_data(poses, seed)
     config = PriorConfig(
         hidden=hidden, latent=latent, alpha=alpha, epochs=epochs, batch_size=batch_size,
         lr=lr, seed=seed,
@@ -299,26 +335,7 @@ def train_prior(
         R = torch.as_tensor(rotvec_to_matrix(data[:, list(BODY_JOINTS)]), dtype=torch.float32)
         R_hold, R_train = R[order[:n_hold]], R[order[n_hold:]]
         net = PoseVAE(hidden, latent)
-        opt = torch.optim.Adam(net.parameters(), lr=lr)
-        steps_per_epoch = max(1, int(np.ceil(len(R_train) / batch_size)))
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs * steps_per_epoch, lr * 0.05)
-        bar = StageBar("train pose prior", epochs, progress, unit="epoch")
-        rec_sum = kl_sum = 0.0
-        for _epoch in range(epochs):
-            perm = torch.randperm(len(R_train), generator=gen)
-            rec_sum = kl_sum = 0.0
-            for s in range(steps_per_epoch):
-                batch = R_train[perm[s * batch_size : (s + 1) * batch_size]]
-                loss, rec, kl = vae_loss(net, batch, alpha, gen)
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                opt.step()
-                sched.step()
-                rec_sum += float(rec.detach()) * len(batch)
-                kl_sum += float(kl.detach()) * len(batch)
-            bar.update()
-            bar.set_postfix(rec=f"{rec_sum / len(R_train):.4f}", kl=f"{kl_sum / len(R_train):.2f}")
-        bar.close()
+        rec_sum, kl_sum = _train_epochs(net, R_train, config, gen, progress)
         net.eval()
         with torch.no_grad():
             hold = (

@@ -644,16 +644,33 @@ def _fit(
     progress: Progress,
 ) -> tuple[SmplFit, SmplFit | None]:
     prob = _pack(x, None if weights is None else np.asarray(weights, float), buf.fitted)
-    N = len(prob.track)
     nb = buf.J_shapedirs.shape[-1]
     t0 = time.perf_counter()
-    if N == 0:
+    if len(prob.track) == 0:
         empty = _make_fit(
             prob, buf, model, torch.zeros(0, NUM_JOINTS, 3, 3), torch.zeros(prob.K, nb),
             torch.zeros(0, 3), seconds=0.0, stage="smpl",
         )  # fmt: skip
         return empty, (None if prior is None else dataclasses.replace(empty, stage="smpl_vae"))
-    # Phase 0: closed-form root, translation, limbs and betas.
+    R1, betas, transl, off1 = _step_one(prob, buf, params, progress)
+    fit1 = _make_fit(
+        prob, buf, model, R1, betas, transl, seconds=time.perf_counter() - t0, stage="smpl",
+        offsets=off1,
+    )  # fmt: skip
+    if prior is None:
+        return fit1, None
+    corr = _prior_correction(prob, buf, prior, params, R1, betas, transl, off1, progress)
+    fit2 = _make_fit(
+        prob, buf, model, corr.rotmats, betas, corr.transl, seconds=corr.seconds,
+        stage="smpl_vae", offsets=off1,
+    )  # fmt: skip
+    return fit1, fit2
+
+
+def _step_one(prob: _Problem, buf: KeypointBuffers, params: FitParams, progress: Progress):
+    """Phase 0 (closed-form root, translation, limbs and betas), then step I by Adam.
+    Returns rotations (N, 24, 3, 3), betas (K, nb), translations (N, 3) and the learnt
+    keypoint offsets (K, T, 3) or None, all detached."""
     R0, t_init = initial_alignment(prob, buf, min_points=params.min_torso_points)
     rotmats0 = torch.as_tensor(analytic_pose(prob, buf, R0), dtype=torch.float32)
     rot6d = matrix_to_rot6d(rotmats0).requires_grad_(True)
@@ -661,8 +678,6 @@ def _fit(
     betas = torch.as_tensor(initial_betas(prob, buf), dtype=torch.float32).requires_grad_(True)
     w_joint = params.w_pose + params.w_free * buf.free_weight  # (24,)
     w_joint[0] = 0.0
-
-    # Phase 1: step I.
     offsets = torch.zeros(prob.K, buf.num_targets, 3, requires_grad=True)
     use_offsets = params.w_offset > 0
     # (T, 1): the targets whose offsets this fit learns (the others stay zero)
@@ -682,24 +697,17 @@ def _fit(
     groups = [([rot6d], params.lr_rot), ([transl], params.lr_transl_m), ([betas], params.lr_betas)]
     if use_offsets:
         groups.append(([offsets], params.lr_offset_m))
-    adam_cosine(
-        groups,
-        loss_step1,
-        params.iters,
-        progress=progress,
-        desc="SMPL fit (step I)",
-    )
+    adam_cosine(groups, loss_step1, params.iters, progress=progress, desc="SMPL fit (step I)")
     with torch.no_grad():
         R1 = rot6d_to_matrix(rot6d)
-    t1 = time.perf_counter()
     off1 = (offsets * learnt).detach() if use_offsets else None
-    fit1 = _make_fit(
-        prob, buf, model, R1, betas.detach(), transl.detach(), seconds=t1 - t0, stage="smpl",
-        offsets=off1,
-    )  # fmt: skip
-    if prior is None:
-        return fit1, None
-    betas_rows = betas.detach()[prob.track_rows]
+    return R1, betas.detach(), transl.detach(), off1
+
+
+def _prior_correction(prob, buf, prior, params, R1, betas, transl, off1, progress):
+    """Step I corrected by the VAE pose prior (:func:`correct_with_prior`), the data
+    term the same as step I's with its betas and offsets held."""
+    betas_rows = betas[prob.track_rows]
     off_rows = None if off1 is None else off1[prob.track_rows]
     observed = prob.weight > 0
 
@@ -711,15 +719,10 @@ def _fit(
         err = (kp - prob.target).norm(dim=-1) * observed
         return err.sum(1) / observed.sum(1).clamp_min(1)
 
-    corr = correct_with_prior(
-        prior, R1, transl.detach(), objective=objective, row_residual=row_residual,
+    return correct_with_prior(
+        prior, R1, transl, objective=objective, row_residual=row_residual,
         free_weight=buf.free_weight, params=params, progress=progress,
     )  # fmt: skip
-    fit2 = _make_fit(
-        prob, buf, model, corr.rotmats, betas.detach(), corr.transl, seconds=corr.seconds,
-        stage="smpl_vae", offsets=off1,
-    )  # fmt: skip
-    return fit1, fit2
 
 
 # --------------------------------------------------------------------------- evaluation
