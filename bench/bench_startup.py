@@ -4,12 +4,14 @@ Starts ``python app.py SCENE --port P`` as a user would (cached pipeline results
 decoded videos from an earlier start; one uncounted warm-up start makes sure), and
 measures from the command:
 
+- to the first HTTP answer on the port (polled every 20 ms): a browser gets a page;
 - to the URL line ("ready in ... s: http://..."): the server is up with the scene;
 - with Debian's chromium (playwright): to a page showing the scene, i.e. the viewer
   has loaded, the frame label has arrived and the 3D canvas is not blank.
 
-Baselines measured in the same run: ``python -c "import mvviz.cli.view"``, the imports
-alone (torch, viser, scipy, matplotlib), the floor any start pays; and a bare viser
+Baselines measured in the same run: ``python -c "import mvviz.app"``, the viewer's
+imports alone (torch, viser, scipy, matplotlib), which ``mvviz view`` pays after its
+server answers and before the scene is shown; and a bare viser
 server showing a grid and a box, opened the same way, the floor of the browser side (loading
 viser's client and software-rendering WebGL in headless chromium). Prints medians of
 --runs starts and the differences to the floors.
@@ -25,7 +27,9 @@ import os
 import statistics
 import subprocess
 import sys
+import threading
 import time
+import urllib.request
 from pathlib import Path
 
 import cv2
@@ -40,7 +44,7 @@ from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium  # noqa
 
 def time_imports() -> float:
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import mvviz.cli.view"], check=True, cwd=REPO)
+    subprocess.run([sys.executable, "-c", "import mvviz.app"], check=True, cwd=REPO)
     return time.perf_counter() - t0
 
 
@@ -60,18 +64,35 @@ time.sleep(600)
 """
 
 
+def poll_http(url: str, t0: float, out: dict[str, float], stop: threading.Event) -> None:
+    """Set ``out["http_s"]`` to the seconds since ``t0`` of the first answer from ``url``."""
+    while not stop.is_set():
+        try:
+            with urllib.request.urlopen(url, timeout=1.0) as r:
+                r.read(1)
+            out["http_s"] = time.perf_counter() - t0
+            return
+        except OSError:
+            time.sleep(0.02)
+
+
 def time_start(scene: Path | None, browser) -> dict[str, float]:
-    """Seconds from the command to the URL line and (with ``browser``) to a drawn page.
-    ``scene`` None: the bare viser server instead of the app."""
+    """Seconds from the command to the first HTTP answer, the URL line and (with
+    ``browser``) a drawn page. ``scene`` None: the bare viser server instead of the app."""
     port = free_port()
+    out: dict[str, float] = {}
+    stop = threading.Event()
     t0 = time.perf_counter()
+    poller = threading.Thread(
+        target=poll_http, args=(f"http://127.0.0.1:{port}", t0, out, stop), daemon=True
+    )
+    poller.start()
     cmd = [sys.executable, "app.py", str(scene), "--port", str(port)]
     if scene is None:
         cmd = [sys.executable, "-c", BARE_VISER, str(port)]
     proc = subprocess.Popen(
         cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
     )
-    out: dict[str, float] = {}
     try:
         for line in proc.stdout:
             if line.startswith("ready in"):
@@ -93,6 +114,8 @@ def time_start(scene: Path | None, browser) -> dict[str, float]:
             out["page_s"] = time.perf_counter() - t0
             page.close()
     finally:
+        poller.join(timeout=10)
+        stop.set()
         proc.terminate()
         proc.wait(timeout=30)
     return out
@@ -128,8 +151,12 @@ def main(argv: list[str] | None = None) -> dict:
             pw_ctx.stop()
     out = {"scene": args.scene.name, "runs": args.runs, "load_per_cpu": load}
     out["imports_s"] = statistics.median(imports)
-    print(f"imports alone (python -c 'import mvviz.cli.view'): {out['imports_s']:.2f} s")
-    for key, label in (("url_s", "to the URL line"), ("page_s", "to a drawn page")):
+    print(f"the viewer's imports alone (python -c 'import mvviz.app'): {out['imports_s']:.2f} s")
+    for key, label in (
+        ("http_s", "to the first HTTP answer"),
+        ("url_s", "to the URL line"),
+        ("page_s", "to a drawn page"),
+    ):
         values = [s[key] for s in starts if key in s]
         if values:
             out[key] = statistics.median(values)

@@ -18,7 +18,7 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 import viser
 
+from mvviz.analysis.failures import Failure
 from mvviz.analysis.filter_runs import FilterRun
 from mvviz.panels.contract import Panel, StateCallback
 from mvviz.panels.export_panel import make_export_panel
@@ -67,7 +68,10 @@ class ViewerApp:
         frames: FrameStore | None = None,
         model: BodyModel | None = None,
         verbose: bool = False,
+        server: viser.ViserServer | None = None,
     ) -> None:
+        """``server``: an already running server to build on (``host``, ``port`` and
+        ``verbose`` then unused; ``mvviz view`` starts it before the heavy imports)."""
         self.state = state
         self.model = model  # the body model of the run (None: the shipped one)
         self.frames = frames
@@ -83,7 +87,9 @@ class ViewerApp:
         self.render_errors: list[str] = []
         self._render_lock = threading.Lock()
 
-        server = self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
+        if server is None:
+            server = viser.ViserServer(host=host, port=port, verbose=verbose)
+        self.server = server
         server.gui.configure_theme(control_width="medium", show_share_button=False)
         # Dock both panels so the 3D canvas is the free space between them, and the
         # initial camera's look-at point lands in the middle of what is visible.
@@ -188,6 +194,10 @@ class ViewerApp:
             client.camera.position = target + offset  # moves look_at along with it
             client.camera.look_at = target
 
+    def mark_failures(self, failures: Sequence[Failure], criteria: Sequence[str]) -> None:
+        """Draw ``failures`` on the timeline's strip (the Failures panel calls it)."""
+        self.timeline.show_failures(failures, criteria)
+
     def redraw(self, reason: str = "redraw") -> None:
         self._on_change(reason)
 
@@ -275,6 +285,10 @@ class ViewerApp:
         self.server.initial_camera.look_at = tuple(c)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
         self.server.initial_camera.fov = np.deg2rad(50.0)
+        for client in self.server.get_clients().values():  # a page opened while loading
+            client.camera.up_direction = (0.0, 0.0, 1.0)
+            client.camera.position = tuple(pos)  # moves look_at along with it
+            client.camera.look_at = tuple(c)
 
     def _on_joint_click(self, track: int, joint: int) -> None:
         if 0 <= joint < self.state.data.joint_set.num_joints:

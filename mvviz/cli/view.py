@@ -1,16 +1,23 @@
-"""``mvviz view``: the interactive 3D debugger in the browser (see mvviz/app.py)."""
+"""``mvviz view``: the interactive 3D debugger in the browser (see mvviz/app.py).
+
+The viser server starts first, with a "loading" line, so a browser gets a page within
+~2 s of the command (``bench/bench_startup.py``); the viewer (torch, scipy, trimesh,
+OpenCV through the pipeline) is imported and built on that server after it.
+"""
 
 from __future__ import annotations
 
 import argparse
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from mvviz.app import ViewerApp
-from mvviz.scene.images import FrameStore
-from mvviz.state import ViewerState
+import viser
+
 from pipeline.files import CACHE_DIR
-from pipeline.results import run_or_load
+
+if TYPE_CHECKING:
+    from mvviz.app import ViewerApp
 
 REPO_ROOT = Path(__file__).resolve().parents[2]  # mvviz/cli/view.py -> the repository
 DEFAULT_SCENE = REPO_ROOT / "sample_data" / "shelf_synth"
@@ -68,10 +75,37 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
-    """Load, run or load results, start the server; returns the running app."""
-    from mvviz.cli.run import prepare  # noqa: PLC0415  (shares --config/--set)
-
+    """Start the server, load the scene, run or load results, build the viewer on the
+    server; returns the running app (the server stops if any of it fails)."""
     t0 = time.perf_counter()
+    server = viser.ViserServer(host=args.host, port=args.port, verbose=False)
+    loading = server.gui.add_markdown(f"**Loading** `{Path(args.scene).name}` …")
+    print(f"serving http://{args.host}:{server.get_port()} (loading the scene)", flush=True)
+    try:
+        app = _build_viewer(args, server, loading, progress=progress)
+    except BaseException:
+        server.stop()
+        raise
+    print(f"ready in {time.perf_counter() - t0:.1f} s: {app.url}")
+    if app.frames.sources and not app.frames.ready:
+        print("(decoding videos in the background; frames appear as they are ready)")
+    return app
+
+
+def _build_viewer(
+    args: argparse.Namespace,
+    server: viser.ViserServer,
+    loading: viser.GuiMarkdownHandle,
+    *,
+    progress: bool,
+) -> ViewerApp:
+    # The heavy imports (torch, scipy, trimesh, OpenCV) come after the server is up.
+    from mvviz.app import ViewerApp  # noqa: PLC0415
+    from mvviz.cli.run import prepare  # noqa: PLC0415  (shares --config/--set)
+    from mvviz.scene.images import FrameStore  # noqa: PLC0415
+    from mvviz.state import ViewerState  # noqa: PLC0415
+    from pipeline.results import run_or_load  # noqa: PLC0415
+
     scene, config, model = prepare(args)
     print(f"scene {scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames")
     results, cached = run_or_load(
@@ -80,7 +114,8 @@ def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
     print(f"{'cached' if cached else 'computed'} results: {results.num_tracks} tracks")
     frames = FrameStore(scene, cache_dir=scene.root / CACHE_DIR / "frames").start()
     state = ViewerState.create(scene, results, model)
-    app = ViewerApp(state, host=args.host, port=args.port, frames=frames, model=model)
+    loading.remove()
+    app = ViewerApp(state, server=server, frames=frames, model=model)
     app.wait_idle(30)
     if app.server.get_port() != args.port:  # viser moves to the next free port
         print(f"port {args.port} is taken: serving on port {app.server.get_port()} instead")
@@ -89,12 +124,9 @@ def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
         # rerun (~0.3 s to import) loads only with --rerun
         from mvviz.export.rerun_live import LiveRerun, RerunWebServer  # noqa: PLC0415
 
-        server = RerunWebServer(host=args.host, web_port=args.rerun_port)
-        app.rerun_live = LiveRerun(app, server=server, save=args.rerun_save)
-        print(f"rerun web viewer: {server.url}")
-    print(f"ready in {time.perf_counter() - t0:.1f} s: {app.url}")
-    if frames.sources and not frames.ready:
-        print("(decoding videos in the background; frames appear as they are ready)")
+        rerun_server = RerunWebServer(host=args.host, web_port=args.rerun_port)
+        app.rerun_live = LiveRerun(app, server=rerun_server, save=args.rerun_save)
+        print(f"rerun web viewer: {rerun_server.url}")
     return app
 
 

@@ -14,12 +14,13 @@ through the host too (``complete_results``, ``filter_runs``).
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import numpy as np
 import viser
 
+from mvviz.analysis.failures import Failure
 from mvviz.analysis.filter_runs import FilterRun
 from mvviz.scene.geometry import ViewerData
 from mvviz.scene.images import FrameStore
@@ -107,6 +108,11 @@ class PanelHost(Protocol):
 
     def focus(self, target: np.ndarray, offset: np.ndarray | None = None) -> None:
         """Point every client's camera at ``target`` (3,) world metres."""
+        ...
+
+    def mark_failures(self, failures: Sequence[Failure], criteria: Sequence[str]) -> None:
+        """Draw ``failures`` (the entries of every criterion in ``criteria``, for the
+        shown data) on the timeline, one lane per criterion."""
         ...
 
     def redraw(self, reason: str = "redraw") -> None:

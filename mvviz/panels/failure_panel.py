@@ -5,7 +5,8 @@ picks what to rank; the top :data:`MAX_ENTRIES` of :func:`~mvviz.analysis.failur
 (one entry per problem and span of frames) become buttons labelled with the span and the
 track (``"1. f 140–172 · track 2"``), each with its whole text on a wrapping line below
 (joint, camera, measure, frames). An overview line counts the entries of every
-criterion, and the summary those of each kind in the one shown. A click calls
+criterion, and the summary those of each kind in the one shown; every criterion's
+entries go to the timeline's strip (``host.mark_failures``). A click calls
 ``host.jump_to`` (timeline, track, joint, and the camera panel on a camera that sees the
 person: :func:`~mvviz.analysis.failures.seeing_view`) and, with "Look at it" on,
 ``host.focus`` on the joint or the person. Lists are computed on a worker thread,
@@ -355,11 +356,13 @@ class FailurePanel:
             self.kinds = kind_counts(found)
             self.selected_failure = None
             self._show_failures(criterion, ms)
-        counts = {c: len(self._all(data, c)) for c in self.criteria}  # the others, once
+        every = {c: self._all(data, c) for c in self.criteria}  # the others, once
         with self._lock:
             if data is self._data:
-                self.counts = counts
+                self.counts = {c: len(found) for c, found in every.items()}
                 self._show_overview()
+                marks = [f for found in every.values() for f in found]
+                self.host.mark_failures(marks, self.criteria)  # on the timeline
 
     def _all(self, data: ViewerData, criterion: str) -> list[Failure]:
         """Every entry of ``criterion`` for ``data`` (cached)."""

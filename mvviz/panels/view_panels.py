@@ -11,11 +11,19 @@ renders (inside one ``server.atomic()``) and :meth:`SelectionPanel.select`,
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import viser
 
+from mvviz.analysis.failures import Failure, seeing_view
+from mvviz.analysis.timeline_strip import (
+    draw_failure_strip,
+    draw_playhead,
+    legend_html,
+    next_failure,
+)
 from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import FRUSTUM_WIDTHS, MESH_DETAILS, MESH_STYLES
 from mvviz.scene.images import blank_frame
@@ -23,6 +31,18 @@ from mvviz.state import PANEL_WIDTHS, ViewerState
 
 SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
 STEP_BACK, STEP_FORWARD = "◀ −1", "+1 ▶"
+PREV_FAILURE, NEXT_FAILURE = "◀ failure", "failure ▶"
+FINDING_FAILURES = '<div style="font-size:0.75em">finding failures…</div>'
+# The strip's legend names the criteria as the Failures tab's overview does.
+CRITERION_NAMES = {
+    "reprojection": "reproj.",
+    "mpjpe": "MPJPE",
+    "association": "assoc.",
+    "id": "ID",
+    "kalman": "Kalman",
+    "smpl": "SMPL",
+    "labels": "labels",
+}
 PANEL_JPEG_QUALITY = 65
 NO_TRACK = "none"
 
@@ -71,6 +91,10 @@ def frame_label(state: ViewerState, frame: int) -> str:
 class TimelineHandles:
     folder: viser.GuiFolderHandle
     slider: viser.GuiSliderHandle
+    playhead: viser.GuiImageHandle  # the current frame, over the failure strip
+    strip: viser.GuiImageHandle  # frame ticks and the failure marks (draw_failure_strip)
+    legend: viser.GuiHtmlHandle  # the strip's colours, entries per criterion
+    jump: viser.GuiButtonGroupHandle  # PREV_FAILURE / NEXT_FAILURE
     play: viser.GuiButtonHandle
     step: viser.GuiButtonGroupHandle  # STEP_BACK / STEP_FORWARD
     speed: viser.GuiDropdownHandle
@@ -80,11 +104,18 @@ class TimelineHandles:
 
 
 class TimelinePanel:
-    """Frame slider, play / step / speed / loop, the frame label and the render time."""
+    """Frame slider; under it, as wide as the panel, the playhead and the failure strip
+    (frame ticks, a mark per failure span in its criterion's colour) with its legend and
+    previous / next failure buttons; play / step / speed / loop, the frame label and the
+    render time. ``failures`` are the marks drawn (:meth:`show_failures`)."""
 
     def __init__(self, host: PanelHost) -> None:
         self.host = host
         self.gui = make_timeline_handles(host.server, host.state)
+        self.failures: tuple[Failure, ...] = ()
+        self.criteria: tuple[str, ...] = ()
+        self._playhead_frame = 0
+        self._strip_frames = host.state.data.num_frames
         self._bind()
 
     def set_frame(self, frame: int) -> None:
@@ -94,6 +125,36 @@ class TimelinePanel:
 
     def show_frame(self, state: ViewerState) -> None:
         self.gui.label.content = frame_label(state, state.frame)
+        n = state.data.num_frames
+        if (state.frame, n) != (self._playhead_frame, self._strip_frames):
+            self.gui.playhead.image = draw_playhead(n, state.frame)
+            self._playhead_frame = state.frame
+            if n != self._strip_frames:  # other results of another length: marks redrawn
+                self._strip_frames = n
+                self.show_failures(self.failures, self.criteria)
+
+    def show_failures(self, failures: Sequence[Failure], criteria: Sequence[str]) -> None:
+        """Draw ``failures`` on the strip, one lane per criterion of ``criteria``."""
+        self.failures, self.criteria = tuple(failures), tuple(criteria)
+        n = self.host.state.data.num_frames
+        self.gui.strip.image = draw_failure_strip(n, self.failures, criteria=self.criteria)
+        counts = {c: sum(f.criterion == c for f in self.failures) for c in self.criteria}
+        self.gui.legend.content = legend_html(counts, CRITERION_NAMES)
+
+    def jump_to_failure(self, direction: int) -> Failure | None:
+        """Go to the start of the next (``direction`` > 0) or previous failure span after
+        the current frame, select its track and joint and show a camera that sees it."""
+        failure = next_failure(self.failures, self.host.state.frame, direction)
+        if failure is None:
+            return None
+        data = self.host.state.data
+        at_start = dataclasses.replace(failure, frame=failure.first)
+        view = None
+        if failure.track is None or 0 <= failure.track < data.num_tracks:
+            view = seeing_view(data.scene, data.results, at_start)
+        track = failure.track if failure.track is not None else None
+        self.host.jump_to(failure.first, track, failure.joint, view)
+        return failure
 
     def show_playing(self, playing: bool) -> None:
         self.gui.play.label = "Pause" if playing else "Play"
@@ -123,6 +184,10 @@ class TimelinePanel:
             delta = -1 if event.target.value == STEP_BACK else 1
             self.set_frame(int(g.slider.value) + delta)
 
+        @g.jump.on_click
+        def _(event) -> None:
+            self.jump_to_failure(-1 if event.target.value == PREV_FAILURE else 1)
+
         @g.speed.on_update
         def _(_) -> None:
             state.speed = float(g.speed.value.rstrip("x"))
@@ -136,13 +201,19 @@ def make_timeline_handles(server: viser.ViserServer, state: ViewerState) -> Time
     n = state.data.num_frames
     with server.gui.add_folder("Timeline") as folder:
         slider = server.gui.add_slider("Frame", min=0, max=max(n - 1, 0), step=1, initial_value=0)
+        playhead = server.gui.add_image(draw_playhead(n, 0), format="png")
+        strip = server.gui.add_image(draw_failure_strip(n, (), criteria=()), format="png")
+        legend = server.gui.add_html(FINDING_FAILURES)
+        jump = server.gui.add_button_group("Go to", (PREV_FAILURE, NEXT_FAILURE))
         label = server.gui.add_markdown(frame_label(state, 0))
         play = server.gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY)
         step = server.gui.add_button_group("Step", (STEP_BACK, STEP_FORWARD))
         speed = server.gui.add_dropdown("Speed", SPEEDS, initial_value="1x")
         loop = server.gui.add_checkbox("Loop", initial_value=state.loop)
         stats = server.gui.add_markdown("")
-    return TimelineHandles(folder, slider, play, step, speed, loop, label, stats)
+    return TimelineHandles(
+        folder, slider, playhead, strip, legend, jump, play, step, speed, loop, label, stats
+    )
 
 
 def make_timeline_panel(host: PanelHost) -> TimelinePanel:

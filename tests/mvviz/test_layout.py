@@ -3,9 +3,11 @@ a legend for the camera panel's lines; in process and in headless chromium."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
+from mvviz.analysis.timeline_strip import CRITERION_RGB
 from mvviz.panels.view_panels import CAMERA_LEGEND
 from mvviz.scene.geometry import SELECTED_CAMERA
 from mvviz.scene.layers import FRUSTUM_COLOR
@@ -67,3 +69,41 @@ def test_panels_are_tabs_in_the_page(browser, running_app, tmp_path):
     finally:
         page.close()
     assert np.isfinite(app.state.frame)
+
+
+def test_timeline_shows_the_failure_marks(browser, running_app, tmp_path):
+    """The strip under the frame slider, as wide as the panel, carries a mark per
+    failure in its criterion's colour; "failure ▶" goes to the next one."""
+    app = running_app
+    assert app.failure_panel.wait_idle(120)
+    timeline = app.timeline
+    assert timeline.failures and timeline.criteria == app.failure_panel.criteria
+    assert len(timeline.failures) == sum(app.failure_panel.counts.values())
+    page = open_viewer(browser, app.url)
+    try:
+        app.set_frame(0)
+        wait_rendered(app, page)
+        imgs = [page.locator("img").nth(i) for i in range(page.locator("img").count())]
+        boxes = [(im, im.bounding_box()) for im in imgs]
+        strips = [(im, b) for im, b in boxes if b and b["x"] > 1000 and 20 < b["height"] < 120]
+        assert strips, boxes
+        strip, box = max(strips, key=lambda ib: ib[1]["height"])
+        assert box["width"] > 280  # as wide as the panel, not the slider's 150 px
+        png = strip.screenshot()
+        bgr = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+        img = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        shown = {c for c in timeline.criteria if any(f.criterion == c for f in timeline.failures)}
+        for c in shown:  # each criterion with failures has pixels of its colour
+            near = np.abs(img.astype(int) - CRITERION_RGB[c]).max(-1) <= 40
+            assert near.sum() > 4, c
+        after = min(f.first for f in timeline.failures if f.first > 0)
+        page.get_by_role("button", name="failure ▶").click()
+        text = f"frame {after} / "
+        page.wait_for_function(
+            "t => document.body.textContent.includes(t)", arg=text, timeout=30_000
+        )
+        assert app.state.frame == after
+        page.screenshot(path=str(tmp_path / "timeline.png"))
+        print(f"\nscreenshot: {tmp_path / 'timeline.png'}")
+    finally:
+        page.close()

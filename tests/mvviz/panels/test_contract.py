@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import viser
 
+from mvviz.analysis.failures import Failure
 from mvviz.analysis.filter_runs import FilterRun
 from mvviz.panels.contract import PanelHost, StateCallback
 from mvviz.panels.export_panel import LAST, make_export_panel
@@ -72,6 +73,9 @@ class FakeHost:
 
     def focus(self, target: np.ndarray, offset: np.ndarray | None = None) -> None:
         self.calls.append(("focus", np.asarray(target)))
+
+    def mark_failures(self, failures, criteria) -> None:
+        self.calls.append(("mark_failures", (tuple(failures), tuple(criteria))))
 
     def redraw(self, reason: str = "redraw") -> None:
         self.calls.append(("redraw", reason))
@@ -133,6 +137,29 @@ def test_view_panels_change_the_state_and_ask_for_redraws(host):
         p.stop()
 
 
+def test_timeline_marks_failures_and_jumps_to_them(host):
+    timeline = make_timeline_panel(host)
+    assert timeline.jump_to_failure(+1) is None  # nothing to go to before they are found
+    n = host.state.data.num_frames
+    late = Failure("kalman", 2.0, frame=12, track=1, joint=0, view=None, first=10, last=14)
+    early = Failure("id", 3.0, frame=4, track=0, joint=None, view=None)
+    blank = timeline.gui.strip.image.copy()
+    timeline.show_failures([late, early], ("id", "kalman"))
+    assert timeline.gui.strip.image.shape[1] == blank.shape[1]
+    assert (timeline.gui.strip.image != 255).any(-1).sum() > (blank != 255).any(-1).sum()
+    assert "Kalman 1" in timeline.gui.legend.content
+    host.state.frame = 0
+    assert timeline.jump_to_failure(+1) is early
+    assert host.asked("jump_to")[-1][:3] == (4, 0, None)
+    assert timeline.jump_to_failure(+1) is late and host.state.frame == 10
+    assert timeline.jump_to_failure(+1) is None  # the last one: stays
+    assert timeline.jump_to_failure(-1) is early and host.state.frame == 4
+    host.state.frame = n - 1
+    timeline.show_frame(host.state.snapshot())  # the playhead follows the frame
+    assert timeline.gui.playhead.image[:, -20:].min() < 100
+    timeline.stop()
+
+
 def test_export_panel_writes_through_the_host(host, tmp_path):
     panel = make_export_panel(host)
     panel.export(fmt="trc", stage="raw", track="0", path=tmp_path / "t.trc", per_track=False)
@@ -150,6 +177,8 @@ def test_failure_panel_jumps_and_focuses_through_the_host(host):
     assert panel.wait_idle(60) and panel.failures
     failure = panel.click(0)
     assert host.asked("jump_to")[-1][:2] == (failure.frame, failure.track)
+    marks, criteria = host.asked("mark_failures")[-1]  # every criterion's, for the timeline
+    assert criteria == panel.criteria and len(marks) == sum(panel.counts.values())
     note = panel.flag("looks off", frame=3)
     assert panel.notes == [note] and panel.notes_file.is_file()
     panel.stop()
