@@ -25,6 +25,7 @@ from mvviz.analysis.timeline_strip import (
     next_failure,
 )
 from mvviz.panels.contract import PanelHost
+from mvviz.panels.failure_panel import CRITERION_SHORT
 from mvviz.scene.geometry import FRUSTUM_WIDTHS, MESH_DETAILS, MESH_STYLES
 from mvviz.scene.images import blank_frame
 from mvviz.state import PANEL_WIDTHS, ViewerState
@@ -33,16 +34,6 @@ SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
 STEP_BACK, STEP_FORWARD = "◀ −1", "+1 ▶"
 PREV_FAILURE, NEXT_FAILURE = "◀ failure", "failure ▶"
 FINDING_FAILURES = '<div style="font-size:0.75em">finding failures…</div>'
-# The strip's legend names the criteria as the Failures tab's overview does.
-CRITERION_NAMES = {
-    "reprojection": "reproj.",
-    "mpjpe": "MPJPE",
-    "association": "assoc.",
-    "id": "ID",
-    "kalman": "Kalman",
-    "smpl": "SMPL",
-    "labels": "labels",
-}
 PANEL_JPEG_QUALITY = 65
 NO_TRACK = "none"
 
@@ -139,7 +130,7 @@ class TimelinePanel:
         n = self.host.state.data.num_frames
         self.gui.strip.image = draw_failure_strip(n, self.failures, criteria=self.criteria)
         counts = {c: sum(f.criterion == c for f in self.failures) for c in self.criteria}
-        self.gui.legend.content = legend_html(counts, CRITERION_NAMES)
+        self.gui.legend.content = legend_html(counts, CRITERION_SHORT)  # the Failures tab's names
 
     def jump_to_failure(self, direction: int) -> Failure | None:
         """Go to the start of the next (``direction`` > 0) or previous failure span after
