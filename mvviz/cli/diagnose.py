@@ -13,9 +13,8 @@ Examples:
     mvviz diagnose SCENE --write-cameras out/cameras.json   # the refined calibration
     mvviz diagnose SCENE --fix-floor OUT_SCENE    # a copy re-expressed z-up, floor at 0
 
-Apply an offset the diagnosis found with `--set sync.offsets=...` is not built yet: the
-offsets are reported, the scene is not changed. Nothing is written unless asked, and
-what is written is written atomically.
+The offsets are reported, not applied (applying them, `--set sync.offsets=...`, is not
+built yet). Nothing is written unless asked, and what is written is written atomically.
 """
 
 from __future__ import annotations
