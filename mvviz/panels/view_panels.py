@@ -18,6 +18,7 @@ import numpy as np
 import viser
 
 from mvviz.analysis.failures import Failure, seeing_view
+from mvviz.analysis.joint_views import joint_views, joint_views_markdown
 from mvviz.analysis.timeline_strip import (
     draw_failure_strip,
     draw_playhead,
@@ -57,16 +58,8 @@ def selection_info(state: ViewerState) -> str:
     m = res.track_mahalanobis[k, f, j]
     if np.isfinite(m):
         lines.append(f"Mahalanobis {m:.2f}  ")
-    q = data.track_person[k, f]
-    if q >= 0:
-        views = []
-        for v, cam in enumerate(data.scene.rig.names):
-            e = res.person_reproj[q, j, v]
-            if not np.isfinite(e):
-                continue
-            mark = "used" if res.person_used[q, j, v] else "**outlier**"
-            views.append(f"{cam}: {e:.1f} px {mark}")
-        lines.append("reprojection: " + ("; ".join(views) if views else "no views"))
+    lines.append("")  # each view's part in this joint, and why a view was left out
+    lines.append(joint_views_markdown(joint_views(data, k, j, f)))
     return "\n".join(lines)
 
 
