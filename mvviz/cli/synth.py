@@ -13,13 +13,19 @@ from pipeline.cameras import load_cameras
 from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.smpl_kinematics import SUPPORTED_JOINT_SETS
 from pipeline.synth.detectors import DetectorNoise
+from pipeline.synth.rigs import dome_capture_radius, dome_rig, parse_dome_spec
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 
 RIGS_DIR = Path(__file__).resolve().parents[2] / "sample_data" / "rigs"  # from mvviz/cli/
 
 
 def load_rig(spec: str):
-    """``shelf`` / ``campus`` (the real rigs shipped in sample_data/rigs) or a cameras.json path."""
+    """``shelf`` / ``campus`` (the real rigs shipped in sample_data/rigs), ``dome:N`` /
+    ``dome:N:RADIUS_MM`` (N HD cameras on a Panoptic-like dome,
+    :func:`pipeline.synth.rigs.dome_rig`) or a cameras.json path."""
+    dome = parse_dome_spec(spec)
+    if dome is not None:
+        return dome_rig(dome[0], radius_mm=dome[1])
     if spec.lower() in ("shelf", "campus"):
         return read_voxelpose_calibration(RIGS_DIR / f"{spec.lower()}_voxelpose.json")
     path = Path(spec)
@@ -44,7 +50,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("out_dir", type=Path, help="scene directory to create")
     p.add_argument(
-        "--rig", default="shelf", help="shelf, campus, or a cameras.json (default: shelf)"
+        "--rig",
+        default="shelf",
+        help="shelf, campus, dome:N (N 1920x1080 cameras on a Panoptic-like dome of 4 m "
+        "radius; dome:N:RADIUS_MM for another size), or a cameras.json (default: shelf)",
+    )
+    p.add_argument(
+        "--area-radius",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="people stand within this distance of the cameras' mean centre (default: the "
+        "capture circle for a dome, 0.6 of its radius; else anywhere 3 cameras see)",
     )
     p.add_argument("--people", type=int, default=4)
     p.add_argument("--frames", type=int, default=250)
@@ -80,7 +97,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    rig = load_rig(args.rig)
+    try:
+        rig = load_rig(args.rig)
+    except ValueError as exc:
+        raise SystemExit(f"mvviz synth: {exc}") from exc
+    area_radius = args.area_radius
+    dome = parse_dome_spec(args.rig)
+    if area_radius is None and dome is not None:
+        area_radius = dome_capture_radius(dome[1])
     model = load_body_model(args.smpl_model)
     noise = DetectorNoise(
         **{f.name: getattr(args, f"noise_{f.name}") for f in dataclasses.fields(DetectorNoise)}
@@ -96,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
         video_scale=args.video_scale,
         noise=noise,
         joint_set=args.joint_set,
+        area_radius_mm=area_radius,
     )
     t0 = time.perf_counter()
     out = write_synth_scene(args.out_dir, rig, model, config, overwrite=args.overwrite)

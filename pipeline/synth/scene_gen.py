@@ -64,6 +64,9 @@ class SynthConfig:
     """Layout of the ground-truth keypoints and the simulated 2D detections, read off the
     mesh by the table of :mod:`pipeline.body_keypoints` (keypoints it cannot give are
     NaN in the truth and never detected)."""
+    area_radius_mm: float | None = None
+    """People stand within this distance (floor plane) of the mean of the camera
+    centres, e.g. a dome's capture circle; None: anywhere ``min_views`` cameras see."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,14 +84,22 @@ class SynthPeople:
 
 
 def visible_floor_area(
-    rig: CameraRig, *, min_views: int = 3, spacing_mm: float = 200.0, margin_px: float = 10.0
+    rig: CameraRig,
+    *,
+    min_views: int = 3,
+    spacing_mm: float = 200.0,
+    margin_px: float = 10.0,
+    within_mm: float | None = None,
 ) -> np.ndarray:
     """(K, 2) floor points where a standing person (feet, pelvis and head) is inside the
-    image of at least ``min_views`` cameras, 1.2 m or more away from each of them."""
+    image of at least ``min_views`` cameras, 1.2 m or more away from each of them (and
+    within ``within_mm`` of the cameras' mean centre on the floor, when given)."""
     centres = rig.centers[:, :2]
     lo, hi = centres.min(0) - 3000, centres.max(0) + 3000
     gx, gy = np.meshgrid(np.arange(lo[0], hi[0], spacing_mm), np.arange(lo[1], hi[1], spacing_mm))
     pts = np.stack([gx.ravel(), gy.ravel()], -1)
+    if within_mm is not None:
+        pts = pts[np.linalg.norm(pts - centres.mean(0), axis=1) <= within_mm]
     count = np.zeros(len(pts), int)
     for cam in rig:
         ok = np.linalg.norm(pts - cam.center[:2], axis=1) > 1200
@@ -312,7 +323,7 @@ def synthesize(
 ) -> tuple[SynthPeople, Detections]:
     """Plan, pose, render and detect. Writes ``video_dir/<camera>.mp4`` when given."""
     rng = np.random.default_rng(config.seed)
-    area = visible_floor_area(rig, min_views=config.min_views)
+    area = visible_floor_area(rig, min_views=config.min_views, within_mm=config.area_radius_mm)
     motions = plan_people(rng, area, config.num_people, config.num_frames, config.fps)
     people = bodies_from_motion(motions, model, joint_set=config.joint_set)
     kreg = keypoint_regressor(model, config.joint_set)
