@@ -15,7 +15,7 @@ from typing import Any
 from pipeline.associate import AssociationParams
 from pipeline.files import SceneFormatError, atomic_write
 from pipeline.kalman import KalmanParams
-from pipeline.schema import Anything, Bool, Int, Number, Spec, Str, StrList
+from pipeline.schema import Anything, Bool, CameraOffsets, Int, Number, Spec, Str, StrList
 from pipeline.smpl_fit import FitParams
 from pipeline.track import TrackingParams
 
@@ -32,6 +32,18 @@ class TriangulationParams:
     outlier_threshold_px: float = 20.0
     """A view whose reprojection error for a joint exceeds this is dropped, the joint re-solved."""
     min_views: int = 2
+
+
+@dataclass(frozen=True)
+class SyncParams:
+    offsets: tuple[tuple[str, float], ...] = ()
+    """Per camera its time offset in frames, ``(name, frames)`` pairs sorted by name; positive =
+    that camera's frames lag the others (what ``mvviz diagnose`` reports). Its 2D is
+    re-timed before association (:mod:`pipeline.diagnose.retime`). Written in a config file
+    as ``{"cam02": 1.5}``, on the command line as ``--set sync.offsets=cam02:+1.5,cam04:-3``."""
+
+    def by_camera(self) -> dict[str, float]:
+        return dict(self.offsets)
 
 
 @dataclass(frozen=True)
@@ -55,13 +67,16 @@ class PipelineConfig:
     pose_prior: str = ""
     """Prior checkpoint; empty = the shipped sample_data/priors/pose_vae.pt."""
     smpl_fit: FitParams = field(default_factory=FitParams)
+    sync: SyncParams = field(default_factory=SyncParams)
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
             raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        out = dataclasses.asdict(self)
+        out["sync"]["offsets"] = self.sync.by_camera()  # {camera: frames}, as files write it
+        return out
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True)
@@ -81,7 +96,8 @@ class PipelineConfig:
             node, cls = data, PipelineConfig
             parts = key.strip().split(".")
             for p in parts[:-1]:
-                if p not in node or not isinstance(node[p], dict):
+                section = getattr(cls(), p, None)
+                if p not in node or not dataclasses.is_dataclass(section):
                     raise SceneFormatError("--set", key, f"no section {p!r}")
                 node, cls = node[p], type(getattr(cls(), p))
             if parts[-1] not in node:
@@ -91,13 +107,17 @@ class PipelineConfig:
 
     def check_cameras(self, camera_names: list[str], *, source: str = "config") -> None:
         """``disabled_views`` names cameras of the scene (checked before any stage runs)."""
-        unknown = sorted(set(self.disabled_views) - set(camera_names))
-        if unknown:
-            raise SceneFormatError(
-                source,
-                "disabled_views",
-                f"expected camera names of the scene {camera_names}, got unknown {unknown}",
-            )
+        for name, given in (
+            ("disabled_views", self.disabled_views),
+            ("sync.offsets", [c for c, _ in self.sync.offsets]),
+        ):
+            unknown = sorted(set(given) - set(camera_names))
+            if unknown:
+                raise SceneFormatError(
+                    source,
+                    name,
+                    f"expected camera names of the scene {camera_names}, got unknown {unknown}",
+                )
 
 
 # Ranges beyond "finite and >= 0" (the rule for every other number of the config).
@@ -110,6 +130,7 @@ RANGES: dict[str, Spec] = {
     "association.min_confidence": Number(ge=0, le=1),
     "association.max_distance_mm": Number(gt=0),
     "kalman.control_gain": Number(),
+    "sync.offsets": CameraOffsets(),
 }
 
 

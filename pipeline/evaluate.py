@@ -29,6 +29,7 @@ from pipeline import metrics, pose_limits
 from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
 from pipeline.label_check import LabelCheck, check_results
 from pipeline.results import PipelineResults
+from pipeline.run import row_frames
 from pipeline.scene import GroundTruth, Scene
 from pipeline.smpl_fit import plausibility
 
@@ -168,7 +169,9 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
     ``gt_person_id`` in the detections; pose rows need ``gt.npz``)."""
     det = scene.detections
     if det.gt_person_id is not None:
-        association = metrics.association_scores(results.det_person, det.gt_person_id, det.frame)
+        # Pairs are counted per frame the stages used each row at (re-timed cameras moved).
+        frames = row_frames(scene, results.config)
+        association = metrics.association_scores(results.det_person, det.gt_person_id, frames)
     else:
         association = {}
     # Reprojection error of the views each joint was triangulated from (a rejected view

@@ -19,6 +19,7 @@ import numpy as np
 from pipeline.associate import Association, associate_frame
 from pipeline.body_model import BodyModel
 from pipeline.config import PipelineConfig
+from pipeline.diagnose.retime import retimed_frames, retimed_rows
 from pipeline.joint_sets import SMPL24, JointSet
 from pipeline.kalman import FilterResult, kalman_filter
 from pipeline.progress import Progress, StageBar
@@ -95,8 +96,7 @@ def restored_joints(scene: Scene, model: BodyModel) -> np.ndarray | None:
     return out
 
 
-def select_2d(scene: Scene, config: PipelineConfig, restored: np.ndarray | None) -> np.ndarray:
-    """(N, J, 3) the 2D joints of the configured source for every detection row."""
+def _source_2d(scene: Scene, config: PipelineConfig, restored: np.ndarray | None) -> np.ndarray:
     if config.source == "smpl":
         if restored is None:
             raise ValueError(
@@ -105,6 +105,30 @@ def select_2d(scene: Scene, config: PipelineConfig, restored: np.ndarray | None)
             )
         return restored
     return scene.detections.keypoints
+
+
+def sync_offsets(scene: Scene, config: PipelineConfig) -> dict[int, float]:
+    """Camera index -> the configured time offset (frames) of the cameras that have one."""
+    return {scene.rig.index_of(c): d for c, d in config.sync.offsets if d != 0}
+
+
+def select_2d(scene: Scene, config: PipelineConfig, restored: np.ndarray | None) -> np.ndarray:
+    """(N, J, 3) the 2D joints of the configured source for every detection row, each
+    camera with a ``sync.offsets`` entry re-timed (:mod:`pipeline.diagnose.retime`)."""
+    joints2d = _source_2d(scene, config, restored)
+    offsets = sync_offsets(scene, config)
+    if not offsets:
+        return joints2d
+    det = scene.detections
+    return retimed_rows(det.frame, det.view, joints2d, offsets)[1]
+
+
+def row_frames(scene: Scene, config: PipelineConfig | None = None) -> np.ndarray:
+    """(N,) the frame each detection row is used at: its recorded frame, moved by its
+    camera's whole-frame ``sync.offsets`` (may fall outside the clip: then unused)."""
+    det = scene.detections
+    offsets = {} if config is None else sync_offsets(scene, config)
+    return retimed_frames(det.frame, det.view, offsets) if offsets else det.frame
 
 
 def enabled_view_mask(scene: Scene, config: PipelineConfig) -> np.ndarray:
@@ -127,9 +151,10 @@ def group_by_frame(frame: np.ndarray, num_frames: int) -> list[np.ndarray]:
     return [order[bounds[i] : bounds[i + 1]] for i in range(num_frames)]
 
 
-def frame_rows(scene: Scene) -> list[np.ndarray]:
-    """Detection rows per frame, computed once (index with the frame number)."""
-    return group_by_frame(scene.detections.frame, scene.num_frames)
+def frame_rows(scene: Scene, config: PipelineConfig | None = None) -> list[np.ndarray]:
+    """Detection rows per frame, computed once (index with the frame number); with
+    ``config``, at the frames its ``sync.offsets`` move them to (:func:`row_frames`)."""
+    return group_by_frame(row_frames(scene, config), scene.num_frames)
 
 
 def run_frame(
@@ -142,7 +167,7 @@ def run_frame(
 ) -> FrameResult:
     """Association and triangulation of one frame."""
     if rows is None:
-        rows = np.flatnonzero(scene.detections.frame == frame)
+        rows = np.flatnonzero(row_frames(scene, config) == frame)
     enabled = enabled_view_mask(scene, config)
     views = scene.detections.view[rows]
     joints2d = joints2d_all[rows].copy()
@@ -195,7 +220,7 @@ def run_frames(
             returns None.
         progress: see :mod:`pipeline.progress` (stage :data:`FRAMES_STAGE`, in frames).
     """
-    rows = frame_rows(scene) if rows_per_frame is None else rows_per_frame
+    rows = frame_rows(scene, config) if rows_per_frame is None else rows_per_frame
     frames: list[FrameResult] = []
     with StageBar(FRAMES_STAGE, scene.num_frames, progress, unit="frame") as bar:
         for f in range(scene.num_frames):

@@ -198,6 +198,66 @@ class StrList(Spec):
 
 
 @dataclass(frozen=True)
+class CameraOffsets(Spec):
+    """Per camera a number of frames: a JSON object ``{"cam02": 1.5}``, the command line's
+    ``"cam02:+1.5,cam04:-3"`` (empty = none) or ``[["cam02", 1.5]]``; converted to
+    ``(name, frames)`` pairs sorted by name. Which names the scene has is checked against
+    the scene (:meth:`pipeline.config.PipelineConfig.check_cameras`)."""
+
+    def check(self, value, path, field):
+        if value is None and self.optional:
+            return self.default
+        pairs = self._pairs(value, path, field)
+        out: dict[str, float] = {}
+        for name, frames in pairs:
+            if not isinstance(name, str) or not name.strip():
+                raise SceneFormatError(path, field, f"expected a camera name, got {_got(name)}")
+            given = frames
+            if isinstance(frames, str):
+                try:
+                    frames = float(frames)
+                except ValueError:
+                    frames = None
+            if not is_number(frames) or not math.isfinite(frames):
+                raise SceneFormatError(
+                    path, field, f"camera {name!r}: expected a number of frames, got {_got(given)}"
+                )
+            if name.strip() in out:
+                raise SceneFormatError(path, field, f"camera {name!r} given twice")
+            out[name.strip()] = float(frames)
+        return tuple(sorted(out.items()))
+
+    def _pairs(self, value, path, field) -> list:
+        if isinstance(value, dict):
+            return list(value.items())
+        if isinstance(value, str):
+            pairs = []
+            for item in (t.strip() for t in value.split(",")):
+                if not item:
+                    continue
+                name, sep, frames = item.rpartition(":")
+                if not sep or not name:
+                    raise SceneFormatError(
+                        path, field,
+                        f"expected CAMERA:FRAMES pairs separated by commas (e.g. "
+                        f"cam02:+1.5,cam04:-3), got {_got(item)}",
+                    )  # fmt: skip
+                pairs.append((name, frames.strip()))
+            return pairs
+        if isinstance(value, (list, tuple)) and all(
+            isinstance(p, (list, tuple)) and len(p) == 2 for p in value
+        ):
+            return [tuple(p) for p in value]
+        raise SceneFormatError(path, field, f"expected {self.expected()}, got {_got(value)}")
+
+    def expected(self):
+        return 'per camera a number of frames ({"cam02": 1.5} or "cam02:+1.5,cam04:-3")'
+
+    def bad_values(self):
+        return [5, "cam0", "cam0:soon", {"cam0": "x"}, {"cam0": True}, [["cam0"]]]
+
+
+@dataclass(frozen=True)
 class Anything(Spec):
     """Checked elsewhere (e.g. a nested object with its own schema)."""
 

@@ -248,7 +248,7 @@ def prepare(
         results=results,
         joint_set=joint_set,
         gt_joint_set=gt_js,
-        rows_per_frame=frame_rows(scene),
+        rows_per_frame=frame_rows(scene, results.config),  # re-timed rows where they were used
         **person_indices(results, F),
         gt_rows_per_frame=gt_rows,
         det_rays=det_rays,

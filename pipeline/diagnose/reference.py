@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.results import PipelineResults
+from pipeline.run import row_frames
 from pipeline.scene import Scene
 from pipeline.triangulate import triangulate_dlt
 
@@ -78,15 +79,16 @@ def camera_detections(
     """One camera's 2D, padded per frame: (F, n, J, 3) joints (NaN padding) and (F, n)
     detection row (-1 padding), n the most people that camera saw in one frame."""
     det = scene.detections
-    rows = np.flatnonzero(det.view == view)
+    used_at = row_frames(scene, results.config)  # where a re-timed run used each row
+    rows = np.flatnonzero((det.view == view) & (used_at >= 0) & (used_at < results.num_frames))
     F = results.num_frames
-    counts = np.bincount(det.frame[rows], minlength=F)[:F]
+    counts = np.bincount(used_at[rows], minlength=F)[:F]
     n = max(int(counts.max(initial=0)), 1)
     J = results.det_joints2d.shape[1]
     joints = np.full((F, n, J, 3), np.nan)
     index = np.full((F, n), -1, int)
-    order = rows[np.argsort(det.frame[rows], kind="stable")]
-    frame = det.frame[order]
+    order = rows[np.argsort(used_at[rows], kind="stable")]
+    frame = used_at[order]
     slot = np.arange(len(order)) - np.searchsorted(frame, frame)  # rank within its frame
     joints[frame, slot] = results.det_joints2d[order]
     index[frame, slot] = order
