@@ -81,3 +81,18 @@ def test_gated_assignment_maximises_matches_before_cost():
     rows, cols = gated_assignment(cost, cost < 3.0)  # (0, 1) not allowed: one match
     assert len(rows) == 1 and cost[rows[0], cols[0]] < 3.0
     assert [len(x) for x in gated_assignment(np.full((2, 3), np.inf))] == [0, 0]
+
+
+def test_a_ghost_seen_in_fewer_than_min_hits_frames_is_no_track():
+    people = _walkers(30, sep_mm=2000)
+    frames, joints, truth = _rows(people, noise=10)
+    rng = np.random.default_rng(1)
+    ghost = rng.normal(0, 200, (2, 17, 3)) + [0.0, 5000.0, 0.0]  # far from both walkers
+    frames = np.concatenate([frames, [7, 8]])  # one ghost seen twice, beside the walkers
+    joints = np.concatenate([joints, ghost])
+    tr = track_people(frames, joints, 30, TrackingParams(min_hits=3))
+    assert tr.num_tracks == 2 and (tr.track_of[-2:] == -1).all()
+    assert sorted(set(tr.track_of[:-2].tolist())) == [0, 1]
+    assert np.isfinite(tr.joints).all(-1).any(-1).sum(-1).tolist() == [30, 30]
+    kept = track_people(frames, joints, 30, TrackingParams(min_hits=2))
+    assert kept.num_tracks == 3 and kept.track_of[-1] == kept.track_of[-2] == 2
