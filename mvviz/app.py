@@ -29,6 +29,7 @@ import viser
 from mvviz.analysis.failures import Failure
 from mvviz.analysis.filter_runs import FilterRun
 from mvviz.panels.contract import Panel, StateCallback
+from mvviz.panels.diagnose_panel import make_diagnose_panel
 from mvviz.panels.export_panel import make_export_panel
 from mvviz.panels.failure_panel import make_failure_panel
 from mvviz.panels.filter_panel import make_filter_panel
@@ -128,7 +129,10 @@ class ViewerApp:
             self.failure_panel = self._add(make_failure_panel(self))
         with tabs.add_tab("Export", viser.Icon.DOWNLOAD):
             self.export_panel = self._add(make_export_panel(self))
-        for folder in (self.pipeline_panel.gui.folder, self.export_panel.gui.folder):
+        with tabs.add_tab("Diagnose", viser.Icon.STETHOSCOPE):
+            self.diagnose_panel = self._add(make_diagnose_panel(self))
+        for panel in (self.pipeline_panel, self.export_panel, self.diagnose_panel):
+            folder = panel.gui.folder
             folder.expand_by_default = True  # alone in its tab: open
 
     def _add(self, panel: P) -> P:

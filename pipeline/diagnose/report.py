@@ -4,11 +4,13 @@ writes as JSON (``{"sync": {CAMERA: ...}, "calibration": {CAMERA: ...}, "floor":
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pipeline.diagnose.calibration import CalibrationFinding, check_calibration
 from pipeline.diagnose.floor import FloorEstimate, estimate_floor
 from pipeline.diagnose.sync import MAX_SHIFT, SyncEstimate, estimate_offsets, offsets_over_windows
+from pipeline.progress import ProgressFn
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
 
@@ -89,14 +91,37 @@ def diagnose(
     window: int | None = None,
     refine: bool = True,
     refine_focal: bool = False,
-) -> Diagnosis:
-    """Sync, calibration and floor of one run (``window``: also sync per window)."""
+    progress: ProgressFn | None = None,
+    cancelled: Callable[[], bool] | None = None,
+) -> Diagnosis | None:
+    """Sync, calibration and floor of one run (``window``: also sync per window).
+
+    ``progress(step, done, total)`` is called as each step starts ("sync", "sync windows",
+    "calibration", "floor") and once at the end; ``cancelled()`` is asked between steps
+    (the viewer's Diagnose panel): true returns None."""
+    steps = ["sync"] + (["sync windows"] if window else []) + ["calibration", "floor"]
+
+    def start(step: str) -> bool:
+        if cancelled is not None and cancelled():
+            return False
+        if progress is not None:
+            progress(step, steps.index(step), len(steps))
+        return True
+
+    if not start("sync"):
+        return None
+    sync = estimate_offsets(scene, results, max_shift=max_shift)
     windows = []
     if window:
+        if not start("sync windows"):
+            return None
         windows = offsets_over_windows(scene, results, window=window, max_shift=max_shift)
-    return Diagnosis(
-        sync=estimate_offsets(scene, results, max_shift=max_shift),
-        calibration=check_calibration(scene, results, refine=refine, refine_focal=refine_focal),
-        floor=estimate_floor(results.track_smoothed, scene.joint_set.names),
-        sync_windows=windows,
-    )
+    if not start("calibration"):
+        return None
+    calibration = check_calibration(scene, results, refine=refine, refine_focal=refine_focal)
+    if not start("floor"):
+        return None
+    floor = estimate_floor(results.track_smoothed, scene.joint_set.names)
+    if progress is not None:
+        progress("done", len(steps), len(steps))
+    return Diagnosis(sync=sync, calibration=calibration, floor=floor, sync_windows=windows)

@@ -334,7 +334,8 @@ def test_server_without_browser(viewer_scene, frame_store):
 
 def test_stop_stops_every_panel(viewer_scene):
     """The app owns its panels: stop() ends every thread the app and its panels started
-    (render, images, playback, filter B, failure lists, the pipeline re-run worker)."""
+    (render, images, playback, filter B, failure lists, the pipeline re-run worker, the
+    diagnoses)."""
     scene, results, model = viewer_scene
     before = set(threading.enumerate())
     app = ViewerApp(ViewerState.create(scene, results, model), port=free_port())
@@ -343,7 +344,8 @@ def test_stop_stops_every_panel(viewer_scene):
     started = [t for t in set(threading.enumerate()) - before if t.name.startswith("mvviz-")]
     names = {t.name.split("_")[0] for t in started}
     assert {"mvviz-render", "mvviz-filter-ab", "mvviz-failures", "mvviz-rerun"} <= names
-    assert len(app.panels) == 8
+    assert "mvviz-diagnose" in names
+    assert len(app.panels) == 9
     app.stop()
     deadline = time.monotonic() + 10
     while any(t.is_alive() for t in started) and time.monotonic() < deadline:
