@@ -2,9 +2,9 @@
 
 One module per subcommand group (``convert``, ``reference``, ``synth`` /
 ``synth_mocap``, ``detect``, ``run`` (also ``eval``), ``export_rrd``, ``export_formats``,
-``diagnose``, ``view``, ``prior``). The command line is the top of the import graph: it may import
-everything; nothing in :mod:`mvviz` outside this package imports it (``app.py`` at the
-repository root does).
+``diagnose``, ``compare``, ``view``, ``prior``). The command line is the top of the
+import graph: it may import everything; nothing in :mod:`mvviz` outside this package
+imports it (``app.py`` at the repository root does).
 
 Each ``register(subparsers)`` adds a parser whose ``func(args) -> int`` runs the job.
 Errors: bad input (:class:`~pipeline.files.SceneFormatError`, and OS errors such as a
@@ -24,6 +24,7 @@ from pipeline.files import SceneFormatError
 
 def build_parser() -> argparse.ArgumentParser:
     from mvviz.cli import (  # noqa: PLC0415  (keeps --help fast)
+        compare,
         convert,
         detect,
         diagnose,
@@ -50,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
         export_rrd,
         export_formats,
         diagnose,
+        compare,
         view,
         prior,
     ):

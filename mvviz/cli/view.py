@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import viser
 
-from pipeline.files import CACHE_DIR
+from pipeline.files import CACHE_DIR, SceneFormatError
 
 if TYPE_CHECKING:
     from mvviz.app import ViewerApp
@@ -45,6 +45,8 @@ def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False
         "--out", type=Path, default=None, help="results file (default SCENE/.mvviz/results.npz)"
     )
     p.add_argument("--force", action="store_true", help="re-run the pipeline, ignore the cache")
+    p.add_argument("--frame", type=int, default=None, help="open at this frame")
+    p.add_argument("--track", type=int, default=None, help="open with this track selected")
     p.add_argument(
         "--rerun", action="store_true",
         help="also serve rerun's web viewer and log into it live (mvviz/export/rerun_live.py)",
@@ -117,6 +119,7 @@ def _build_viewer(
     loading.remove()
     app = ViewerApp(state, server=server, frames=frames, model=model)
     app.wait_idle(30)
+    _open_at(app, args, results.num_frames, results.num_tracks)
     if app.server.get_port() != args.port:  # viser moves to the next free port
         print(f"port {args.port} is taken: serving on port {app.server.get_port()} instead")
     app.rerun_live = None
@@ -128,6 +131,17 @@ def _build_viewer(
         app.rerun_live = LiveRerun(app, server=rerun_server, save=args.rerun_save)
         print(f"rerun web viewer: {rerun_server.url}")
     return app
+
+
+def _open_at(app: ViewerApp, args: argparse.Namespace, num_frames: int, num_tracks: int) -> None:
+    """``--frame`` / ``--track`` (what ``mvviz compare`` prints to open a difference)."""
+    frame, track = getattr(args, "frame", None), getattr(args, "track", None)
+    if frame is not None and not 0 <= frame < num_frames:
+        raise SceneFormatError("--frame", None, f"expected 0..{num_frames - 1}, got {frame}")
+    if track is not None and not 0 <= track < num_tracks:
+        raise SceneFormatError("--track", None, f"expected 0..{num_tracks - 1}, got {track}")
+    if frame is not None or track is not None:
+        app.jump_to(frame=frame, track=track)
 
 
 def run(args: argparse.Namespace) -> int:
