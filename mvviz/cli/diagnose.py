@@ -13,8 +13,10 @@ Examples:
     mvviz diagnose SCENE --write-cameras out/cameras.json   # the refined calibration
     mvviz diagnose SCENE --fix-floor OUT_SCENE    # a copy re-expressed z-up, floor at 0
 
-The offsets are reported, not applied (applying them, `--set sync.offsets=...`, is not
-built yet). Nothing is written unless asked, and what is written is written atomically.
+The offsets found are printed as the `--set sync.offsets=...` that applies them (to
+`mvviz run`, `view`, `eval`, `compare`: each camera's 2D is re-timed before association);
+diagnosing a run that applies offsets reports what is left, and the setting printed adds
+it up. Nothing is written unless asked, and what is written is written atomically.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from pipeline.cameras import save_cameras
 from pipeline.diagnose.calibration import replace_camera
 from pipeline.diagnose.floor import transform_scene
 from pipeline.diagnose.report import diagnose
+from pipeline.diagnose.retime import offsets_setting
 from pipeline.diagnose.sync import MAX_SHIFT
 from pipeline.files import SceneFormatError, atomic_write
 from pipeline.scene import write_scene
@@ -67,9 +70,15 @@ def run(args: argparse.Namespace) -> int:
     )  # fmt: skip
     for line in found.lines():
         print(line)
+    report = found.to_json()
+    late = {k: e.offset_frames for k, e in found.sync.items() if e.offset}
+    if late:
+        setting = offsets_setting(late, results.config.sync.by_camera())
+        report["sync_apply"] = f"--set sync.offsets={setting}"
+        print(f"to apply the offsets: mvviz run {args.scene} {report['sync_apply']}")
     if args.json is not None:
         with atomic_write(args.json, "w") as fh:
-            json.dump(found.to_json(), fh, indent=1)
+            json.dump(report, fh, indent=1)
         print(f"wrote {args.json}")
     if args.write_cameras is not None:
         rig = scene.rig

@@ -31,6 +31,16 @@ MIN_GATE_PX = 10.0
 MIN_SHARED_JOINTS = 3
 
 
+def offsets_setting(found: dict[str, float], applied: dict[str, float] | None = None) -> str:
+    """The ``--set sync.offsets=`` value that applies ``found`` (camera -> frames, the
+    offsets found in a run that had ``applied`` re-timing already: they add up), e.g.
+    ``"cam02:+1.50,cam04:-3.00"``; empty when there is nothing to apply."""
+    total = dict(applied or {})
+    for name, d in found.items():
+        total[name] = total.get(name, 0.0) + float(d)
+    return ",".join(f"{k}:{v:+.2f}" for k, v in sorted(total.items()) if round(v, 2) != 0)
+
+
 def split_offset(offset: float) -> tuple[int, float]:
     """``offset`` frames as (whole n, fraction a) with n = round half up, a in [-0.5, 0.5)."""
     n = int(np.floor(offset + 0.5))

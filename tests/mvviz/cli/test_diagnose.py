@@ -5,6 +5,7 @@ rotated by 1 degree. The JSON names them; the fixes are written only when asked.
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -42,6 +43,11 @@ def test_late_camera_and_upside_down_world(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "LATE" in printed and "NOT z-up" in printed
     found = json.loads(out_json.read_text())
+    setting = re.search(
+        r"to apply the offsets: mvviz run \S+ --set sync.offsets=1:\+(\S+)", printed
+    )
+    assert setting and abs(float(setting.group(1)) - 3) < 0.15, printed
+    assert found["sync_apply"] == f"--set sync.offsets=1:+{setting.group(1)}"
     assert set(found) >= {"sync", "calibration", "floor"}
     assert abs(found["sync"]["1"]["offset_frames"] - 3) < 0.15
     assert all(abs(v["offset_frames"]) < 0.15 for k, v in found["sync"].items() if k != "1")
@@ -55,6 +61,20 @@ def test_late_camera_and_upside_down_world(tmp_path, capsys):
     for a, b in zip(fixed, scene.rig, strict=True):
         assert np.degrees(Rotation.from_matrix(a.R @ b.R.T).magnitude()) < 1e-4
         assert abs(a.center[2] - b.center[2]) < 30.0
+
+
+def test_the_printed_offset_applied_puts_the_camera_in_sync(tmp_path, capsys):
+    root = _write(delay_camera(load_scene(NOISY), "3", -2), tmp_path / "late")
+    out_json = tmp_path / "d.json"
+    assert main(["diagnose", str(root), "--json", str(out_json)] + FAST) == 0
+    apply = json.loads(out_json.read_text())["sync_apply"]
+    assert re.fullmatch(r"--set sync.offsets=3:-(1\.9\d|2\.0\d)", apply), apply
+    capsys.readouterr()
+    assert main(["diagnose", str(root), "--json", str(out_json), *apply.split()] + FAST) == 0
+    printed = capsys.readouterr().out
+    again = json.loads(out_json.read_text())
+    assert abs(again["sync"]["3"]["offset_frames"]) < 0.15, again["sync"]["3"]
+    assert "sync_apply" not in again and "to apply" not in printed
 
 
 def test_rotated_camera_named_and_refined_on_request(tmp_path, capsys):
