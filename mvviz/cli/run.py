@@ -11,6 +11,8 @@ from pathlib import Path
 
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import CONFIG_FILE, PipelineConfig, load_config
+from pipeline.diagnose.retime import offsets_setting
+from pipeline.diagnose.sync import estimate_offsets
 from pipeline.evaluate import evaluate, format_table
 from pipeline.files import atomic_write
 from pipeline.pose_prior import load_prior
@@ -105,11 +107,49 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_pipeline_options(e)
     e.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
     e.add_argument(
+        "--sync", action=argparse.BooleanOptionalAction, default=None,
+        help="check the cameras' time offsets (pipeline/diagnose/sync.py); default: when the "
+        f"scene has at most {SYNC_AUTO_LIMIT} frames x cameras (~1.2 ms each)",
+    )  # fmt: skip
+    e.add_argument(
         "--no-other-source",
         action="store_true",
         help="do not also score the other 2D source (keypoints / restored SMPL)",
     )
     e.set_defaults(func=run_eval)
+
+
+SYNC_AUTO_LIMIT = 20_000
+"""Frames x cameras up to which ``mvviz eval`` checks sync unasked: measured 1.5 s for
+250 x 5 (shelf_synth, 1.2 ms per frame and camera, on 2 busy cores) beside ~20 s for the
+rest of a cached eval; 20,000 is ~25 s, a 10-minute 8-camera capture would be ~3 min."""
+
+
+def sync_report(scene: Scene, results, wanted: bool | None) -> dict | None:
+    """Print the ``sync:`` line (per camera its offset and confidence) and return it as
+    JSON; None when not checked (``wanted`` False, or None and the scene is large)."""
+    size = scene.num_frames * len(scene.rig)
+    if wanted is False or (wanted is None and size > SYNC_AUTO_LIMIT):
+        if wanted is None:
+            print(f"sync: not checked ({scene.num_frames} frames x {len(scene.rig)} cameras; "
+                  f"--sync checks it, ~{size * 1.2e-3:.0f} s)")  # fmt: skip
+        return None
+    t0 = time.perf_counter()
+    est = estimate_offsets(scene, results)
+    parts = []
+    for name, e in est.items():
+        flag = " LATE" if e.offset and e.offset_frames > 0 else " EARLY" if e.offset else ""
+        parts.append(f"{name} {e.offset_frames:+.2f} ({e.confidence:.2f}){flag}")
+    late = {k: e.offset_frames for k, e in est.items() if e.offset}
+    hint = ""
+    if late:
+        hint = (
+            f"; apply: --set sync.offsets={offsets_setting(late, results.config.sync.by_camera())}"
+        )
+    print(f"sync: offset frames (confidence) {', '.join(parts)}{hint}"
+          f"  [{time.perf_counter() - t0:.1f} s]")  # fmt: skip
+    return {k: {"offset_frames": round(e.offset_frames, 3), "confidence": round(e.confidence, 3)}
+            for k, e in est.items()}  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -146,6 +186,9 @@ def run_eval(args: argparse.Namespace) -> int:
         print(f"\nthe other source: source={other}, joint set {alt.joint_set}")
         print(format_table(alt_ev, view_names=scene.rig.names))
         report["other_source"] = dict(alt_ev.to_json(), source=other)
+    sync = sync_report(scene, results, args.sync)
+    if sync is not None:
+        report["sync"] = sync
     if scene.gt is None:
         print("(no gt.npz: pose rows need ground truth)", file=sys.stderr)
     if args.json:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -68,3 +69,29 @@ def test_bad_override_and_missing_scene_fail_cleanly(scene_dir, tmp_path, capsys
     assert "--set: field 'kalman.nope': no such field" in capsys.readouterr().err
     assert main(["run", str(tmp_path / "missing")]) == 2
     assert "scene.json: file not found" in capsys.readouterr().err
+
+
+def test_eval_reports_sync(tmp_path, capsys):
+    """A camera of the shipped Shelf scene delayed by 2 frames: ``mvviz eval`` prints it
+    LATE with the setting that applies it; ``--no-sync`` leaves the check out."""
+    from pipeline.diagnose.perturb import delay_camera
+    from pipeline.scene import load_scene, write_scene
+
+    scene = delay_camera(load_scene(REPO / "sample_data" / "shelf_synth"), "2", 2)
+    root = tmp_path / "late"
+    write_scene(
+        root, name=scene.name, fps=scene.fps, num_frames=scene.num_frames,
+        joint_set=scene.joint_set, rig=scene.rig, detections=scene.detections, gt=scene.gt,
+    )  # fmt: skip
+    out = tmp_path / "e.json"
+    fast = ["--set", "fit_smpl=false", "--no-other-source"]
+    assert main(["eval", str(root), *fast, "--json", str(out)]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("sync:"))
+    got = re.search(r" 2 \+(\d\.\d\d) \(\d\.\d\d\) LATE", line)  # measured: +1.99 (0.85)
+    assert got and abs(float(got.group(1)) - 2) < 0.15, line
+    assert f"apply: --set sync.offsets=2:+{got.group(1)}" in line
+    sync = json.loads(out.read_text())["sync"]
+    assert abs(sync["2"]["offset_frames"] - 2) < 0.15 and sync["2"]["confidence"] > 0.5
+    assert all(abs(v["offset_frames"]) < 0.15 for k, v in sync.items() if k != "2")
+    assert main(["eval", str(root), *fast, "--no-sync", "--json", str(out)]) == 0
+    assert "sync:" not in capsys.readouterr().out and "sync" not in json.loads(out.read_text())
