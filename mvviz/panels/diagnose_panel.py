@@ -32,6 +32,7 @@ from mvviz.panels.contract import PanelHost
 from mvviz.workers import LatestWins
 from pipeline.diagnose.calibration import CameraResidual, camera_residual
 from pipeline.diagnose.report import Diagnosis, diagnose
+from pipeline.diagnose.retime import offsets_setting
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
 
@@ -120,14 +121,14 @@ def floor_markdown(d: Diagnosis) -> str:
     )
 
 
-def fix_commands(scene: Scene, d: Diagnosis) -> str:
-    """The commands that apply what was found (the viewer does not rewrite a scene)."""
+def fix_commands(scene: Scene, d: Diagnosis, applied: dict[str, float] | None = None) -> str:
+    """The commands that apply what was found (the viewer does not rewrite a scene);
+    ``applied``: the offsets the diagnosed run re-timed with already (they add up)."""
     root = str(scene.root)
     cmds = []
     late = {n: e.offset_frames for n, e in d.sync.items() if e.offset}
     if late:
-        sets = ",".join(f"{n}:{x:+.2f}" for n, x in late.items())
-        cmds.append(f"mvviz run {root} --set sync.offsets={sets}")
+        cmds.append(f"mvviz run {root} --set sync.offsets={offsets_setting(late, applied)}")
     if any(f.refined is not None for f in d.calibration.values()):
         cmds.append(f"mvviz diagnose {root} --write-cameras {root}/cameras_refined.json")
     if d.floor is not None and not d.floor.ok:
@@ -287,7 +288,8 @@ class DiagnosePanel:
         d = f.diagnosis
         g.summary.content = summary_markdown(d)
         g.floor.content = floor_markdown(d)
-        g.commands.content = fix_commands(self.host.state.scene, d)
+        applied = f.results.config.sync.by_camera()
+        g.commands.content = fix_commands(self.host.state.scene, d, applied)
         self._set_progress(None, self._status())
         g.cancel.disabled = True
         g.camera.disabled = False
