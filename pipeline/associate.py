@@ -67,6 +67,12 @@ class AssociationParams:
     the others (a detection that straddles two people, or has left and right swapped):
     two people cannot stand in one place. They are merged, and triangulation's outlier
     rejection sorts out the joints. 0 disables."""
+    refine: bool = True
+    """After the greedy linkage, move single detections to the cluster they agree with
+    most (:func:`refine_clusters`). On rings whose cameras stand at one height, two
+    people far away can pair up across two views better than either pairs with its own
+    person's other views (their epipolar lines are near horizontal); the greedy merge
+    takes that pair first and the cannot-link keeps it apart for good."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -271,6 +277,10 @@ def associate_frame(
     best = np.fmin(dist, mirrored)
     affinity = 1.0 - best / params.max_distance_mm
     cluster = _average_linkage(affinity, views, params.min_affinity)
+    if params.refine:
+        cluster = refine_clusters(
+            affinity, views, cluster, params.min_affinity, min_views=params.min_views
+        )
     flipped = np.zeros(n, bool)
     if flip is not None:
         flipped = resolve_flips(rig, views, joints2d, cluster, dist, mirrored, joint_set)
@@ -504,6 +514,64 @@ def merge_duplicates(
         if pair is None:
             return cluster
         cluster[cluster == pair[1]] = pair[0]
+
+
+def refine_clusters(
+    affinity: np.ndarray,
+    views: np.ndarray,
+    cluster: np.ndarray,
+    threshold: float,
+    *,
+    min_views: int = 2,
+) -> np.ndarray:
+    """Local moves on the clustering's objective, the sum over pairs in one cluster of
+    ``affinity - threshold`` (unknown affinity counts as 0, as in the linkage): while some
+    detection gains by it, the one that gains most moves to another cluster that has no
+    detection of its view and whose members it agrees with above the threshold on
+    average. So a detection goes where most views back it: one strong wrong partner
+    (a single pair) loses to fourteen views that agree almost as well. A move that
+    would leave its cluster with fewer than ``min_views`` detections (a person no more)
+    is taken only if the others left behind have a better cluster too: on the real
+    Pose2Sim demo the woman is seen in two views for a few frames, and one of them
+    agrees about as well with the man's three; moving it would lose her. Every move
+    raises the objective, so it ends.
+
+    Args:
+        affinity: (n, n) pair affinities (NaN unknown); views: (n,) view per detection;
+        cluster: (n,) labels from :func:`_average_linkage`.
+    Returns:
+        (n,) new labels (the same label values; a detection left alone keeps its own).
+    """
+    n = len(views)
+    if n < 3:
+        return cluster
+    excess = np.nan_to_num(affinity, nan=0.0) - threshold
+    np.fill_diagonal(excess, 0.0)
+    cluster = cluster.copy()
+    V = int(views.max()) + 1
+    for _ in range(n):
+        labels, col = np.unique(cluster, return_inverse=True)
+        member = np.zeros((n, len(labels)))
+        member[np.arange(n), col] = 1.0
+        gain = excess @ member  # (n, C): agreement above threshold with each cluster
+        seen = np.zeros((len(labels), V), bool)
+        seen[col, views] = True
+        allowed = ~seen[:, views].T  # (n, C): the cluster has no detection of its view
+        allowed &= gain > 0  # the detection agrees with it on average
+        own = gain[np.arange(n), col]
+        better = np.where(allowed, gain - own[:, None], -np.inf)
+        has_home = (better > 1e-9).any(1)
+        size = np.bincount(col, minlength=len(labels))
+        # stranded[k]: detections of cluster k without a better cluster of their own
+        stranded = np.bincount(col, weights=~has_home, minlength=len(labels))
+        left = size[col] - 1  # detections left behind by a move
+        keeps = (left >= min_views) | (left == 0) | (stranded[col] - ~has_home == 0)
+        better[~keeps] = -np.inf
+        i, c = np.unravel_index(np.argmax(better), better.shape)
+        if better[i, c] <= 1e-9:
+            break
+        cluster[i] = labels[c]
+    return cluster
 
 
 def _average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -> np.ndarray:
