@@ -1,7 +1,7 @@
 """The ``mvviz`` command line: one subcommand per job, each registered by its module.
 
 One module per subcommand group (``convert``, ``reference``, ``synth`` /
-``synth_mocap``, ``detect``, ``run`` (also ``eval``), ``export_rrd``, ``export_formats``,
+``synth_mocap``, ``detect``, ``run`` (also ``eval``), ``batch``, ``export_rrd``, ``export_formats``,
 ``diagnose``, ``compare``, ``view``, ``prior``). The command line is the top of the
 import graph: it may import everything; nothing in :mod:`mvviz` outside this package
 imports it (``app.py`` at the repository root does).
@@ -24,6 +24,7 @@ from pipeline.files import SceneFormatError
 
 def build_parser() -> argparse.ArgumentParser:
     from mvviz.cli import (  # noqa: PLC0415  (keeps --help fast)
+        batch,
         compare,
         convert,
         detect,
@@ -48,6 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
         synth,
         detect,
         run,
+        batch,
         export_rrd,
         export_formats,
         diagnose,

@@ -1,0 +1,172 @@
+"""``mvviz batch``: the pipeline and its evaluation over many scenes on Ray, sweeps, and
+the dataset report (see :mod:`pipeline.batch`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from mvviz.cli.run import add_config_options, prepare
+from pipeline.batch.jobs import SceneJob
+from pipeline.batch.report import build_report, write_report
+from pipeline.batch.sweep import setting_slug, sweep_grid
+from pipeline.files import CACHE_DIR, SceneFormatError
+from pipeline.results import cache_key, default_results_path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "batch",
+        help="run many scenes (and parameter sweeps) on Ray; write the dataset report",
+        description=(
+            "Runs the pipeline, and the evaluation where a scene has ground truth, on every "
+            "SCENE (or every scene directory under --root) as Ray tasks: an embedded local "
+            "Ray on this machine's cores, or a cluster with --address. Long scenes split into "
+            "frame chunks for association and triangulation. Results are the same, bit for "
+            "bit, as mvviz run's, written atomically beside each scene (SCENE/.mvviz/"
+            "results.npz) or under --out; a re-run skips scenes whose results are current. "
+            "Writes batch_report.json and batch_report.html (--report, default --out, "
+            "--root or the current directory)."
+        ),
+    )
+    p.add_argument("scenes", type=Path, nargs="*", metavar="SCENE", help="scene directories")
+    p.add_argument("--root", type=Path, default=None, help="run every scene directory under DIR")
+    add_config_options(p)
+    p.add_argument(
+        "--sweep", action="append", default=[], metavar="SECTION.FIELD=V1,V2",
+        help="run the grid of these values (same fields as --set; repeatable: the product)",
+    )  # fmt: skip
+    p.add_argument(
+        "--address", default=None, metavar="auto|HOST:PORT",
+        help="join this Ray cluster (default: start an embedded local Ray)",
+    )  # fmt: skip
+    p.add_argument(
+        "--num-cpus", type=int, default=None, help="embedded Ray's CPUs (default: all cores)"
+    )
+    p.add_argument("--out", type=Path, default=None, help="results under DIR/<scene>/")
+    p.add_argument("--report", type=Path, default=None, help="directory of the report files")
+    p.add_argument(
+        "--chunk-frames", type=int, default=500,
+        help="frames per association/triangulation task (default 500; 0: one per scene)",
+    )  # fmt: skip
+    p.add_argument("--retries", type=int, default=2, help="retries of a failing task (default 2)")
+    p.add_argument("--force", action="store_true", help="recompute current results too")
+    p.set_defaults(func=run)
+
+
+def scene_dirs(args: argparse.Namespace) -> list[Path]:
+    """The SCENE arguments, then every directory under --root holding a scene.json."""
+    dirs = list(args.scenes)
+    if args.root is not None:
+        if not args.root.is_dir():
+            raise SceneFormatError(args.root, None, "--root: not a directory")
+        dirs += sorted(d for d in args.root.iterdir() if (d / "scene.json").is_file())
+    if not dirs:
+        raise SceneFormatError(
+            args.root or "mvviz batch", None, "no scenes: give SCENE... or --root DIR"
+        )
+    return [d.resolve() for d in dirs]
+
+
+def results_path(args: argparse.Namespace, scene, setting: tuple[str, ...]) -> Path:
+    """Where a job's results go: mvviz run's file without --out and sweep (so the two
+    share the cache); per setting under SCENE/.mvviz/sweep/ or --out/<scene>/."""
+    name = setting_slug(setting)
+    if args.out is not None:
+        return args.out.resolve() / scene.root.name / (f"{name}.npz" if setting else "results.npz")
+    if not setting:
+        return default_results_path(scene)
+    return scene.root / CACHE_DIR / "sweep" / f"{name}.npz"
+
+
+def plan(args: argparse.Namespace) -> tuple[list[SceneJob], dict, object, list[dict]]:
+    """(jobs, scenes by directory, body model, rows of scenes that failed to load)."""
+    grid = sweep_grid(args.sweep)
+    jobs, scenes, bad, model = [], {}, [], None
+    seen: dict[str, Path] = {}
+    for d in scene_dirs(args):
+        if args.out is not None and seen.setdefault(d.name, d) != d:
+            raise SceneFormatError(d, None, f"--out: two scenes named {d.name!r} ({seen[d.name]})")
+        for setting in grid:
+            ns = argparse.Namespace(
+                scene=d, config=args.config, set=[*args.set, *setting], smpl_model=args.smpl_model
+            )
+            try:
+                scene, config, model = prepare(ns)
+            except (SceneFormatError, OSError, ValueError) as exc:
+                bad.append(_failed_row(d, setting, ns.set, args, f"{type(exc).__name__}: {exc}"))
+                continue
+            scenes.setdefault(d, scene)
+            jobs.append(
+                SceneJob(
+                    scene_dir=d, config=config, results_path=results_path(args, scene, setting),
+                    key=cache_key(scene, config, model), setting=setting,
+                    set_args=tuple(ns.set), config_file=args.config,
+                )
+            )  # fmt: skip
+    return jobs, scenes, model, bad
+
+
+def _failed_row(d: Path, setting, set_args, args, error: str) -> dict:
+    label = f"{d.name} [{', '.join(setting)}]" if setting else d.name
+    return {
+        "scene": str(d), "label": label, "setting": list(setting), "set_args": list(set_args),
+        "config_file": str(args.config) if args.config else None, "status": "failed",
+        "error": error, "results": "", "summary": None, "seconds": 0.0,
+    }  # fmt: skip
+
+
+def _row(outcome) -> dict:
+    job = outcome.job
+    return {
+        "scene": str(job.scene_dir), "label": job.label, "setting": list(job.setting),
+        "set_args": list(job.set_args),
+        "config_file": str(job.config_file) if job.config_file else None,
+        "status": outcome.status, "error": outcome.error, "results": str(job.results_path),
+        "key": job.key, "summary": outcome.summary, "seconds": round(outcome.seconds, 2),
+    }  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> int:
+    # Ray (~0.3 s) and the scheduler load only for this command
+    from pipeline.batch.ray_run import (  # noqa: PLC0415
+        cached_summary,
+        run_jobs,
+        start_ray,
+        stop_ray,
+    )
+
+    t0 = time.perf_counter()
+    jobs, scenes, model, bad = plan(args)
+    for row in bad:
+        print(f"{row['label']}: failed to load: {row['error']}", file=sys.stderr)
+    outcomes = []
+    if jobs:
+        # Ray starts only when something is to be computed (a re-run of current results
+        # costs the cache checks alone).
+        if args.force or any(cached_summary(j)[1] is None for j in jobs):
+            cpus = start_ray(args.address, num_cpus=args.num_cpus).get("CPU", 0)
+            where = args.address or "embedded local Ray"
+            print(f"{len(jobs)} runs of {len(scenes)} scenes on {where} ({cpus:g} CPUs)")
+        try:
+            outcomes = run_jobs(
+                jobs, scenes, model, chunk_frames=args.chunk_frames, retries=args.retries,
+                force=args.force,
+            )  # fmt: skip
+        finally:
+            stop_ray()
+    rows = [_row(o) for o in outcomes] + bad
+    for o in outcomes:
+        if o.status == "failed":
+            print(f"{o.job.label}: failed after {args.retries} retries: {o.error}", file=sys.stderr)
+    report_dir = args.report or args.out or args.root or Path.cwd()
+    report = build_report(rows, sweeps=args.sweep)
+    js, page = write_report(report, report_dir)
+    c = report["counts"]
+    print(
+        f"{len(rows)} runs: {c['computed']} computed, {c['cached']} current (skipped), "
+        f"{c['failed']} failed in {time.perf_counter() - t0:.1f} s -> {js}, {page}"
+    )
+    return 1 if c["failed"] else 0

@@ -1,0 +1,292 @@
+"""The dataset report: ``batch_report.json`` and a self-contained ``batch_report.html``.
+
+The JSON is the record (``mvviz view --batch DIR`` reads it): one row per job (scene
+and setting) with its figures (:func:`pipeline.batch.jobs.summarize`), status, error,
+results file and the command that opens it in the viewer; the worst scenes, the worst
+moments across the dataset, and per sweep setting the mean of each metric over scenes.
+The HTML shows the same as tables and inline PNG plots (matplotlib, base64): nothing
+is fetched when it is opened.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+import os
+import shlex
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from pipeline.files import SceneFormatError, atomic_write  # noqa: E402
+
+REPORT_JSON = "batch_report.json"
+REPORT_HTML = "batch_report.html"
+REPORT_VERSION = 1
+# metric -> (column title, higher is better); the order of the tables' columns
+METRICS = {
+    "mpjpe_mm": ("MPJPE mm", False),
+    "pck160": ("PCK@160", True),
+    "pcp": ("PCP", True),
+    "accel_mm": ("accel err mm/f²", False),
+    "smpl_mpjpe_mm": ("SMPL MPJPE mm", False),
+    "assoc_precision": ("assoc P", True),
+    "assoc_recall": ("assoc R", True),
+    "id_switches": ("ID switches", False),
+    "reprojection_mean_px": ("reproj px", False),
+}
+NUM_WORST_SCENES = 5
+NUM_WORST_MOMENTS = 15
+
+
+def view_command(row: dict, frame: int | None, track: int | None = None) -> str:
+    """The command that opens ``row``'s scene and results at ``frame`` in the viewer
+    (``track`` selected)."""
+    parts = ["python", "app.py", row["scene"], "--out", row["results"]]
+    if row.get("config_file"):
+        parts += ["--config", row["config_file"]]
+    for s in row.get("set_args", []):
+        parts += ["--set", s]
+    if frame is not None:
+        parts += ["--frame", str(frame)]
+    if track is not None and track >= 0:
+        parts += ["--track", str(track)]
+    return shlex.join(parts)
+
+
+def _mean(values: list) -> float | None:
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    return sum(v) / len(v) if v else None
+
+
+def build_report(rows: Sequence[dict], *, sweeps: Sequence[str] = ()) -> dict:
+    """The report of ``rows``: one dict per job with ``scene``, ``label``, ``setting``,
+    ``status``, ``error``, ``results``, ``summary`` (None if it failed), ``seconds``."""
+    rows = [dict(r) for r in rows]
+    moments = []
+    for r in rows:
+        s = r.get("summary") or {}
+        worst = s.get("worst") or []
+        first = worst[0] if worst else {}
+        r["view_command"] = view_command(r, first.get("frame"), first.get("track"))
+        for m in worst:
+            cmd = view_command(r, m["frame"], m["track"])
+            moments.append(dict(m, label=r["label"], command=cmd))
+    # mm against mm first (scenes with ground truth), then px where none has it
+    moments.sort(key=lambda m: (m["metric"] != "mpjpe_mm", -m["value"]))
+    scored = [r for r in rows if (r.get("summary") or {}).get("mpjpe_mm") is not None]
+    key = "mpjpe_mm" if scored else "reprojection_mean_px"
+    ranked = [r for r in rows if (r.get("summary") or {}).get(key) is not None]
+    ranked.sort(key=lambda r: -r["summary"][key])
+    settings: dict[tuple, list[dict]] = {}
+    for r in rows:
+        settings.setdefault(tuple(r.get("setting", ())), []).append(r)
+    sweep_table = [
+        {
+            "setting": list(setting),
+            "scenes_ok": sum(r["status"] != "failed" for r in group),
+            "scenes_failed": sum(r["status"] == "failed" for r in group),
+            **{m: _mean([(r.get("summary") or {}).get(m) for r in group]) for m in METRICS},
+        }
+        for setting, group in settings.items()
+    ]
+    return {
+        "version": REPORT_VERSION,
+        "sweeps": list(sweeps),
+        "rows": rows,
+        "worst_scenes": {
+            "metric": key,
+            "labels": [r["label"] for r in ranked[:NUM_WORST_SCENES]],
+        },
+        "worst_moments": moments[:NUM_WORST_MOMENTS],
+        "settings": sweep_table,
+        "counts": {
+            s: sum(r["status"] == s for r in rows) for s in ("computed", "cached", "failed")
+        },
+    }
+
+
+def load_report(path: str | os.PathLike) -> dict:
+    """A ``batch_report.json`` (or the directory holding one), checked."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / REPORT_JSON
+    try:
+        report = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise SceneFormatError(path, None, "not found: run mvviz batch first") from None
+    except ValueError as exc:
+        raise SceneFormatError(path, None, f"not JSON ({exc})") from None
+    if not isinstance(report, dict) or report.get("version") != REPORT_VERSION:
+        raise SceneFormatError(path, "version", f"expected {REPORT_VERSION}")
+    if not isinstance(report.get("rows"), list):
+        raise SceneFormatError(path, "rows", "expected a list of scenes")
+    return report
+
+
+def write_report(report: dict, directory: str | os.PathLike) -> tuple[Path, Path]:
+    """Write ``batch_report.json`` and ``batch_report.html`` into ``directory``
+    (atomically); returns their paths."""
+    d = Path(directory)
+    with atomic_write(d / REPORT_JSON, "w") as fh:
+        json.dump(report, fh, indent=1)
+    with atomic_write(d / REPORT_HTML, "w") as fh:
+        fh.write(render_html(report))
+    return d / REPORT_JSON, d / REPORT_HTML
+
+
+# --------------------------------------------------------------------------- html
+
+
+def _fmt(x, digits: int = 1) -> str:
+    if x is None:
+        return "–"
+    if isinstance(x, int):
+        return str(x)
+    return f"{x:.{digits}f}" if abs(x) >= 1 or x == 0 else f"{x:.3f}"
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    data = base64.b64encode(buf.getvalue()).decode()
+    return f'<img alt="plot" src="data:image/png;base64,{data}">'
+
+
+def _bar_plot(rows: list[dict], metric: str) -> str:
+    vals = [(r["label"], r["summary"][metric]) for r in rows if r.get("summary")]
+    vals = [(lab, v) for lab, v in vals if v is not None]
+    if not vals:
+        return ""
+    fig, ax = plt.subplots(figsize=(7, 0.3 * len(vals) + 1.0))
+    ax.barh([lab for lab, _ in vals], [v for _, v in vals], color="#4c72b0")
+    ax.invert_yaxis()
+    ax.set_xlabel(METRICS[metric][0])
+    ax.set_title(f"{METRICS[metric][0]} per scene")
+    return _png(fig)
+
+
+def _sweep_plots(report: dict) -> list[str]:
+    """Per swept field: each metric's mean over scenes against the field's value (one
+    line per combination of the other fields)."""
+    out = []
+    settings = report["settings"]
+    for sweep in report["sweeps"]:
+        field = sweep.partition("=")[0].strip()
+        metrics = [m for m in METRICS if any(s[m] is not None for s in settings)]
+        if not metrics:
+            continue
+        fig, axes = plt.subplots(1, len(metrics), figsize=(3.0 * len(metrics), 2.6))
+        axes = [axes] if len(metrics) == 1 else list(axes)
+        lines: dict[tuple, list[tuple[float, dict]]] = {}
+        for s in settings:
+            value = next(a.partition("=")[2] for a in s["setting"] if a.startswith(field + "="))
+            others = tuple(a for a in s["setting"] if not a.startswith(field + "="))
+            lines.setdefault(others, []).append((float(value), s))
+        for ax, m in zip(axes, metrics, strict=True):
+            for others, pts in lines.items():
+                pts.sort(key=lambda p: p[0])
+                ys = [p[1][m] if p[1][m] is not None else float("nan") for p in pts]
+                ax.plot([p[0] for p in pts], ys, "o-", label=", ".join(others) or None)
+            xs = [p[0] for pts in lines.values() for p in pts]
+            if min(xs) > 0 and max(xs) / min(xs) >= 20:  # values over decades
+                ax.set_xscale("log")
+            ax.set_xlabel(field)
+            ax.set_title(METRICS[m][0], fontsize=9)
+        if any(lines):
+            axes[-1].legend(fontsize=6)
+        fig.tight_layout()
+        out.append(f"<h3>{html.escape(field)}</h3>{_png(fig)}")
+    return out
+
+
+def _table(header: list[str], body: list[list[str]]) -> str:
+    th = "".join(f"<th>{h}</th>" for h in header)
+    tr = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in body)
+    return f"<table><thead><tr>{th}</tr></thead><tbody>{tr}</tbody></table>"
+
+
+def _code(cmd: str) -> str:
+    return f"<code>{html.escape(cmd)}</code>"
+
+
+def render_html(report: dict) -> str:
+    rows = report["rows"]
+    esc = html.escape
+    scene_rows = []
+    for r in rows:
+        s = r.get("summary") or {}
+        status = esc(r["status"]) + (f": {esc(r['error'])}" if r.get("error") else "")
+        scene_rows.append(
+            [esc(r["label"]), status]
+            + [_fmt(s.get(m), 3 if m in ("pck160", "pcp") else 1) for m in METRICS]
+            + [_code(r["view_command"])]
+        )
+    cams = sorted(
+        {v for r in rows for v in ((r.get("summary") or {}).get("reprojection_px") or {})}
+    )
+    cam_rows = [
+        [esc(r["label"])] + [_fmt((r["summary"]["reprojection_px"] or {}).get(c)) for c in cams]
+        for r in rows
+        if r.get("summary")
+    ]
+    moment_rows = [
+        [esc(m["label"]), str(m["frame"]), str(m["track"]), esc(m["metric"]), _fmt(m["value"]),
+         _code(m["command"])]
+        for m in report["worst_moments"]
+    ]  # fmt: skip
+    setting_rows = [
+        [esc(", ".join(s["setting"]) or "(base config)"), str(s["scenes_ok"]),
+         str(s["scenes_failed"])]
+        + [_fmt(s[m], 3 if m in ("pck160", "pcp") else 1) for m in METRICS]
+        for s in report["settings"]
+    ]  # fmt: skip
+    worst = report["worst_scenes"]
+    metric = worst["metric"]
+    plot = _bar_plot([r for r in rows if r.get("summary")], metric)
+    counts = report["counts"]
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>mvviz batch report</title>",
+        f"<style>{_CSS}</style></head><body>",
+        "<h1>mvviz batch report</h1>",
+        f"<p>{len(rows)} runs: {counts['computed']} computed, {counts['cached']} reused, "
+        f"{counts['failed']} failed.</p>",
+        "<h2>Scenes</h2>",
+        _table(["scene", "status", *[t for t, _ in METRICS.values()], "open in the viewer"],
+               scene_rows),
+        f"<h2>Worst scenes (by {esc(METRICS[metric][0])})</h2>",
+        "<ol>" + "".join(f"<li>{esc(lab)}</li>" for lab in worst["labels"]) + "</ol>",
+        plot,
+        "<h2>Worst moments across the dataset</h2>",
+        _table(["scene", "frame", "track", "metric", "value", "open at that frame"], moment_rows),
+        "<h2>Reprojection error per camera (px)</h2>",
+        _table(["scene", *[esc(c) for c in cams]], cam_rows),
+    ]  # fmt: skip
+    if report["sweeps"]:
+        parts += [
+            "<h2>Sweep: the metrics per setting (mean over scenes)</h2>",
+            _table(["setting", "ok", "failed", *[t for t, _ in METRICS.values()]], setting_rows),
+            "<h2>Metric against parameter</h2>",
+            *_sweep_plots(report),
+        ]
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+_CSS = """
+body { font: 14px system-ui, sans-serif; margin: 24px; color: #222; }
+table { border-collapse: collapse; margin: 8px 0 20px; }
+th, td { border: 1px solid #ccc; padding: 3px 7px; text-align: right; }
+th { background: #f0f0f0; }
+td:first-child, th:first-child, td:has(code), td.text { text-align: left; }
+code { font-size: 11px; white-space: nowrap; background: #f7f7f7; }
+img { max-width: 100%; }
+"""

@@ -1,0 +1,170 @@
+"""`mvviz batch` on embedded Ray: the same results as `mvviz run`, skips, a failing scene,
+a sweep, and the report as a person sees it in headless chromium."""
+
+from __future__ import annotations
+
+import html
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from mvviz.cli import main
+from pipeline.batch.report import load_report
+from pipeline.body_model import load_body_model
+from pipeline.config import PipelineConfig
+from pipeline.files import SceneFormatError
+from pipeline.results import load_results, run_pipeline
+from pipeline.scene import load_scene
+from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
+from tests.pipeline.helpers import campus_rig
+from tools.chromium import CHROMIUM, launch_chromium
+
+# One Ray session per batch command; the source "smpl" makes the keypoint-only copy fail
+# inside a task (no monocular SMPL to restore), after its retries.
+SMPL = ["--set", "source=smpl"]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """root/{a, b_keypoints_only}: a tiny scene, and a copy with only 2D keypoints;
+    ref/a: a copy of a for mvviz run."""
+    base = tmp_path_factory.mktemp("batch")
+    a = base / "root" / "a"
+    cfg = SynthConfig(num_people=2, num_frames=12, seed=7, render_video=False)
+    write_synth_scene(a, campus_rig(), load_body_model(), cfg, progress=False)
+    bad = base / "root" / "b_keypoints_only"
+    shutil.copytree(a, bad)
+    with np.load(a / "detections.npz") as z:
+        keep = {k: z[k] for k in ("frame", "view", "keypoints", "gt_person_id")}
+    np.savez(bad / "detections.npz", **keep)
+    shutil.copytree(a, base / "ref" / "a")
+    return base
+
+
+@pytest.fixture(scope="module")
+def first_batch(dataset):
+    """``mvviz batch --root`` (source smpl, 5-frame chunks): its exit code and report."""
+    report = dataset / "report1"
+    code = main(
+        ["batch", "--root", str(dataset / "root"), *SMPL, "--chunk-frames", "5",
+         "--retries", "1", "--report", str(report)]
+    )  # fmt: skip
+    return code, load_report(report)
+
+
+def test_results_equal_mvviz_run_bit_for_bit(dataset, first_batch):
+    code, report = first_batch
+    assert code == 1  # one scene failed
+    ok = next(r for r in report["rows"] if r["label"] == "a")
+    assert ok["status"] == "computed"
+    assert main(["run", str(dataset / "ref" / "a"), *SMPL]) == 0
+    with (
+        np.load(dataset / "root" / "a" / ".mvviz" / "results.npz") as batch,
+        np.load(dataset / "ref" / "a" / ".mvviz" / "results.npz") as run,
+    ):
+        assert sorted(batch.files) == sorted(run.files)
+        assert any(k.startswith("smplvae_") for k in run.files)  # the fit is compared too
+        for k in run.files:
+            assert batch[k].dtype == run[k].dtype, k
+            assert np.array_equal(batch[k], run[k], equal_nan=batch[k].dtype.kind == "f"), k
+        assert json.loads(str(batch["meta"])) == json.loads(str(run["meta"]))
+        assert ok["key"] == json.loads(str(run["meta"]))["cache_key"]
+
+
+def test_failing_scene_is_reported_while_the_others_finish(first_batch):
+    _, report = first_batch
+    bad = next(r for r in report["rows"] if r["label"] == "b_keypoints_only")
+    assert bad["status"] == "failed" and bad["summary"] is None
+    assert "source 'smpl' needs" in bad["error"]
+    assert report["counts"] == {"computed": 1, "cached": 0, "failed": 1}
+
+
+def test_report_figures(dataset, first_batch):
+    _, report = first_batch
+    row = next(r for r in report["rows"] if r["label"] == "a")
+    s = row["summary"]
+    assert s["num_frames"] == 12 and s["num_tracks"] >= 2
+    assert 0 < s["mpjpe_mm"] < 100 and 0.5 < s["pck160"] <= 1 and 0 <= s["pcp"] <= 1
+    assert 0 < s["smpl_mpjpe_mm"] < 150
+    assert s["assoc_precision"] > 0.8 and s["assoc_recall"] > 0.8
+    assert set(s["reprojection_px"]) == set(load_scene(dataset / "root" / "a").rig.names)
+    m = report["worst_moments"][0]
+    assert m["label"] == "a" and m["metric"] == "mpjpe_mm" and m["value"] >= s["mpjpe_mm"]
+    assert f"--frame {m['frame']}" in m["command"] and "source=smpl" in m["command"]
+    assert report["worst_scenes"] == {"metric": "mpjpe_mm", "labels": ["a"]}
+
+
+def test_rerun_skips_current_results(dataset, first_batch):
+    results = dataset / "root" / "a" / ".mvviz" / "results.npz"
+    before = results.stat().st_mtime_ns
+    report = dataset / "report2"
+    code = main(["batch", str(dataset / "root" / "a"), *SMPL, "--report", str(report)])
+    assert code == 0
+    rows = load_report(report)["rows"]
+    assert [r["status"] for r in rows] == ["cached"]
+    assert (
+        rows[0]["summary"]
+        == next(r for r in first_batch[1]["rows"] if r["label"] == "a")["summary"]
+    )
+    assert results.stat().st_mtime_ns == before  # not rewritten
+
+
+def test_sweep_runs_the_grid(dataset, tmp_path):
+    scene = dataset / "root" / "a"
+    out = tmp_path / "out"
+    code = main(
+        ["batch", str(scene), "--set", "fit_smpl=false", "--sweep", "kalman.q=1,2000",
+         "--out", str(out)]
+    )  # fmt: skip
+    assert code == 0
+    report = load_report(out)
+    assert [r["setting"] for r in report["rows"]] == [["kalman.q=1"], ["kalman.q=2000"]]
+    assert [s["setting"] for s in report["settings"]] == [["kalman.q=1"], ["kalman.q=2000"]]
+    accel = [s["accel_mm"] for s in report["settings"]]
+    assert accel[0] != accel[1]  # q changes the filtered motion
+    # each setting's file holds that configuration's run
+    model = load_body_model()
+    cfg = PipelineConfig().with_overrides(["fit_smpl=false", "kalman.q=2000"])
+    fresh = run_pipeline(load_scene(scene), cfg, model, progress=False)
+    stored = load_results(out / "a" / "kalman.q-2000.npz")
+    assert np.array_equal(stored.track_forward, fresh.track_forward, equal_nan=True)
+    assert (out / "batch_report.html").is_file()
+
+
+def test_no_scenes_is_an_input_error(tmp_path, capsys):
+    assert main(["batch", "--root", str(tmp_path)]) == 2
+    assert "no scenes" in capsys.readouterr().err
+    with pytest.raises(SceneFormatError):
+        load_report(tmp_path)
+
+
+def test_report_in_chromium(dataset, first_batch, tmp_path):
+    """The HTML as a person sees it: tables, the plot, the viewer commands."""
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is absent")
+    sync_api = pytest.importorskip("playwright.sync_api")
+    out = tmp_path / "sweep"
+    main(["batch", str(dataset / "root" / "a"), "--set", "fit_smpl=false", "--sweep",
+          "kalman.q=1,100,2000", "--out", str(out)])  # fmt: skip
+    shots = {}
+    with sync_api.sync_playwright() as pw:
+        browser = launch_chromium(pw)
+        for name, d in (("report", dataset / "report1"), ("sweep", out)):
+            page = browser.new_page(viewport={"width": 1400, "height": 1000})
+            page.goto((d / "batch_report.html").as_uri())
+            text = page.inner_text("body")
+            assert "Worst moments across the dataset" in text and "MPJPE mm" in text
+            assert "python app.py" in text and "--frame" in text
+            images = page.locator("img")
+            widths = [images.nth(i).evaluate("e => e.naturalWidth") for i in range(images.count())]
+            assert widths and all(w > 100 for w in widths)  # the inline PNGs decoded
+            shots[name] = tmp_path / f"batch_{name}.png"
+            page.screenshot(path=str(shots[name]), full_page=True)
+            page.close()
+        browser.close()
+    page_text = html.unescape((dataset / "report1" / "batch_report.html").read_text())
+    assert "source 'smpl' needs" in page_text
+    assert all(p.stat().st_size > 20_000 for p in shots.values())
+    print("screenshots:", *shots.values())

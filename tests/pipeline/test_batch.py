@@ -1,0 +1,173 @@
+"""pipeline.batch without Ray: frame chunks, the join, the summary, sweeps, stored keys."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pipeline.batch.jobs import (
+    chunk_bounds,
+    join_chunks,
+    run_chunk,
+    scene_inputs,
+    stored_key,
+    summarize,
+    worst_moments,
+)
+from pipeline.batch.sweep import parse_sweep, setting_slug, sweep_grid
+from pipeline.body_model import load_body_model
+from pipeline.config import PipelineConfig
+from pipeline.evaluate import evaluate
+from pipeline.files import SceneFormatError
+from pipeline.importers.calibration import read_voxelpose_calibration
+from pipeline.results import PipelineResults, run_pipeline, save_results
+from pipeline.scene import load_scene
+from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
+from tests.conftest import CAMPUS_CALIB
+
+NO_FIT = PipelineConfig().with_overrides(["fit_smpl=false"])
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """(scene, model): 2 people, 14 frames on the 3-camera campus rig, no videos."""
+    root = tmp_path_factory.mktemp("batch") / "scene"
+    model = load_body_model()
+    cfg = SynthConfig(num_people=2, num_frames=14, seed=5, render_video=False)
+    write_synth_scene(root, read_voxelpose_calibration(CAMPUS_CALIB), model, cfg, progress=False)
+    return load_scene(root), model
+
+
+def assert_same_results(a: PipelineResults, b: PipelineResults) -> None:
+    """Every field equal, arrays bit for bit (NaN where NaN), fits included."""
+    for f in dataclasses.fields(PipelineResults):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and x.shape == y.shape, f.name
+            assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), f.name
+        elif f.name in ("smpl", "smpl_vae"):
+            assert (x is None) == (y is None), f.name
+            if x is not None:
+                for k, v in x.arrays("").items():
+                    assert np.array_equal(v, y.arrays("")[k], equal_nan=True), f"{f.name}.{k}"
+        else:
+            assert x == y, f.name
+
+
+def test_chunk_bounds_cover_every_frame_once():
+    assert chunk_bounds(10, 4) == [(0, 3), (3, 7), (7, 10)]
+    assert chunk_bounds(10, 0) == [(0, 10)]
+    assert chunk_bounds(10, 100) == [(0, 10)]
+    assert chunk_bounds(0, 5) == [(0, 0)]
+    for n in range(1, 60):
+        for size in (1, 2, 7, 25):
+            b = chunk_bounds(n, size)
+            assert b[0][0] == 0 and b[-1][1] == n
+            assert all(p[1] == q[0] for p, q in zip(b[:-1], b[1:], strict=True))
+            assert max(stop - start for start, stop in b) <= size
+            assert len(b) == -(-n // size)
+
+
+@pytest.mark.parametrize("chunk_frames", [1, 5, 14])
+def test_chunked_run_equals_run_pipeline(tiny, chunk_frames):
+    scene, model = tiny
+    whole = run_pipeline(scene, NO_FIT, model, progress=False)
+    inputs = scene_inputs(scene, NO_FIT, model)
+    chunks = [
+        run_chunk(scene, NO_FIT, inputs, a, b)
+        for a, b in chunk_bounds(scene.num_frames, chunk_frames)
+    ]
+    joined = join_chunks(scene, NO_FIT, model, inputs, chunks[::-1][::-1], whole.cache_key)
+    assert len(chunks) == -(-scene.num_frames // chunk_frames)
+    assert_same_results(joined, whole)
+
+
+def test_join_refuses_missing_frames(tiny):
+    scene, model = tiny
+    inputs = scene_inputs(scene, NO_FIT, model)
+    first = run_chunk(scene, NO_FIT, inputs, 0, 5)
+    with pytest.raises(ValueError, match="do not cover"):
+        join_chunks(scene, NO_FIT, model, inputs, [first], "")
+
+
+def test_summary_matches_the_evaluation(tiny):
+    scene, model = tiny
+    results = run_pipeline(scene, NO_FIT, model, progress=False)
+    s = summarize(scene, results)
+    ev = evaluate(scene, results)
+    stage = "rts" if NO_FIT.kalman.smoother else "kalman"
+    assert s["stage"] == stage and s["has_gt"]
+    assert s["mpjpe_mm"] == pytest.approx(ev.stages[stage]["mpjpe"])
+    assert 0 < s["mpjpe_mm"] < 100  # mm: a tiny synthetic scene is well reconstructed
+    assert s["assoc_precision"] == pytest.approx(ev.association["precision"])
+    assert s["id_switches"] == ev.association["id_switches"]
+    assert list(s["reprojection_px"]) == scene.rig.names
+    assert s["worst"] and s["worst"][0]["metric"] == "mpjpe_mm"
+    values = [m["value"] for m in s["worst"]]
+    assert values == sorted(values, reverse=True)
+    frames = [m["frame"] for m in s["worst"]]
+    assert all(abs(a - b) >= 10 for i, a in enumerate(frames) for b in frames[i + 1 :])
+    # the worst frame's person is at least as far off as the scene's mean
+    assert values[0] >= s["mpjpe_mm"]
+
+
+def test_worst_moments_without_ground_truth_rank_reprojection(tiny):
+    scene, model = tiny
+    results = run_pipeline(scene, NO_FIT, model, progress=False)
+    worst = worst_moments(dataclasses.replace(scene, gt=None), results, count=3)
+    assert worst and all(m["metric"] == "reprojection_px" for m in worst)
+    # recomputed by hand: per person-frame mean reprojection over the views it used
+    err = np.array(
+        [
+            np.nanmean(np.where(u, r, np.nan))
+            for u, r in zip(results.person_used, results.person_reproj, strict=True)
+        ]
+    )
+    top = worst[0]
+    rows = np.flatnonzero(results.person_frame == top["frame"])
+    assert top["value"] == pytest.approx(np.nanmax(err[rows]))
+    assert top["value"] == pytest.approx(np.nanmax(err))  # the first is the scene's worst
+    assert top["track"] == results.person_track[rows[np.nanargmax(err[rows])]]
+
+
+def test_sweep_grid_is_the_product_in_order():
+    grid = sweep_grid(["kalman.q=10,50,100", "association.max_distance_mm=80,120"])
+    assert len(grid) == 6
+    assert grid[0] == ("kalman.q=10", "association.max_distance_mm=80")
+    assert grid[-1] == ("kalman.q=100", "association.max_distance_mm=120")
+    assert sweep_grid([]) == [()]
+    assert parse_sweep("kalman.q= 1 ,2") == ("kalman.q", ["1", "2"])
+    assert setting_slug(grid[0]) == "kalman.q-10__association.max_distance_mm-80"
+    assert setting_slug(()) == "default"
+
+
+@pytest.mark.parametrize(
+    "bad, says",
+    [
+        ("kalman.nope=1,2", "nope"),
+        ("kalman.q=1,abc", "kalman.q=abc"),
+        ("kalman.q", "SECTION.FIELD=V1,V2"),
+        ("kalman.q=1,,2", "SECTION.FIELD=V1,V2"),
+    ],
+)
+def test_sweep_errors_name_the_field(bad, says):
+    with pytest.raises(SceneFormatError, match="--sweep") as info:
+        sweep_grid([bad])
+    assert says in str(info.value)
+
+
+def test_a_field_swept_twice_is_refused():
+    with pytest.raises(SceneFormatError, match="swept twice"):
+        sweep_grid(["kalman.q=1,2", "kalman.q=3"])
+
+
+def test_stored_key(tiny, tmp_path):
+    scene, model = tiny
+    assert stored_key(tmp_path / "none.npz") is None
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    assert stored_key(tmp_path / "junk.npz") is None
+    results = run_pipeline(scene, NO_FIT, model, progress=False)
+    save_results(results, tmp_path / "r.npz")
+    assert stored_key(tmp_path / "r.npz") == results.cache_key != ""
