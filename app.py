@@ -2,7 +2,8 @@
 
 Usage:
     python app.py [SCENE] [--port 8080] [--host 127.0.0.1] [--smpl-model PATH]
-                  [--rerun [--rerun-port 9090] [--rerun-save RRD]]
+                  [--frame N] [--track K] [--rerun [--rerun-port 9090] [--rerun-save RRD]]
+    python app.py --batch DIR     (the scenes of a mvviz batch report)
 
 Loads SCENE (default sample_data/shelf_synth), runs the pipeline or reuses its cached
 results (SCENE/.mvviz/results.npz), and serves the viewer at http://127.0.0.1:8080.
@@ -11,6 +12,8 @@ planes, rays, raw / filtered / ground-truth skeletons, trails, ground-truth and 
 SMPL meshes), click a joint to select it; re-run the per-frame stages with other
 parameters or cameras off (Pipeline), tune a second Kalman filter side by side
 (Filter A/B), jump to the worst moments (Failures). Same as ``mvviz view SCENE``.
+With --batch DIR, the scenes of DIR/batch_report.json (``mvviz batch``) in a Dataset
+tab, sorted by a metric, worst first: a click opens a scene at its worst moment.
 With --rerun, rerun's web viewer (from the rerun-sdk package) is served too, on
 --rerun-port, and logged into live (mvviz/export/rerun_live.py).
 Binds to 127.0.0.1 unless --host says otherwise. Ctrl-C stops the server.
@@ -31,7 +34,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     add_view_options(parser, scene_optional=True)
     add_debug_option(parser)
-    return run_command("app.py", run, parser.parse_args(argv))
+    args = parser.parse_args(argv)
+    if args.batch is not None:
+        # the report's modules (matplotlib) load only with --batch: the start stays fast
+        from mvviz.cli.view_batch import run_batch  # noqa: PLC0415
+
+        return run_command("app.py", run_batch, args)
+    return run_command("app.py", run, args)
 
 
 if __name__ == "__main__":

@@ -29,6 +29,11 @@ def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False
             "scene", type=Path, nargs="?", default=DEFAULT_SCENE,
             help=f"scene directory (default: {DEFAULT_SCENE.relative_to(REPO_ROOT)})",
         )  # fmt: skip
+        p.add_argument(
+            "--batch", type=Path, default=None, metavar="DIR",
+            help="the scenes of a mvviz batch report (DIR/batch_report.json): a Dataset tab "
+            "lists them, worst first; a click opens one at its worst moment",
+        )  # fmt: skip
     else:
         p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
     p.add_argument("--port", type=int, default=8080, help="HTTP/websocket port (default 8080)")
