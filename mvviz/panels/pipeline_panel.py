@@ -35,6 +35,7 @@ import numpy as np
 import viser
 
 from mvviz.panels.contract import PanelHost
+from mvviz.panels.run_compare import RunCompare, make_run_compare
 from mvviz.scene.geometry import ViewerData, detection_rays, person_indices
 from pipeline.body_model import BodyModel, load_body_model
 from pipeline.config import CONFIG_FILE, PipelineConfig, save_config
@@ -359,7 +360,8 @@ class PipelinePanel:
         self._export_thread: threading.Thread | None = None
         self._previewer = ThreadPoolExecutor(1, thread_name_prefix="mvviz-pipeline-preview")
         self._preview_queued = False
-        self._rows = frame_rows(self.scene)
+        self._rows_sync = self.run_config.sync
+        self._rows = frame_rows(self.scene, self.run_config)  # re-timed as the run was
         self._restored = self.run_results.det_restored
         has_smpl = self._restored is not None or self.scene.detections.has_mono3d
         sources = ("keypoints", "smpl") if has_smpl else ("keypoints",)
@@ -374,6 +376,10 @@ class PipelinePanel:
         self.gui.reset.on_click(lambda _: self.reset())
         self.gui.save.on_click(lambda _: self.save())
         self.gui.export.on_click(lambda _: self.export())
+        with self.gui.folder:  # "Compare with the saved config": whole-run A/B
+            self.compare: RunCompare = make_run_compare(
+                host, current=self.complete_results, model=lambda: self.model
+            )
         self._unsubscribe = host.subscribe(self._on_state_changed)
         threading.Thread(target=self._worker, name="mvviz-rerun", daemon=True).start()
         self._show_changes()
@@ -521,6 +527,7 @@ class PipelinePanel:
         """Stop following the host, drop a re-run in progress (it ends at its next frame
         or stage; a fit in progress finishes) and end the worker and the previewer."""
         self._unsubscribe()
+        self.compare.stop()
         with self._cv:
             self._generation += 1
             self._job, self._closed = None, True
@@ -563,12 +570,19 @@ class PipelinePanel:
             self._restored = restored_joints(self.scene, self.model)
         return select_2d(self.scene, config, self._restored)
 
+    def _rows_for(self, config: PipelineConfig) -> list[np.ndarray]:
+        """Detection rows per frame for ``config`` (its sync offsets move rows)."""
+        with self._lock:
+            if config.sync != self._rows_sync:
+                self._rows_sync, self._rows = config.sync, frame_rows(self.scene, config)
+            return self._rows
+
     def _preview_frame(self, f: int) -> None:
         """Re-run frame ``f`` for ``self.config`` and show it (caller holds the lock)."""
         t0 = time.perf_counter()
         config = self.config
         joints2d = self._joints2d(config)
-        fr = run_frame(self.scene, f, config, joints2d, rows=self._rows[f])
+        fr = run_frame(self.scene, f, config, joints2d, rows=self._rows_for(config)[f])
         shown, js = self._shown, source_joint_set(self.scene, config).name
         if shown.config == config and shown.joint_set == js:
             new = patch_frame(shown, fr, config, joints2d)  # keeps the frames re-run before
@@ -636,7 +650,8 @@ class PipelinePanel:
         fits = config.fit_smpl and js in FIT_JOINT_SETS
         key = cache_key(self.scene, config, self.model)
         res = run_stages(
-            self.scene, config, joints2d, restored=self._restored, rows_per_frame=self._rows,
+            self.scene, config, joints2d, restored=self._restored,
+            rows_per_frame=self._rows_for(config),
             key=key, cancelled=cancelled, progress=progress,
         )  # fmt: skip
         with self._lock:
