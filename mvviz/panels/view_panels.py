@@ -28,7 +28,7 @@ from mvviz.analysis.timeline_strip import (
 from mvviz.panels.contract import PanelHost
 from mvviz.panels.failure_panel import CRITERION_SHORT
 from mvviz.scene.geometry import FRUSTUM_WIDTHS, MESH_DETAILS, MESH_STYLES
-from mvviz.scene.images import blank_frame
+from mvviz.scene.images import BodyOutlines, blank_frame, bodies_text
 from mvviz.state import PANEL_WIDTHS, ViewerState
 
 SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
@@ -234,6 +234,7 @@ LAYER_LABELS = {
     "meshes": "Ground-truth meshes",
     "fit_meshes": "Fitted SMPL meshes",
     "meshes_selected_only": "Meshes: selected track only",
+    "bodies_on_images": "Fitted bodies on the camera image",
 }
 
 # The page shows this itself when its WebGL renderer is a software one (SwiftShader,
@@ -265,6 +266,7 @@ class LayersPanel:
                 ("gt", state.data.gt_points is None),
                 ("meshes", state.data.bodies is None),
                 ("fit_meshes", state.data.fit_bodies is None),
+                ("bodies_on_images", state.data.fit_bodies is None),
             )
             if absent
         ]
@@ -426,6 +428,7 @@ class CameraHandles:
     image: viser.GuiImageHandle
     width: viser.GuiDropdownHandle
     legend: viser.GuiMarkdownHandle
+    bodies: viser.GuiHtmlHandle  # each track's fitted body vs its 2D, when they are drawn
     # shown by the page itself in software WebGL; in this panel, which is always in view
     software_notice: viser.GuiHtmlHandle
 
@@ -434,7 +437,8 @@ class CameraHandles:
 CAMERA_LEGEND = (
     "<small>**thick** lines, dots: 2D detections, coloured by the person they were "
     "associated to (**grey**: unassigned) · **thin**, rings: the filtered 3D result "
-    "reprojected · **thin dark**, crosses: ground truth</small>"
+    "reprojected · **thin dark**, crosses: ground truth · **filled outlines**: the fitted "
+    'bodies (layer "Fitted bodies on the camera image")</small>'
 )
 
 
@@ -453,6 +457,12 @@ class CameraPanel:
 
     def show_image(self, image: np.ndarray) -> None:
         self.gui.image.image = image
+
+    def show_bodies(self, bodies: BodyOutlines | None) -> None:
+        """Each track's fitted body vs its 2D, for the bodies drawn on the picture."""
+        text = bodies_text(bodies)
+        if text != self.gui.bodies.content:  # not re-sent on every frame
+            self.gui.bodies.content = text
 
     def stop(self) -> None:
         pass  # no threads
@@ -486,12 +496,13 @@ def make_camera_handles(server: viser.ViserServer, state: ViewerState) -> Camera
             jpeg_quality=PANEL_JPEG_QUALITY,
         )
         widths = tuple(f"{w} px" for w in PANEL_WIDTHS)
+        bodies = server.gui.add_html("")
         legend = server.gui.add_markdown(CAMERA_LEGEND)
         width = server.gui.add_dropdown("Image width", widths, initial_value=f"{w} px")
         software_notice = server.gui.add_html(SOFTWARE_NOTICE_HTML)
     panel.dock_left()
     panel.set_width(400)
-    return CameraHandles(panel, camera, image, width, legend, software_notice)
+    return CameraHandles(panel, camera, image, width, legend, bodies, software_notice)
 
 
 def make_camera_panel(host: PanelHost) -> CameraPanel:

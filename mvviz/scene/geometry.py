@@ -80,6 +80,7 @@ class LayerToggles:
     meshes: bool = False  # opaque bodies hide the skeletons inside them
     fit_meshes: bool = False
     meshes_selected_only: bool = False  # the selected track's body (and its GT person's)
+    bodies_on_images: bool = False  # fitted bodies reprojected on the camera panel's image
     mesh_style: str = "solid"  # one of MESH_STYLES
     mesh_detail: str = "decimated"  # one of MESH_DETAILS: what the browser skins
     references_off: frozenset[str] = frozenset()  # reference tracks not drawn, by name

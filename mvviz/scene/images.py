@@ -23,6 +23,7 @@ from __future__ import annotations
 import functools
 import re
 import threading
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -30,7 +31,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import scipy.sparse
+import viser.transforms as vtf
+from scipy.spatial import ConvexHull, QhullError
 
+from mvviz.scene.bodies import Bodies
 from mvviz.scene.geometry import FRUSTUM_WIDTHS, UNASSIGNED, LayerToggles, ViewerData, track_color
 from pipeline.files import save_npz_atomic
 from pipeline.scene import Scene
@@ -350,6 +355,7 @@ class Overlay2D:
     bones: tuple[tuple[int, int], ...]
     gt_bones: tuple[tuple[int, int], ...]
     label: str
+    bodies: BodyOutlines | None = None  # the fitted bodies reprojected (their layer on)
 
 
 def image_overlay(data: ViewerData, view: int, frame: int, lay: LayerToggles) -> Overlay2D:
@@ -381,6 +387,7 @@ def image_overlay(data: ViewerData, view: int, frame: int, lay: LayerToggles) ->
         bones=data.joint_set.bones,
         gt_bones=data.gt_joint_set.bones,
         label=f"{cam.name}  frame {frame}",
+        bodies=body_outlines(data, view, frame) if lay.bodies_on_images else None,
     )
 
 
@@ -442,6 +449,8 @@ def draw_overlay(image: np.ndarray, ov: Overlay2D) -> np.ndarray:
     w = out.shape[1]
     s = w / ov.image_size[0]
     r = max(2, round(3 * w / 640))
+    if ov.bodies is not None:  # under the skeletons
+        draw_bodies(out, ov.bodies, s)
     for person in ov.gt:
         ok = np.ones(len(person), bool)
         _draw_skeleton(out, person * s, ok, ov.gt_bones, (30, 30, 30), thickness=1,
@@ -458,3 +467,229 @@ def draw_overlay(image: np.ndarray, ov: Overlay2D) -> np.ndarray:
     cv2.rectangle(out, (0, 0), (tw + 10, th + 12), (0, 0, 0), -1)
     cv2.putText(out, ov.label, (5, th + 5), font, scale, (255, 255, 255), 1, cv2.LINE_AA)
     return out
+
+
+# --------------------------------------------------------------------------- bodies
+#
+# The fitted SMPL bodies on a camera's image, as silhouettes: each body part (the
+# vertices its bone weighs most) is close to convex, so the silhouette is drawn as the
+# union of the parts' 2D convex hulls. Only the vertices on each part's 3D convex hull in
+# the bind pose are posed and projected (the 2D hull of a projected convex set comes from
+# its 3D hull; a part moves nearly rigidly): ~1/5 of the mesh, and ~24 cv2 polygons a
+# body instead of its ~27k triangles (cv2.fillPoly of every face: ~100 ms a frame).
+# Against every face filled, the silhouettes agree to IoU 0.97 on the shipped Shelf
+# scene (tests/mvviz/scene/test_bodies_on_images.py). Bodies are posed as the browser
+# skins them (:mod:`mvviz.scene.bodies`: linear blend skinning, no pose blend shapes)
+# and projected with the camera model, distortion included.
+
+BODY_ALPHA = 0.35  # opacity of a body's fill over the picture
+BODY_CACHE_FRAMES = 64  # (camera, frame) outlines kept per bodies object
+
+
+@dataclass(frozen=True, eq=False)
+class _PartHulls:
+    """What the silhouettes of one :class:`Bodies` need, computed once."""
+
+    index: np.ndarray  # (U,) vertices on some part's 3D hull (of any body's bind shape)
+    weights: scipy.sparse.csr_matrix  # (U, 24) their skin weights
+    parts: tuple[np.ndarray, ...]  # per part, its rows into ``index``
+
+
+_PART_HULLS: weakref.WeakKeyDictionary[Bodies, _PartHulls] = weakref.WeakKeyDictionary()
+_OUTLINES: weakref.WeakKeyDictionary[Bodies, OrderedDict] = weakref.WeakKeyDictionary()
+_BODY_LOCK = threading.Lock()
+
+
+def _part_hulls(bodies: Bodies) -> _PartHulls:
+    with _BODY_LOCK:
+        found = _PART_HULLS.get(bodies)
+    if found is not None:
+        return found
+    part = np.argmax(bodies.weights, axis=1)
+    per_part = []
+    for j in range(bodies.weights.shape[1]):
+        members = np.flatnonzero(part == j)
+        if len(members) < 4:
+            per_part.append(members)
+            continue
+        keep = []
+        for shape in bodies.vertices[:, members]:  # every body's bind shape
+            try:
+                keep.append(members[ConvexHull(shape).vertices])
+            except QhullError:  # a flat part: keep all its vertices
+                keep.append(members)
+        per_part.append(np.unique(np.concatenate(keep)))
+    index = np.unique(np.concatenate(per_part))
+    found = _PartHulls(
+        index=index,
+        weights=scipy.sparse.csr_matrix(bodies.weights[index].astype(np.float64)),
+        parts=tuple(np.searchsorted(index, p) for p in per_part),
+    )
+    with _BODY_LOCK:
+        _PART_HULLS[bodies] = found
+    return found
+
+
+def posed_vertices(bodies: Bodies, body: int, frame: int, index: np.ndarray | None = None,
+                   weights=None) -> np.ndarray:  # fmt: skip
+    """(U, 3) world metres: body ``body``'s vertices ``index`` (None: all) at ``frame``,
+    linear-blend skinned from its bone poses (what the browser draws). ``weights``: the
+    rows ``index`` of the skin weights (sparse is fastest), None: taken here."""
+    idx = slice(None) if index is None else index
+    W = bodies.weights[idx] if weights is None else weights
+    R = vtf.SO3(bodies.bone_wxyz[body, frame]).as_matrix()  # (24, 3, 3)
+    t = bodies.bone_position[body, frame] - np.einsum("bij,bj->bi", R, bodies.rest_joints[body])
+    M = W @ np.concatenate([R.reshape(-1, 9), t], axis=1)  # (U, 12): blended [R | t]
+    v = bodies.vertices[body][idx]
+    x, y, z = v[:, 0:1], v[:, 1:2], v[:, 2:3]
+    return M[:, 0:9:3] * x + M[:, 1:9:3] * y + M[:, 2:9:3] * z + M[:, 9:]
+
+
+@dataclass(frozen=True, eq=False)
+class BodyOutlines:
+    """The fitted bodies seen by one camera in one frame, full-resolution pixels. B
+    bodies, far to near (nearer ones are drawn over farther ones)."""
+
+    tracks: np.ndarray  # (B,) track of each body
+    colors: np.ndarray  # (B, 3) uint8, the track's colour
+    hulls: tuple[tuple[np.ndarray, ...], ...]  # per body, its parts' convex hulls (n, 2)
+    residual_px: dict[int, float]  # track -> median |body keypoints reprojected - 2D|
+
+
+def mesh_residuals(data: ViewerData, view: int, frame: int) -> dict[int, float]:
+    """Per track seen by camera ``view`` at ``frame``: the median over joints of the
+    distance between the fitted body's keypoints (what the fit matched to the joints:
+    SMPL + VAE if present, else step I) reprojected and the track's own 2D detection in
+    that camera (confidence >= the triangulation's minimum), px."""
+    res = data.results
+    fit = res.smpl_vae if res.smpl_vae is not None else res.smpl
+    if fit is None:
+        return {}
+    cam, out = data.scene.rig[view], {}
+    for k in np.flatnonzero(fit.present[:, frame]):
+        q = data.track_person[k, frame]
+        row = res.person_members[q, view] if q >= 0 else -1
+        if row < 0:
+            continue
+        kp = res.det_joints2d[row]  # (J, 3)
+        err = np.linalg.norm(cam.project(fit.keypoints[k, frame]) - kp[:, :2], axis=-1)
+        ok = np.isfinite(err) & (np.nan_to_num(kp[:, 2]) >= data.min_confidence)
+        if ok.any():
+            out[int(k)] = float(np.median(err[ok]))
+    return out
+
+
+def body_outlines(data: ViewerData, view: int, frame: int) -> BodyOutlines | None:
+    """The fitted bodies of ``frame`` reprojected into camera ``view`` (None: no fits);
+    cached per frame and camera (a frame revisited, or another layer toggled, costs
+    nothing)."""
+    bodies = data.fit_bodies
+    if bodies is None:
+        return None
+    key = (view, int(frame), id(data.scene.rig))
+    with _BODY_LOCK:
+        cache = _OUTLINES.setdefault(bodies, OrderedDict())
+        if key in cache:
+            cache.move_to_end(key)
+            return cache[key]
+    found = _body_outlines(data, bodies, view, frame)
+    with _BODY_LOCK:
+        cache[key] = found
+        while len(cache) > BODY_CACHE_FRAMES:
+            cache.popitem(last=False)
+    return found
+
+
+def _body_outlines(data: ViewerData, bodies: Bodies, view: int, frame: int) -> BodyOutlines:
+    cam, ph = data.scene.rig[view], _part_hulls(bodies)
+    far = 4.0 * max(cam.width, cam.height)  # cv2 chokes on absurd coordinates
+    found = []
+    for b in np.flatnonzero(bodies.present[:, frame]):
+        v_mm = posed_vertices(bodies, b, frame, ph.index, ph.weights) * 1000.0
+        depth = cam.world_to_camera(v_mm)[:, 2]
+        if not (depth > 0).any():
+            continue  # behind the camera
+        px = cam.project(v_mm).astype(np.float32)
+        good = (np.abs(np.nan_to_num(px, nan=np.inf)) < far).all(1)  # finite, not absurd
+        hulls = []
+        for rows in ph.parts:
+            p = px[rows[good[rows]]]
+            if len(p) >= 3:
+                hulls.append(cv2.convexHull(p)[:, 0])
+        if hulls:
+            found.append((float(np.median(depth)), int(bodies.ids[b]), tuple(hulls)))
+    found.sort(key=lambda x: -x[0])  # far first
+    tracks = np.array([k for _, k, _ in found], int)
+    return BodyOutlines(
+        tracks=tracks,
+        colors=track_color(tracks).reshape(-1, 3),
+        hulls=tuple(h for _, _, h in found),
+        residual_px=mesh_residuals(data, view, frame),
+    )
+
+
+def body_labels(bodies: BodyOutlines, shape: tuple[int, int], scale: float) -> np.ndarray:
+    """(h, w) uint8 of ``shape``: 0 where no body is, i + 1 where body i is the nearest
+    (pixels ``scale`` x full resolution): the silhouettes :func:`draw_bodies` fills."""
+    label = np.zeros(shape, np.uint8)
+    for i, hulls in enumerate(bodies.hulls):
+        for hull in hulls:  # 3 bits of sub-pixel precision
+            pts = np.round(hull * (scale * 8)).astype(np.int32)
+            cv2.fillConvexPoly(label, pts, i + 1, cv2.LINE_8, 3)
+    return label
+
+
+def _box(pts: np.ndarray, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """Whole-pixel [lo, hi) box around (n, 2) points in 1/8 px, a margin for the
+    outline's anti-aliasing, clipped to the w x h picture."""
+    lo = np.maximum(pts.min(0) // 8 - 2, 0)
+    hi = np.minimum(pts.max(0) // 8 + 3, [w, h])
+    return lo, hi
+
+
+def draw_bodies(out: np.ndarray, bodies: BodyOutlines, scale: float) -> None:
+    """Fill each body's silhouette translucently in its track's colour (nearer bodies
+    over farther ones) and outline it, on ``out`` (pixels ``scale`` x full resolution).
+    The fills go on a copy of the bodies' box blended back once (cv2.addWeighted: where
+    no body is, the blend gives the picture back); each outline from its own body's mask."""
+    h, w = out.shape[:2]
+    polys = []  # per body: all its hulls' points (1/8 px), where each hull ends, colour
+    for hulls, color in zip(bodies.hulls, bodies.colors, strict=True):
+        if hulls:
+            pts = np.round(np.concatenate(hulls) * (scale * 8)).astype(np.int32)
+            polys.append((pts, np.cumsum([len(x) for x in hulls])[:-1], color))
+    if not polys:
+        return
+    lo, hi = _box(np.concatenate([p for p, _, _ in polys]), w, h)
+    if (hi <= lo).any():
+        return  # every body outside the picture
+    roi = out[lo[1] : hi[1], lo[0] : hi[0]]
+    fills, outlines = roi.copy(), []
+    for pts, ends, color in polys:  # far to near
+        rgb = tuple(int(c) for c in color)
+        pts = pts - lo * 8
+        for p in np.split(pts, ends):
+            cv2.fillConvexPoly(fills, p, rgb, cv2.LINE_8, 3)
+        a, b = _box(pts, hi[0] - lo[0], hi[1] - lo[1])
+        if (b <= a).any():
+            continue
+        mask = np.zeros((b[1] - a[1], b[0] - a[0]), np.uint8)
+        for p in np.split(pts - a * 8, ends):
+            cv2.fillConvexPoly(mask, p, 1, cv2.LINE_8, 3)
+        contours, _ = cv2.findContours(
+            mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(int(a[0]), int(a[1]))
+        )
+        outlines.append((contours, rgb))
+    cv2.addWeighted(fills, BODY_ALPHA, roi, 1.0 - BODY_ALPHA, 0.0, dst=roi)
+    for contours, rgb in outlines:
+        cv2.drawContours(roi, contours, -1, rgb, 1, cv2.LINE_AA)
+
+
+def bodies_text(bodies: BodyOutlines | None) -> str:
+    """The camera panel's line about the bodies drawn: each track's mesh-vs-2D residual."""
+    if bodies is None:
+        return ""
+    if not bodies.residual_px:
+        return "<small>fitted bodies: none seen by this camera in this frame</small>"
+    parts = " · ".join(f"track {k} {e:.1f} px" for k, e in sorted(bodies.residual_px.items()))
+    return f"<small>fitted body vs 2D (median over joints): {parts}</small>"
