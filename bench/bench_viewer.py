@@ -27,9 +27,14 @@ panels detached). And the same frame changes with ``--rerun`` (mvviz/export/reru
 logging into rerun's server): the frame-change time with and without it, the rerun
 logging time per frame, and 1x playback with it (frames logged / dropped, lag).
 
+With --browser-playback, only 1x playback of the app as ``python app.py`` starts it
+(default layers) in headless chromium (software WebGL): how far the camera panel's
+picture trails the 3D view and how far the page trails the newest frame sent
+(tools/playback_probe.py).
+
 Usage:
     python bench/bench_viewer.py [--scene DIR] [--changes N] [--client] [--json FILE]
-                                 [--rerun-only]
+                                 [--rerun-only] [--browser-playback [--seconds S]]
 """
 
 from __future__ import annotations
@@ -61,6 +66,8 @@ from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.files import CACHE_DIR  # noqa: E402
 from pipeline.results import run_or_load  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
+from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium  # noqa: E402
+from tools.playback_probe import PictureLog, measure_playback  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 TARGET_MS, TARGET_KB = 20.0, 50.0
@@ -289,6 +296,38 @@ def rerun_overhead(start, changes: np.ndarray, warm: np.ndarray) -> dict:
     return r
 
 
+def browser_playback(scene, results, model, frames, seconds: float) -> dict:
+    """1x playback of the default app in headless chromium: the page's lag."""
+    from playwright.sync_api import sync_playwright  # noqa: PLC0415  (dev extra)
+
+    state = ViewerState.create(scene, results, model)
+    app = ViewerApp(state, host="127.0.0.1", port=free_port(), frames=frames, model=model)
+    assert app.wait_idle(60)
+    log = PictureLog(app)
+    try:
+        with sync_playwright() as pw:
+            browser = launch_chromium(pw)
+            page = browser.new_page(viewport={"width": 1400, "height": 860})
+            page.goto(app.url)
+            page.wait_for_selector("canvas", timeout=60_000)
+            close_webgl_notice(page)
+            page.wait_for_timeout(3000)  # the initial scene
+            lag = measure_playback(app, page, log, seconds=seconds)
+            browser.close()
+    finally:
+        app.stop()
+    print(f"1x playback in headless chromium: {lag.summary()}")
+    med = lambda x: float(np.median(x)) if x.size else None  # noqa: E731
+    top = lambda x: int(x.max()) if x.size else None  # noqa: E731
+    return {
+        "samples": lag.samples, "seconds": lag.seconds, "frames_played": lag.frames_advanced,
+        "frames_sent": lag.renders,
+        "image_lag_median": med(lag.image_lag), "image_lag_max": top(lag.image_lag),
+        "sent_lag_median": med(lag.sent_lag), "sent_lag_max": top(lag.sent_lag),
+        "label_lag_median": med(lag.label_lag), "label_lag_max": top(lag.label_lag),
+    }  # fmt: skip
+
+
 # --------------------------------------------------------------------------- runs
 
 
@@ -381,6 +420,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument(
         "--rerun-only", action="store_true", help="only the default with and without --rerun"
     )
+    ap.add_argument(
+        "--browser-playback", action="store_true",
+        help="only 1x playback in headless chromium: the page's lag (tools/playback_probe.py)",
+    )  # fmt: skip
+    ap.add_argument("--seconds", type=float, default=15.0, help="--browser-playback's length")
     args = ap.parse_args(argv)
 
     scene = load_scene(args.scene)
@@ -392,6 +436,13 @@ def main(argv: list[str] | None = None) -> dict:
     changes = rng.integers(0, scene.num_frames, args.changes)
     warm = rng.integers(0, scene.num_frames, 5)
     out: dict = {"scene": scene.name, "changes": int(args.changes)}
+    if args.browser_playback:
+        if not CHROMIUM.exists():
+            raise SystemExit(f"{CHROMIUM} is absent (apt-get install chromium)")
+        out["browser_playback"] = browser_playback(scene, results, model, frames, args.seconds)
+        if args.json:
+            write_json(args.json, out)
+        return out
 
     def run(label: str, setup=None, core: bool = False, **options) -> dict:
         app, tap = start_app(scene, results, model, frames, **options)

@@ -41,10 +41,16 @@ from mvviz.panels.view_panels import (
     make_timeline_panel,
 )
 from mvviz.scene.geometry import LayerToggles, ViewerData, frame_geometry, prepare
-from mvviz.scene.images import FrameStore, blank_frame, draw_overlay, image_overlay
+from mvviz.scene.images import (
+    BodyOutlines,
+    FrameStore,
+    blank_frame,
+    draw_overlay,
+    image_overlay,
+)
 from mvviz.scene.layers import make_scene_layers
 from mvviz.state import ViewerState
-from mvviz.workers import LatestWins
+from mvviz.workers import LatestWins, PageAcks
 from pipeline.body_model import BodyModel
 from pipeline.results import PipelineResults
 
@@ -104,6 +110,7 @@ class ViewerApp:
         self.last_image_cpu_ms = 0.0  # CPU time of the last frame's image job
         self._stats_shown_t = -np.inf
         self._renderer = LatestWins(self._render)
+        self._acks = PageAcks(server)  # playback waits for the pages (drops, never lags)
         self._player = threading.Thread(target=self._play_loop, name="mvviz-play", daemon=True)
         self._player.start()
         if frames is not None:
@@ -269,6 +276,7 @@ class ViewerApp:
         self._renderer.stop()
         self._image_pool.shutdown(wait=True)
         self._player.join(timeout=5)
+        self._acks.stop()
         self.server.stop()
 
     # ------------------------------------------------------------------ internals
@@ -317,9 +325,10 @@ class ViewerApp:
 
     def _frame_images(
         self, st: ViewerState
-    ) -> tuple[dict[str, tuple[object, np.ndarray | None]], np.ndarray]:
-        """The frustums' images (camera name -> (key, image or None)) and the camera
-        panel's picture with its overlay, for ``st``'s frame. Runs on the image thread."""
+    ) -> tuple[dict[str, tuple[object, np.ndarray | None]], np.ndarray, BodyOutlines | None]:
+        """The frustums' images (camera name -> (key, image or None)), the camera panel's
+        picture with its overlay and the bodies drawn on it, for ``st``'s frame. Runs on
+        the image thread."""
         t0 = time.thread_time()
         f, lay, data = st.frame, st.layers, st.data
         images: dict[str, tuple[object, np.ndarray | None]] = {}
@@ -339,9 +348,10 @@ class ViewerApp:
             # bilinear up to 2x down (~7x faster than INTER_AREA here, little aliasing)
             interp = cv2.INTER_AREA if base.shape[1] > 2 * w else cv2.INTER_LINEAR
             base = cv2.resize(base, (w, h), interpolation=interp)
-        panel_image = draw_overlay(base, image_overlay(data, st.camera, f, lay))
+        overlay = image_overlay(data, st.camera, f, lay)
+        panel_image = draw_overlay(base, overlay)
         self.last_image_cpu_ms = (time.thread_time() - t0) * 1e3
-        return images, panel_image
+        return images, panel_image, overlay.bodies
 
     def _render_locked(self) -> None:
         t0 = time.perf_counter()
@@ -363,10 +373,11 @@ class ViewerApp:
             self.timeline.show_frame(st)
             self.selection_panel.show(st)
             t2 = time.perf_counter()
-            images, panel_image = images_job.result()
+            images, panel_image, bodies = images_job.result()
             t3 = time.perf_counter()
             self.layers.set_frustum_images(images)
             self.camera_panel.show_image(panel_image)
+            self.camera_panel.show_bodies(bodies)
         self.server.flush()
         t4 = time.perf_counter()
         ms = (t4 - t0) * 1e3
@@ -392,6 +403,9 @@ class ViewerApp:
                 print(f"mvviz view: state-change callback failed: {exc}")
 
     def _play_loop(self) -> None:
+        """Advance one frame per video frame; after each, wait for the render and for
+        the open pages to apply it (:class:`~mvviz.workers.PageAcks`), then skip the
+        frames that time passed: a slow page drops frames instead of lagging."""
         next_t = time.perf_counter()
         while not self._stopped.is_set():
             st = self.state
@@ -403,15 +417,23 @@ class ViewerApp:
             period = 1.0 / (st.scene.fps * max(st.speed, 1e-3))
             next_t += period
             delay = next_t - time.perf_counter()
+            step = 1
             if delay > 0:
                 time.sleep(delay)
-            else:
-                next_t = time.perf_counter()  # fell behind: frames get skipped, not queued
-            f = st.frame + 1
-            if f >= st.data.num_frames:
-                if not st.loop:
+            else:  # fell behind (render or page slower than the video): skip
+                missed = int(-delay / period)
+                step += missed
+                next_t += missed * period
+            f, n = st.frame + step, st.data.num_frames
+            if f >= n:
+                if st.loop:
+                    f %= n
+                elif st.frame < n - 1:
+                    f = n - 1  # the last frame is shown, whatever was skipped
+                else:
                     st.playing = False
                     self._on_change("playing")
                     continue
-                f = 0
             self.set_frame(f)
+            self._renderer.wait_idle(self._acks.timeout_s)
+            self._acks.wait()

@@ -1,10 +1,16 @@
-"""Background workers of the viewer: a "latest wins" slot that never queues stale work."""
+"""Background workers of the viewer: a "latest wins" slot that never queues stale work,
+and :class:`PageAcks`, which waits until the open pages have applied what was sent."""
 
 from __future__ import annotations
 
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import viser
+
+ACK_KEY = "mvviz-ack"  # a localStorage key that is only ever read
 
 
 class LatestWins:
@@ -76,3 +82,50 @@ class LatestWins:
                 with self._cv:
                     self._busy = False
                     self._cv.notify_all()
+
+
+class PageAcks:
+    """Waits until every open page has applied the messages sent before the call.
+
+    viser's client applies incoming messages in order, in its render loop, and answers
+    a localStorage read (``client.local_storage.get_item``) from the same loop; so the
+    answer to a read queued after a frame's messages means the page has applied that
+    frame. Playback waits for it before advancing, so a page that draws slower than the
+    video plays skips frames instead of falling behind. One wait is at most
+    ``timeout_s``; a page that did not answer in time while another did (a stuck tab, a
+    raw websocket client) is not waited for again for ``skip_s``, so it cannot stall the
+    others. A lone slow page is always waited for: it is the one being watched.
+    """
+
+    def __init__(
+        self, server: viser.ViserServer, *, timeout_s: float = 2.0, skip_s: float = 5.0
+    ) -> None:
+        self.server, self.timeout_s, self.skip_s = server, timeout_s, skip_s
+        self._pool = ThreadPoolExecutor(4, thread_name_prefix="mvviz-acks")
+        self._silent_until: dict[int, float] = {}  # client id -> monotonic time
+
+    def wait(self) -> int:
+        """Block until each page answered (at most ``timeout_s``); the pages answering."""
+        now = time.monotonic()
+        clients = [
+            c for cid, c in self.server.get_clients().items()
+            if self._silent_until.get(cid, 0.0) <= now
+        ]  # fmt: skip
+        futures = [(c.client_id, self._pool.submit(self._ask, c)) for c in clients]
+        ok = {cid: fut.result() for cid, fut in futures}
+        for cid, answered in ok.items():
+            if answered:
+                self._silent_until.pop(cid, None)
+            elif any(ok.values()):
+                self._silent_until[cid] = time.monotonic() + self.skip_s
+        return sum(ok.values())
+
+    def stop(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def _ask(self, client: viser.ClientHandle) -> bool:
+        try:
+            client.local_storage.get_item(ACK_KEY, timeout=self.timeout_s)
+            return True
+        except (TimeoutError, RuntimeError):  # no answer in time, or it disconnected
+            return False
