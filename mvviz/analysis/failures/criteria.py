@@ -30,6 +30,7 @@ from pipeline.evaluate import evaluate, ground_truth_slots, gt_per_frame, to_smp
 from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
 from pipeline.label_check import check_results
 from pipeline.results import PipelineResults
+from pipeline.run import row_frames
 from pipeline.scene import Scene
 
 
@@ -278,7 +279,7 @@ def _unassigned(
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         mean_conf = np.nanmean(np.where(np.isfinite(conf), conf, np.nan), axis=1)
-    frames = scene.detections.frame
+    frames = row_frames(scene, results.config)  # where the stages used it (sync.offsets)
     best: dict[tuple[int, int], int] = {}
     for d in np.flatnonzero((results.det_person < 0) & (mean_conf >= unassigned_confidence)):
         key = (int(frames[d]), int(view[d]))

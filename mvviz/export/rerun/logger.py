@@ -41,6 +41,7 @@ from mvviz.export.rerun.series import _log_plots
 from pipeline.body_model import BodyModel
 from pipeline.joint_sets import get_joint_set
 from pipeline.results import PipelineResults
+from pipeline.run import row_frames
 from pipeline.scene import Scene
 from pipeline.smpl_fit import SmplFit
 
@@ -97,7 +98,8 @@ class SceneLogger:
         self.joint_set = get_joint_set(results.joint_set)
         self.plot_idx = {name: resolve_plot_joint(self.joint_set, name) for name in plot_joints}
         det, gt = scene.detections, scene.gt
-        n_unassigned, n_untracked = _pool_sizes(results, det.frame, det.view)
+        n_unassigned, n_untracked = _pool_sizes(results, row_frames(scene, results.config),
+                                                det.view)  # fmt: skip
         self.layout = ClassLayout(
             num_tracks=results.num_tracks,
             gt_people=tuple(int(p) for p in np.unique(gt.person_id)) if gt is not None else (),
@@ -110,7 +112,7 @@ class SceneLogger:
             _, w, h, s = scaled_intrinsics(cam, widths[cam.name])
             self.cam_size[cam.name] = (w, h, s)
         self._widths = widths
-        self.rows_by_frame = _group(det.frame)
+        self.rows_by_frame = _group(row_frames(scene, results.config))  # as the stages used
         self.person_by_frame = _group(results.person_frame)
         self.gt_by_frame = _group(gt.frame) if gt is not None else {}
         self.extra = dict(extra_meshes or {})
