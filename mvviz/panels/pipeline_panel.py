@@ -363,6 +363,7 @@ class PipelinePanel:
         self._rows_sync = self.run_config.sync
         self._rows = frame_rows(self.scene, self.run_config)  # re-timed as the run was
         self._restored = self.run_results.det_restored
+        self._joints2d_cache: tuple[tuple | None, np.ndarray | None] = (None, None)
         has_smpl = self._restored is not None or self.scene.detections.has_mono3d
         sources = ("keypoints", "smpl") if has_smpl else ("keypoints",)
         if self.run_config.source not in sources:
@@ -568,7 +569,10 @@ class PipelinePanel:
     def _joints2d(self, config: PipelineConfig) -> np.ndarray:
         if config.source == "smpl" and self._restored is None:
             self._restored = restored_joints(self.scene, self.model)
-        return select_2d(self.scene, config, self._restored)
+        key = (config.source, config.sync)  # re-timing a sub-frame offset takes ~0.1 s
+        if self._joints2d_cache[0] != key:
+            self._joints2d_cache = (key, select_2d(self.scene, config, self._restored))
+        return self._joints2d_cache[1]
 
     def _rows_for(self, config: PipelineConfig) -> list[np.ndarray]:
         """Detection rows per frame for ``config`` (its sync offsets move rows)."""

@@ -88,16 +88,17 @@ def _interpolated(frame: np.ndarray, kp: np.ndarray, a: float) -> np.ndarray:
     step = 1 if a > 0 else -1
     w = abs(a)
     partner = partners(frame, kp, step)
+    i = np.flatnonzero(partner >= 0)
+    j = partner[i]
+    seen_i, seen_j = _seen(kp[i]), _seen(kp[j])  # (m, J)
+    both = seen_i & seen_j
+    mixed = (1 - w) * kp[i, :, :2] + w * kp[j, :, :2]
+    out[i, :, :2] = np.where(both[..., None], mixed, kp[i, :, :2])
+    conf = np.where(both, np.minimum(kp[i, :, 2], kp[j, :, 2]), kp[i, :, 2])
+    # A joint the neighbouring frame misses keeps this frame's position: up to |a|
+    # of a frame off in time, so it is trusted less, as a row without a partner.
+    out[i, :, 2] = np.where(seen_i & ~both, conf * (1 - w), conf)
     has = partner >= 0
-    for i in np.flatnonzero(has):
-        j = partner[i]
-        both = _seen(kp[i]) & _seen(kp[j])
-        out[i, both, :2] = (1 - w) * kp[i, both, :2] + w * kp[j, both, :2]
-        out[i, both, 2] = np.minimum(kp[i, both, 2], kp[j, both, 2])
-        # A joint the neighbouring frame misses keeps this frame's position: up to |a|
-        # of a frame off in time, so it is trusted less, as a row without a partner.
-        alone = _seen(kp[i]) & ~both
-        out[i, alone, 2] *= 1 - w
     # No partner (the person enters, leaves, or is missed in the neighbouring frame):
     # the row keeps its own frame's 2D, |a| of a frame away from the time it is used at.
     # Dropping it would lose a view of that person; keeping it at full confidence would
