@@ -234,14 +234,15 @@ def rotmat_to_axis_angle(R: np.ndarray) -> np.ndarray:
 
 def simulate_regressor(
     rng: np.random.Generator,
-    camera: Camera,
+    camera: Camera | np.ndarray,
     pose_world: np.ndarray,
     betas: np.ndarray,
     true_joints_2d: np.ndarray,
     model: BodyModel,
     noise: DetectorNoise,
 ) -> dict[str, np.ndarray]:
-    """Monocular SMPL predictions for N detections in one camera.
+    """Monocular SMPL predictions for N detections in one camera (or in many: pass
+    ``camera`` as (N, 3, 3) world-to-camera rotations, one per detection).
 
     Args:
         pose_world: (N, 24, 3) true pose, root orientation in the world frame.
@@ -256,7 +257,8 @@ def simulate_regressor(
     pose[:, 1:] += rng.normal(0, noise.regressor_pose_sigma, pose[:, 1:].shape)
     pose[:, 0] += rng.normal(0, noise.regressor_root_sigma, (n, 3))
     rot = axis_angle_to_matrix(torch.as_tensor(pose, dtype=torch.float64)).numpy()
-    rot[:, 0] = camera.R @ rot[:, 0]  # the regressor sees the body in its camera's frame
+    R = camera.R if isinstance(camera, Camera) else np.asarray(camera, float)
+    rot[:, 0] = R @ rot[:, 0]  # the regressor sees the body in its camera's frame
     pred_betas = betas + rng.normal(0, noise.regressor_betas_sigma, betas.shape)
     rest = model.rest_joints(torch.as_tensor(pred_betas, dtype=torch.float32)).double().numpy()
     flip = rng.uniform(size=(n, len(_LIMBS))) < noise.regressor_depth_flip_prob

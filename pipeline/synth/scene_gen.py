@@ -30,6 +30,8 @@ from pipeline.synth.motion import (
     root_to_world,
     sample_pose_library,
 )
+from pipeline.synth.occlusion import point_occlusion
+from pipeline.synth.proxy import pose_proxy, proxy_bodies, proxy_for
 from pipeline.synth.render import (
     MeshInstance,
     Render,
@@ -67,6 +69,13 @@ class SynthConfig:
     area_radius_mm: float | None = None
     """People stand within this distance (floor plane) of the mean of the camera
     centres, e.g. a dome's capture circle; None: anywhere ``min_views`` cameras see."""
+    occlusion: str = "auto"
+    """How occluded keypoints are found: ``"render"`` reads the z-buffer of each view's
+    full render (the mesh at full resolution); ``"proxy"`` evaluates the depth of a
+    50 mm decimated body at the keypoints' pixels only, all views at once
+    (:mod:`pipeline.synth.occlusion`; tens of times faster, the same statistics within
+    about a percent, see bench/check_synth_stats.py); ``"auto"``: render when videos
+    are written (the render is made anyway), proxy otherwise."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -331,11 +340,22 @@ def synthesize(
         model=model, kreg=kreg, js=get_joint_set(config.joint_set), defined=kreg.fitted,
         noise=config.noise, area=area, library=sample_pose_library(200, seed=config.seed),
     )  # fmt: skip
-    faces = model.faces.numpy()
-    backgrounds = [render_background(cam) for cam in rig]
-    writers = _open_writers(rig, config, video_dir)
     columns = ("frame", "view", "keypoints", "gt_person_id") + SMPL_FIELDS
     rows: dict[str, list] = {k: [] for k in columns}
+    if config.occlusion not in ("auto", "render", "proxy"):
+        raise ValueError(f"occlusion: expected auto, render or proxy, got {config.occlusion!r}")
+    use_proxy = config.occlusion == "proxy" or (
+        config.occlusion == "auto" and (video_dir is None or not config.render_video)
+    )
+    if use_proxy:
+        if video_dir is not None and config.render_video:
+            raise ValueError("occlusion='proxy' renders no images: pass render_video=False")
+        _detect_proxy(rng, sim, rig, people, config, progress, rows)
+        return people, _detections(rows, sim.js.num_joints)
+    faces = model.faces.numpy()
+    writers = _open_writers(rig, config, video_dir)
+    # the backdrop only shows in videos; detections never look at it
+    backgrounds = [render_background(cam) if writers else None for cam in rig]
     betas_t = torch.as_tensor(people.betas, dtype=torch.float32)
     frames = range(config.num_frames)
     for f in track(frames, "synth frames", progress, unit="frame"):
@@ -363,6 +383,60 @@ def synthesize(
     for w, _ in writers.values():
         w.release()
     return people, _detections(rows, sim.js.num_joints)
+
+
+def _detect_proxy(
+    rng: np.random.Generator,
+    sim: _Simulation,
+    rig: CameraRig,
+    people: SynthPeople,
+    config: SynthConfig,
+    progress: bool,
+    rows: dict[str, list],
+) -> None:
+    """Detections of every frame with occlusion from the proxy body: per frame, pose the
+    proxies, find the surface at every keypoint's pixel in all views at once, simulate
+    the 2D detector per view and the monocular regressor for all views in one call."""
+    P, defined = people.keypoints.shape[0], sim.defined
+    bodies = proxy_bodies(sim.model, proxy_for(sim.model), people.betas)
+    ids = np.repeat(np.arange(P), int(defined.sum()))
+    cams = list(rig)
+    R_all = np.stack([c.R for c in cams])
+    tol = sim.noise.self_occlusion_tolerance_mm
+    for f in track(range(config.num_frames), "synth frames", progress, unit="frame"):
+        verts = pose_proxy(bodies, people.pose[:, f]) * 1000 + people.transl[:, f, None]
+        coco = people.keypoints[:, f]  # (P, T, 3) mm
+        occ = point_occlusion(cams, verts, bodies.faces, coco[:, defined].reshape(-1, 3),
+                              cull_back_faces=True)  # fmt: skip
+        vis_all, other_all = occ.visible(ids, tolerance_mm=tol), occ.hidden_by_other(ids)
+        found = []  # per view: (view, people in detector order, their keypoints)
+        for v, cam in enumerate(cams):
+            vis = np.zeros((P, sim.js.num_joints), bool)
+            other = np.zeros((P, sim.js.num_joints), bool)
+            vis[:, defined] = vis_all[v].reshape(P, -1)
+            other[:, defined] = other_all[v].reshape(P, -1)
+            kp, detected = simulate_keypoints(
+                rng, cam, cam.project(coco), ~vis & ~other, other, sim.noise,
+                joint_set=sim.js, defined=defined,
+            )  # fmt: skip
+            order = rng.permutation(np.flatnonzero(detected))  # detector order is arbitrary
+            found.append((v, order, kp[order], rng.poisson(sim.noise.false_positives_per_view)))
+        who = np.concatenate([o for _, o, _, _ in found])
+        reg = {}
+        if who.size:
+            view = np.concatenate([np.full(o.size, v) for v, o, _, _ in found])
+            smpl2d = np.concatenate([cams[v].project(people.joints[o, f]) for v, o, _, _ in found])
+            reg = simulate_regressor(
+                rng, R_all[view], people.pose[who, f], people.betas[who], smpl2d, sim.model,
+                sim.noise,
+            )  # fmt: skip
+        start = 0
+        for v, o, kp, n_ghost in found:  # rows by view, people then ghosts, as render's
+            if o.size:
+                _append(rows, f, v, kp, o, {k: x[start : start + o.size] for k, x in reg.items()})
+                start += o.size
+            if n_ghost:
+                _detect_ghosts(rng, sim, cams[v], n_ghost, f, v, rows)
 
 
 def _append(
