@@ -1,7 +1,7 @@
 """The timeline's failure strip: frame ticks and a mark per failure span, one lane per
 criterion in its colour, drawn as an image as wide as the right-hand panel; and the
-playhead above it (a separate few-hundred-byte strip, so a frame change never re-sends
-the marks).
+playhead above it, a few dozen bytes of HTML placed at the same x (a frame change never
+re-sends the marks, and draws and encodes no image).
 
 Images are (height, width, 3) uint8 RGB on the panel's white, drawn at :data:`SCALE`
 times the size they are shown at (crisp on any screen). Frame ``f`` of ``num_frames``
@@ -148,6 +148,22 @@ def draw_playhead(num_frames: int, frame: int, *, width: int = STRIP_WIDTH) -> n
     tri = np.array([[x - 8, 1], [x + 8, 1], [x, PLAYHEAD_HEIGHT - 1]], np.int32)
     cv2.fillPoly(strip, [tri], PLAYHEAD_RGB)
     return strip
+
+
+def playhead_html(num_frames: int, frame: int, *, width: int = STRIP_WIDTH) -> str:
+    """The playhead as HTML: the downward triangle of :func:`draw_playhead` at
+    ``frame``'s x, in a box as wide as the strip image is shown (viser shows an image as
+    wide as the panel, at most its own pixel width, inside ``xs`` padding, as here)."""
+    x_pct = 100.0 * frame_x(frame, num_frames, width) / width
+    half, height = 8 // SCALE, (PLAYHEAD_HEIGHT - 1) // SCALE
+    r, g, b = PLAYHEAD_RGB
+    return (
+        '<div style="padding:0 var(--mantine-spacing-xs)">'
+        f'<div style="position:relative;max-width:{width}px;height:{height + 1}px">'
+        f'<div style="position:absolute;top:0;left:calc({x_pct:.3f}% - {half}px);width:0;'
+        f"height:0;border-left:{half}px solid transparent;border-right:{half}px solid "
+        f'transparent;border-top:{height}px solid rgb({r},{g},{b})"></div></div></div>'
+    )
 
 
 def next_failure(failures: Sequence[Failure], frame: int, direction: int) -> Failure | None:

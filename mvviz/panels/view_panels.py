@@ -21,9 +21,9 @@ from mvviz.analysis.failures import Failure, seeing_view
 from mvviz.analysis.joint_views import joint_views, joint_views_markdown
 from mvviz.analysis.timeline_strip import (
     draw_failure_strip,
-    draw_playhead,
     legend_html,
     next_failure,
+    playhead_html,
 )
 from mvviz.panels.contract import PanelHost
 from mvviz.panels.failure_panel import CRITERION_SHORT
@@ -75,7 +75,7 @@ def frame_label(state: ViewerState, frame: int) -> str:
 class TimelineHandles:
     folder: viser.GuiFolderHandle
     slider: viser.GuiSliderHandle
-    playhead: viser.GuiImageHandle  # the current frame, over the failure strip
+    playhead: viser.GuiHtmlHandle  # the current frame, over the failure strip
     strip: viser.GuiImageHandle  # frame ticks and the failure marks (draw_failure_strip)
     legend: viser.GuiHtmlHandle  # the strip's colours, entries per criterion
     jump: viser.GuiButtonGroupHandle  # PREV_FAILURE / NEXT_FAILURE
@@ -111,7 +111,7 @@ class TimelinePanel:
         self.gui.label.content = frame_label(state, state.frame)
         n = state.data.num_frames
         if (state.frame, n) != (self._playhead_frame, self._strip_frames):
-            self.gui.playhead.image = draw_playhead(n, state.frame)
+            self.gui.playhead.content = playhead_html(n, state.frame)
             self._playhead_frame = state.frame
             if n != self._strip_frames:  # other results of another length: marks redrawn
                 self._strip_frames = n
@@ -185,7 +185,7 @@ def make_timeline_handles(server: viser.ViserServer, state: ViewerState) -> Time
     n = state.data.num_frames
     with server.gui.add_folder("Timeline") as folder:
         slider = server.gui.add_slider("Frame", min=0, max=max(n - 1, 0), step=1, initial_value=0)
-        playhead = server.gui.add_image(draw_playhead(n, 0), format="png")
+        playhead = server.gui.add_html(playhead_html(n, 0))
         strip = server.gui.add_image(draw_failure_strip(n, (), criteria=()), format="png")
         legend = server.gui.add_html(FINDING_FAILURES)
         jump = server.gui.add_button_group("Go to", (PREV_FAILURE, NEXT_FAILURE))

@@ -3,6 +3,8 @@ colour, the playhead points at the same x, ticks and the next / previous failure
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -17,6 +19,7 @@ from mvviz.analysis.timeline_strip import (
     frame_x,
     legend_html,
     next_failure,
+    playhead_html,
     strip_height,
     tick_steps,
 )
@@ -66,6 +69,18 @@ def test_playhead_points_at_the_frame():
         strip = draw_playhead(n, f)
         dark = np.flatnonzero(strip[-2].max(-1) < 100)
         assert abs(dark.mean() - frame_x(f, n)) <= 1.0
+
+
+def test_html_playhead_is_where_the_image_one_was():
+    """The HTML playhead's triangle: centred at the image playhead's x (as a share of the
+    strip's width), as wide and as tall on screen."""
+    for n, f in ((250, 62), (20, 0), (20, 19), (5000, 4321)):
+        html = playhead_html(n, f)
+        pct, half = re.search(r"left:calc\(([\d.]+)% - (\d+)px\)", html).groups()
+        dark = np.flatnonzero(draw_playhead(n, f)[1].max(-1) < 100)  # the triangle's top row
+        assert abs(float(pct) / 100 * STRIP_WIDTH - dark.mean()) <= 1.0
+        assert abs(2 * int(half) * 2 - dark.size) <= 2  # image pixels are half a screen pixel
+        assert f"max-width:{STRIP_WIDTH}px" in html
 
 
 @pytest.mark.parametrize("n", [2, 20, 250, 5000])
