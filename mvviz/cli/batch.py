@@ -67,15 +67,15 @@ def scene_dirs(args: argparse.Namespace) -> list[Path]:
         raise SceneFormatError(
             args.root or "mvviz batch", None, "no scenes: give SCENE... or --root DIR"
         )
-    return [d.resolve() for d in dirs]
+    return [d.absolute() for d in dirs]  # not resolved: a symlinked scene keeps its name
 
 
-def results_path(args: argparse.Namespace, scene, setting: tuple[str, ...]) -> Path:
+def results_path(args: argparse.Namespace, d: Path, scene, setting: tuple[str, ...]) -> Path:
     """Where a job's results go: mvviz run's file without --out and sweep (so the two
     share the cache); per setting under SCENE/.mvviz/sweep/ or --out/<scene>/."""
     name = setting_slug(setting)
     if args.out is not None:
-        return args.out.resolve() / scene.root.name / (f"{name}.npz" if setting else "results.npz")
+        return args.out.absolute() / d.name / (f"{name}.npz" if setting else "results.npz")
     if not setting:
         return default_results_path(scene)
     return scene.root / CACHE_DIR / "sweep" / f"{name}.npz"
@@ -101,9 +101,10 @@ def plan(args: argparse.Namespace) -> tuple[list[SceneJob], dict, object, list[d
             scenes.setdefault(d, scene)
             jobs.append(
                 SceneJob(
-                    scene_dir=d, config=config, results_path=results_path(args, scene, setting),
+                    scene_dir=d, config=config, results_path=results_path(args, d, scene, setting),
                     key=cache_key(scene, config, model), setting=setting,
-                    set_args=tuple(ns.set), config_file=args.config,
+                    set_args=tuple(ns.set),
+                    config_file=args.config.resolve() if args.config else None,
                 )
             )  # fmt: skip
     return jobs, scenes, model, bad
