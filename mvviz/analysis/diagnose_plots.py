@@ -63,12 +63,12 @@ def residual_series_image(
     fig, canvas, ax = _figure()
     t = np.arange(len(series))
     ax.plot(t, series, "-", lw=0.7, color=CURVE)
-    title = f"camera {camera}: residual against the others' joints"
+    title = f"camera {camera}: residual vs the others' joints"
     if step is not None:
         ax.axvline(step.frame, lw=1.1, color=MARK)
         ax.hlines([step.before_px, step.after_px], [0, step.frame], [step.frame, len(series)],
                   colors=MARK, lw=0.8, ls="--")  # fmt: skip
-        title += f"; moved at frame {step.frame}"
+        title += f"; step at {step.frame}"
     if frame is not None:
         ax.axvline(frame, lw=0.6, color=SPAN)
     ax.set_xlim(0, max(len(series) - 1, 1))

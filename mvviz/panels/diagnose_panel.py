@@ -76,11 +76,10 @@ def camera_residuals(
 
 
 def summary_markdown(d: Diagnosis) -> str:
-    """One row per camera: sync offset and confidence, calibration verdict, a step."""
-    lines = [
-        "| camera | sync (frames) | conf. | calibration | moved |",
-        "|---|---|---|---|---|",
-    ]
+    """One row per camera (sync offset and confidence, calibration residual that does
+    not average out, a step in time), then a line per suspect camera."""
+    lines = ["| camera | sync (frames) | conf. | calib. (px) | moved at |", "|---|---|---|---|---|"]
+    notes = []
     for name, e in d.sync.items():
         c = d.calibration.get(name)
         sync = f"{e.offset_frames:+.2f}"
@@ -89,24 +88,30 @@ def summary_markdown(d: Diagnosis) -> str:
             sync += " (cannot tell)"
         calib, moved = "—", "—"
         if c is not None:
-            calib = f"ok, {c.systematic_px:.1f} px"
+            calib = f"**{c.systematic_px:.1f} suspect**" if c.suspect else f"{c.systematic_px:.1f}"
+            moved = "—" if c.step is None else f"**{c.step.frame}**"
             if c.suspect:
-                calib = (
-                    f"**suspect**: {c.systematic_px:.1f} px vs {c.others_systematic_px:.1f}; "
-                    f"off {c.rotation_error_deg:.2f}° / {c.translation_error_mm:.0f} mm"
+                notes.append(
+                    f"Camera **{name}** disagrees with the others ({c.systematic_px:.1f} px "
+                    f"that does not average out, others {c.others_systematic_px:.1f}): the "
+                    f"bundle adjustment moves it {c.rotation_error_deg:.2f}° / "
+                    f"{c.translation_error_mm:.0f} mm (residual {c.residual_px:.1f} → "
+                    f"{c.residual_after_px:.1f} px)."
                 )
             if c.step is not None:
-                s = c.step
-                moved = f"**frame {s.frame}** ({s.before_px:.1f} → {s.after_px:.1f} px)"
+                notes.append(
+                    f"Camera **{name}**'s residual steps at frame {c.step.frame} "
+                    f"({c.step.before_px:.1f} → {c.step.after_px:.1f} px): moved then?"
+                )
         lines.append(f"| {name} | {sync} | {e.confidence:.2f} | {calib} | {moved} |")
-    late = [n for n, e in d.sync.items() if e.offset and d.calibration.get(n, None)]
-    late = [n for n in late if d.calibration[n].suspect]
+    late = [n for n, e in d.sync.items() if e.offset and n in d.calibration]
+    late = [n for n in late if d.calibration[n].suspect or d.calibration[n].step is not None]
     if late:
-        lines.append(
-            f"\n_Camera {', '.join(late)} is out of sync: its calibration is judged on 2D of "
-            "other instants; apply the offset and diagnose again before refining it._"
+        notes.append(
+            f"_Camera {', '.join(late)} is out of sync: its calibration is judged on 2D of "
+            "other instants; apply the offset and diagnose again before trusting it._"
         )
-    return "\n".join(lines)
+    return "\n".join(lines) + ("\n\n" + "\n\n".join(notes) if notes else "")
 
 
 def floor_markdown(d: Diagnosis) -> str:

@@ -482,7 +482,9 @@ def draw_overlay(image: np.ndarray, ov: Overlay2D) -> np.ndarray:
 # skins them (:mod:`mvviz.scene.bodies`: linear blend skinning, no pose blend shapes)
 # and projected with the camera model, distortion included.
 
-BODY_ALPHA = 0.35  # opacity of a body's fill over the picture
+BODY_ALPHA = 0.4  # opacity of a body's fill over the picture
+BODY_PALE = 0.45  # the fill is the track colour this much toward white: the skeletons
+# drawn over it in the full colour stay readable
 BODY_CACHE_FRAMES = 64  # (camera, frame) outlines kept per bodies object
 
 
@@ -648,16 +650,18 @@ def _box(pts: np.ndarray, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def draw_bodies(out: np.ndarray, bodies: BodyOutlines, scale: float) -> None:
-    """Fill each body's silhouette translucently in its track's colour (nearer bodies
-    over farther ones) and outline it, on ``out`` (pixels ``scale`` x full resolution).
-    The fills go on a copy of the bodies' box blended back once (cv2.addWeighted: where
-    no body is, the blend gives the picture back); each outline from its own body's mask."""
+    """Fill each body's silhouette translucently in its track's colour, paled (nearer
+    bodies over farther ones), and outline it in the colour, on ``out`` (pixels
+    ``scale`` x full resolution). The fills go on a copy of the bodies' box blended back
+    once (cv2.addWeighted: where no body is, the blend gives the picture back); each
+    outline comes from its own body's mask."""
     h, w = out.shape[:2]
     polys = []  # per body: all its hulls' points (1/8 px), where each hull ends, colour
     for hulls, color in zip(bodies.hulls, bodies.colors, strict=True):
         if hulls:
             pts = np.round(np.concatenate(hulls) * (scale * 8)).astype(np.int32)
             polys.append((pts, np.cumsum([len(x) for x in hulls])[:-1], color))
+    pale = lambda c: tuple(int(x) for x in c + (255 - c.astype(float)) * BODY_PALE)  # noqa: E731
     if not polys:
         return
     lo, hi = _box(np.concatenate([p for p, _, _ in polys]), w, h)
@@ -669,7 +673,7 @@ def draw_bodies(out: np.ndarray, bodies: BodyOutlines, scale: float) -> None:
         rgb = tuple(int(c) for c in color)
         pts = pts - lo * 8
         for p in np.split(pts, ends):
-            cv2.fillConvexPoly(fills, p, rgb, cv2.LINE_8, 3)
+            cv2.fillConvexPoly(fills, p, pale(color), cv2.LINE_8, 3)
         a, b = _box(pts, hi[0] - lo[0], hi[1] - lo[1])
         if (b <= a).any():
             continue

@@ -13,10 +13,11 @@ import pytest
 from mvviz.scene.geometry import LayerToggles, prepare
 from mvviz.scene.images import (
     BODY_ALPHA,
+    BODY_PALE,
     blank_frame,
+    bodies_text,
     body_labels,
     body_outlines,
-    bodies_text,
     draw_overlay,
     image_overlay,
     mesh_residuals,
@@ -108,7 +109,8 @@ def test_the_layer_draws_translucent_bodies_under_the_skeletons(viewer_state):
     # inside the nearest body, away from its outline: the base blended with its colour
     near = ov.bodies.tracks[-1]
     color = ov.bodies.colors[-1].astype(float)
-    expect = (48 * (1 - BODY_ALPHA) + color * BODY_ALPHA).astype(np.uint8)
+    fill = color + (255 - color) * BODY_PALE  # the track colour, paled
+    expect = (48 * (1 - BODY_ALPHA) + fill * BODY_ALPHA).astype(np.uint8)
     hits = (np.abs(drawn.astype(int) - expect).max(-1) <= 1).sum()
     assert hits > 100, near
 
