@@ -67,6 +67,11 @@ class AssociationParams:
     the others (a detection that straddles two people, or has left and right swapped):
     two people cannot stand in one place. They are merged, and triangulation's outlier
     rejection sorts out the joints. 0 disables."""
+    split_inconsistent: bool = True
+    """Split a cluster whose detections' centre rays do not meet at one body
+    (:func:`split_inconsistent`): affinities are pairwise, and when each of two far-apart
+    people is seen by two or three cameras of one height, every cross pair can meet
+    somewhere (a different phantom for each pair) while the five rays meet nowhere."""
     refine: bool = True
     """After the greedy linkage, move single detections to the cluster they agree with
     most (:func:`refine_clusters`). On rings whose cameras stand at one height, two
@@ -277,10 +282,20 @@ def associate_frame(
     best = np.fmin(dist, mirrored)
     affinity = 1.0 - best / params.max_distance_mm
     cluster = _average_linkage(affinity, views, params.min_affinity)
-    if params.refine:
-        cluster = refine_clusters(
-            affinity, views, cluster, params.min_affinity, min_views=params.min_views
-        )
+    # Split, move, split again: a wrong cluster blocks the moves of the detections that
+    # belong with its members, and the moves look at affinities only.
+    for step in ("split", "refine", "split"):
+        if step == "split" and params.split_inconsistent:
+            cluster = split_inconsistent(
+                origins, dirs, weights, views, cluster, affinity, params.min_affinity,
+                max_mm=params.joint_clip_mm,
+            )  # fmt: skip
+        elif step == "refine" and params.refine:
+            cluster = refine_clusters(
+                affinity, views, cluster, params.min_affinity, min_views=params.min_views,
+                geometry=CentreRays.of(origins, dirs, weights) if params.split_inconsistent
+                else None, max_mm=params.joint_clip_mm,
+            )  # fmt: skip
     flipped = np.zeros(n, bool)
     if flip is not None:
         flipped = resolve_flips(rig, views, joints2d, cluster, dist, mirrored, joint_set)
@@ -516,6 +531,104 @@ def merge_duplicates(
         cluster[cluster == pair[1]] = pair[0]
 
 
+@dataclass(frozen=True, eq=False)
+class CentreRays:
+    """Each detection's centre ray (:func:`centre_rays`) and what finding the point
+    nearest a set of them needs. origins, rays: (n, 3); has_ray: (n,) bool;
+    proj: (n, 3, 3) projectors off each ray; proj_origin: (n, 3) ``proj @ origin``."""
+
+    origins: np.ndarray
+    rays: np.ndarray
+    has_ray: np.ndarray
+    proj: np.ndarray
+    proj_origin: np.ndarray
+
+    @classmethod
+    def of(cls, origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray) -> CentreRays:
+        rays = centre_rays(dirs, weights)  # zero for a detection without joints
+        proj = np.eye(3) - rays[:, :, None] * rays[:, None, :]
+        return cls(
+            origins=origins,
+            rays=rays,
+            has_ray=np.linalg.norm(rays, axis=-1) > 0.5,
+            proj=proj,
+            proj_origin=np.einsum("nab,nb->na", proj, origins),
+        )
+
+    def centres(self, member: np.ndarray) -> np.ndarray:
+        """(n, C) bool membership -> (C, 3) each set's body centre, mm: the point nearest
+        (least squares) its members' rays, all sets in one batched solve."""
+        member = member & self.has_ray[:, None]
+        A = np.einsum("nc,nab->cab", member, self.proj) + 1e-9 * np.eye(3)
+        b = np.einsum("nc,na->ca", member, self.proj_origin)
+        return np.linalg.solve(A, b[..., None])[..., 0]
+
+
+def _ray_point_distance(origins: np.ndarray, rays: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(m, 3) origins and unit rays, (..., 3) points -> (..., m) distance of each point
+    to each ray (to its origin where the point lies behind it), mm."""
+    v = points[..., None, :] - origins  # (..., m, 3)
+    t = np.maximum((v * rays).sum(-1), 0.0)
+    return np.linalg.norm(v - t[..., None] * rays, axis=-1)
+
+
+def _consistent_core(origins: np.ndarray, rays: np.ndarray, max_mm: float) -> np.ndarray:
+    """(m,) bool, the largest set of centre rays (m, 3) passing within ``max_mm`` of one
+    point: the meeting point of each pair is a candidate body, and the one most rays
+    pass near wins (ties: the smallest sum of distances)."""
+    ia, ib = np.triu_indices(len(origins), 1)
+    # closest points of the two lines: solve for s, t in o_a + s r_a ~ o_b + t r_b
+    w = origins[ia] - origins[ib]
+    b = (rays[ia] * rays[ib]).sum(-1)
+    d, e = (rays[ia] * w).sum(-1), (rays[ib] * w).sum(-1)
+    denom = np.maximum(1.0 - b**2, 1e-9)
+    s, t = (b * e - d) / denom, (e - b * d) / denom
+    mid = 0.5 * (origins[ia] + s[:, None] * rays[ia] + origins[ib] + t[:, None] * rays[ib])
+    dist = _ray_point_distance(origins, rays, mid)  # (pairs, m)
+    near = dist <= max_mm
+    score = near.sum(1) - np.where(near, dist, 0).sum(1) / (max_mm * len(origins) + 1.0)
+    return near[int(np.argmax(score))]
+
+
+def split_inconsistent(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
+    views: np.ndarray,
+    cluster: np.ndarray,
+    affinity: np.ndarray,
+    threshold: float,
+    *,
+    max_mm: float,
+) -> np.ndarray:
+    """Split the clusters whose members' centre rays (:func:`centre_rays`) do not all pass
+    within ``max_mm`` of the cluster's body centre (the point nearest them): the largest
+    subset that meets at one point keeps the label (:func:`_consistent_core`), the rest
+    are clustered again among themselves (:func:`_average_linkage` on ``affinity``).
+    Repeated until every cluster is consistent. Arguments as :func:`cluster_centers`;
+    returns the new (n,) labels (new clusters take unused labels)."""
+    cluster = cluster.copy()
+    geo = CentreRays.of(origins, dirs, weights)
+    rays = geo.rays
+    checked: set[int] = set()  # labels found consistent (their members never change)
+    for _ in range(len(views)):
+        labels, col, counts = np.unique(cluster, return_inverse=True, return_counts=True)
+        todo = (counts >= 3) & ~np.isin(labels, list(checked))  # 2 rays always meet
+        if not todo.any():
+            return cluster
+        member = (col[:, None] == np.flatnonzero(todo)[None]) & geo.has_ray[:, None]  # (n, C)
+        far = _ray_point_distance(origins, rays, geo.centres(member)) > max_mm  # (C, n)
+        far &= member.T
+        checked.update(int(x) for x in labels[todo])
+        for k in np.flatnonzero(far.any(1)):
+            rows = np.flatnonzero(member[:, k])
+            rest = rows[~_consistent_core(origins[rows], rays[rows], max_mm)]
+            if len(rest):
+                sub = _average_linkage(affinity[np.ix_(rest, rest)], views[rest], threshold)
+                cluster[rest] = cluster.max() + 1 + sub
+    return cluster
+
+
 def refine_clusters(
     affinity: np.ndarray,
     views: np.ndarray,
@@ -523,6 +636,8 @@ def refine_clusters(
     threshold: float,
     *,
     min_views: int = 2,
+    geometry: CentreRays | None = None,
+    max_mm: float = np.inf,
 ) -> np.ndarray:
     """Local moves on the clustering's objective, the sum over pairs in one cluster of
     ``affinity - threshold`` (unknown affinity counts as 0, as in the linkage): while some
@@ -533,7 +648,10 @@ def refine_clusters(
     would leave its cluster with fewer than ``min_views`` detections (a person no more)
     is taken only if the others left behind have a better cluster too: on the real
     Pose2Sim demo the woman is seen in two views for a few frames, and one of them
-    agrees about as well with the man's three; moving it would lose her. Every move
+    agrees about as well with the man's three; moving it would lose her. Given the
+    ``geometry``, a detection joins no cluster of two or more whose body centre its
+    centre ray misses by more than ``max_mm``: far away, pairwise affinities can be high
+    for detections whose rays meet nowhere (see :func:`split_inconsistent`). Every move
     raises the objective, so it ends.
 
     Args:
@@ -558,6 +676,11 @@ def refine_clusters(
         seen[col, views] = True
         allowed = ~seen[:, views].T  # (n, C): the cluster has no detection of its view
         allowed &= gain > 0  # the detection agrees with it on average
+        if geometry is not None:
+            sets = member.astype(bool) & geometry.has_ray[:, None]
+            solid = sets.sum(0) >= 2  # a centre needs two rays
+            dist = _ray_point_distance(geometry.origins, geometry.rays, geometry.centres(sets))
+            allowed &= ~solid[None] | (dist.T <= max_mm) | ~geometry.has_ray[:, None]
         own = gain[np.arange(n), col]
         better = np.where(allowed, gain - own[:, None], -np.inf)
         has_home = (better > 1e-9).any(1)
