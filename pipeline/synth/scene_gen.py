@@ -69,13 +69,14 @@ class SynthConfig:
     area_radius_mm: float | None = None
     """People stand within this distance (floor plane) of the mean of the camera
     centres, e.g. a dome's capture circle; None: anywhere ``min_views`` cameras see."""
-    occlusion: str = "auto"
+    occlusion: str = "render"
     """How occluded keypoints are found: ``"render"`` reads the z-buffer of each view's
     full render (the mesh at full resolution); ``"proxy"`` evaluates the depth of a
     50 mm decimated body at the keypoints' pixels only, all views at once
-    (:mod:`pipeline.synth.occlusion`; tens of times faster, the same statistics within
-    about a percent, see bench/check_synth_stats.py); ``"auto"``: render when videos
-    are written (the render is made anyway), proxy otherwise."""
+    (:mod:`pipeline.synth.occlusion`; about 10 times faster, the same statistics within
+    about a percent, see bench/bench_synth.py); ``"auto"``: render when videos are
+    written (the render is made anyway), proxy otherwise (``mvviz synth``'s default).
+    The library default stays ``"render"``: scenes made by code keep their numbers."""
 
 
 @dataclass(frozen=True, eq=False)
