@@ -44,6 +44,7 @@ import numpy as np
 
 from pipeline.cameras import CameraRig
 from pipeline.joint_sets import JointSet
+from pipeline.ray_affinity import average_linkage, ray_distances
 from pipeline.triangulate import triangulate_people
 
 
@@ -134,7 +135,7 @@ def detection_rays(
     return origins, dirs, weights
 
 
-def ray_distances(
+def ray_distances_reference(
     origins: np.ndarray,
     dirs: np.ndarray,
     weights: np.ndarray,
@@ -142,7 +143,11 @@ def ray_distances(
     *,
     other: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """(n, m) confidence-weighted mean of clipped ray-to-ray distances, mm.
+    """:func:`pipeline.ray_affinity.ray_distances` (which :func:`associate_frame` uses)
+    as first written, over (n, m, J, 3) arrays: the reference its tests and
+    bench/bench_scale.py compare with.
+
+    (n, m) confidence-weighted mean of clipped ray-to-ray distances, mm.
 
     Between the n detections ``(origins, dirs, weights)`` and the m of ``other`` (the
     same n when None; the diagonal is then NaN). NaN where two detections share fewer
@@ -698,7 +703,16 @@ def refine_clusters(
 
 
 def _average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -> np.ndarray:
-    """Agglomerative clustering with average linkage and same-view cannot-links.
+    """:func:`pipeline.ray_affinity.average_linkage` (SciPy's hierarchical clustering):
+    the same clusters as :func:`average_linkage_reference` in O(n^2)."""
+    return average_linkage(affinity, views, threshold)
+
+
+def average_linkage_reference(
+    affinity: np.ndarray, views: np.ndarray, threshold: float
+) -> np.ndarray:
+    """Agglomerative clustering with average linkage and same-view cannot-links, as first
+    written (a Python loop over merges): the reference of the tests and bench_scale.
 
     Returns (n,) cluster labels. Merges the pair of clusters with the highest mean
     cross affinity while it is >= threshold; pairs with an unknown affinity (NaN)

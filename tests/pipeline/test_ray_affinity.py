@@ -1,0 +1,63 @@
+"""The association's kernels (pipeline.ray_affinity) against the loops they replace."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.associate import (
+    AssociationParams,
+    average_linkage_reference,
+    ray_distances_reference,
+)
+from pipeline.ray_affinity import average_linkage, ray_distances
+
+
+def _detections(rng, n_people=6, n_views=8, J=17):
+    """Rays of n_people bodies seen from n_views cameras, 2% joints missing, and a
+    few rays aimed at nobody; (origins, dirs, weights, views)."""
+    cams = rng.normal(0, 1, (n_views, 3)) * [4000, 4000, 500] + [0, 0, 1500]
+    bodies = rng.uniform(-2000, 2000, (n_people, 1, 3)) + rng.normal(0, 250, (n_people, J, 3))
+    views = np.repeat(np.arange(n_views), n_people)
+    person = np.tile(np.arange(n_people), n_views)
+    target = bodies[person] + rng.normal(0, 30, (len(views), J, 3))
+    target[::7] = rng.uniform(-3000, 3000, (len(target[::7]), J, 3))
+    dirs = target - cams[views][:, None]
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    weights = rng.uniform(0.2, 1.0, dirs.shape[:2])
+    gone = rng.uniform(size=weights.shape) < 0.02
+    dirs[gone], weights[gone] = np.nan, 0.0
+    return cams[views], dirs, weights, views
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ray_distances_equal_the_reference(seed):
+    o, d, w, views = _detections(np.random.default_rng(seed))
+    p = AssociationParams()
+    fast, ref = ray_distances(o, d, w, p), ray_distances_reference(o, d, w, p)
+    np.testing.assert_array_equal(np.isnan(fast), np.isnan(ref))
+    np.testing.assert_allclose(fast, ref, atol=1e-6, equal_nan=True)
+    assert (ref[np.isfinite(ref)] < 100).mean() > 0.05  # there are true pairs to find
+    half = len(o) // 2  # the two-argument form
+    part = ray_distances(o[:half], d[:half], w[:half], p, other=(o[half:], d[half:], w[half:]))
+    np.testing.assert_allclose(part, ref[:half, half:], atol=1e-6, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_average_linkage_equals_the_loop(seed):
+    o, d, w, views = _detections(np.random.default_rng(seed), n_people=5, n_views=6)
+    p = AssociationParams()
+    aff = 1.0 - ray_distances(o, d, w, p) / p.max_distance_mm
+    aff[views[:, None] == views[None]] = np.nan
+    for threshold in (0.1, 0.3, 0.6):
+        ref = average_linkage_reference(aff, views, threshold)
+        np.testing.assert_array_equal(average_linkage(aff, views, threshold), ref)
+    labels = average_linkage(aff, views, 0.3)
+    for c in np.unique(labels):  # cannot-links hold
+        assert len(set(views[labels == c])) == (labels == c).sum()
+    assert len(np.unique(labels)) < len(labels)  # something merged
+
+
+def test_linkage_of_one_and_none():
+    assert average_linkage(np.full((1, 1), np.nan), np.array([0]), 0.3).tolist() == [0]
+    assert average_linkage(np.zeros((0, 0)), np.zeros(0, int), 0.3).shape == (0,)
