@@ -19,9 +19,12 @@ Reported, in one run:
     as above, their median pixel distance (per camera) and millimetre distance (per
     keypoint) to the RTS joints they were fitted to; and two floors for any body of
     constant proportions: the same fit with its regularisers off (no smoothness, pose,
-    free-joint or limit terms) and 600 iterations, the best such body we found, and the
-    rigid-head floor (the face points and head top of the RTS track fitted by one rigid
-    shape per track, any shape: what a rigid head cannot get under);
+    free-joint or limit terms) and 600 iterations, the best such body we found, the same
+    with an offset for every keypoint (limb joints too, ``FitParams.limb_offsets``; also
+    without the head points), and the rigid-head floor (the face points and head top of
+    the RTS track fitted by one rigid shape per track, any shape: what a rigid head cannot
+    get under); beside them, per keypoint, the triangulation's own frame-to-frame jitter
+    (raw minus RTS, mm and px) and its reprojection error onto the 2D (px);
  4. with ``--detect`` (needs the ``[video]`` extra): the same from ``mvviz detect``
     (BlazePose) on the trial's real videos instead of the shipped OpenPose 2D, on the
     keypoints both layouts share, and the detector's run time.
@@ -38,6 +41,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shutil
 import sys
 import tempfile
@@ -60,11 +64,15 @@ from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.joint_sets import mapping_indices  # noqa: E402
 from pipeline.results import PipelineResults, run_pipeline  # noqa: E402
 from pipeline.scene import Scene, load_scene  # noqa: E402
-from pipeline.smpl_fit import FitParams, fit_sequence  # noqa: E402
+from pipeline.smpl_fit import FitParams, fit_sequence, plausibility  # noqa: E402
 
 UNREGULARISED = FitParams(iters=600, w_smooth=0.0, w_pose=0.0, w_free=0.0, w_limit=0.0)
 """The fit with nothing but the data term (betas and offsets still L2-regularised) and
 5x the iterations: the closest body of constant proportions we found."""
+EVERY_OFFSET = dataclasses.replace(UNREGULARISED, limb_offsets=True)
+"""The same with an offset for every keypoint (limb joints too, ``FitParams.limb_offsets``),
+each in its parent body part's frame: the floor of a body of constant proportions and
+constant keypoint-to-model offsets (MoSh's marker model)."""
 HEAD_POINTS = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "head_top")
 
 TRIAL = Path(__file__).resolve().parents[1] / "sample_data" / "pose2sim_balancing"
@@ -110,17 +118,33 @@ def px_to(scene: Scene, a: np.ndarray, b: np.ndarray) -> dict[str, float]:
 
 
 def floors(scene: Scene, results: PipelineResults, track: int, model) -> dict:
-    """How close a body of constant proportions gets to the subject's RTS joints."""
-    rts = results.track_smoothed[track]
-    fit, _ = fit_sequence(rts[None], results.joint_set, model, params=UNREGULARISED,
-                          progress=False)  # fmt: skip
+    """How close a body of constant proportions gets to the subject's RTS joints, and what
+    the triangulation itself does at each keypoint (its frame-to-frame jitter: raw minus
+    RTS; its reprojection error onto the 2D)."""
+    rts, raw = results.track_smoothed[track], results.track_raw[track]
     names = scene.joint_set.names
     head = [names.index(n) for n in HEAD_POINTS if n in names]
-    out = {
-        "unregularised_px": px_to(scene, fit.keypoints[0], rts),
-        "unregularised_mm": float(np.nanmedian(fit.residual)),
-        "unregularised_seconds": fit.seconds,
-    }
+    body = [j for j in range(len(names)) if j not in head]
+    out = {}
+    for tag, params in (("unregularised", UNREGULARISED), ("every_offset", EVERY_OFFSET)):
+        fit, _ = fit_sequence(rts[None], results.joint_set, model, params=params,
+                              progress=False)  # fmt: skip
+        kp = fit.keypoints[0]
+        out[f"{tag}_px"] = px_to(scene, kp, rts)
+        out[f"{tag}_no_head_px"] = px_to(scene, kp[:, body], rts[:, body])
+        out[f"{tag}_mm"] = float(np.nanmedian(fit.residual))
+        out[f"{tag}_seconds"] = fit.seconds
+        out[f"{tag}_limit_violations_per_1000"] = plausibility(fit)["limit_violations_per_1000"]
+        out[f"{tag}_per_keypoint_mm"] = dict(
+            zip(names, np.nanmedian(np.linalg.norm(kp - rts, axis=-1), 0).tolist(), strict=True)
+        )
+    _, _, obs = subject_observations(scene, results, scene.references["pose2sim"].joints)
+    e2d = reprojection_errors(scene.rig, raw, obs.keypoints)  # (F, V, J) px
+    out["raw_jitter_mm"] = dict(
+        zip(names, np.nanmedian(np.linalg.norm(raw - rts, axis=-1), 0).tolist(), strict=True)
+    )
+    out["raw_jitter_px"] = px_to(scene, raw, rts)
+    out["raw_2d_px"] = dict(zip(names, np.nanmedian(e2d, (0, 1)).tolist(), strict=True))
     if len(head) >= 3:
         r = rigid_floor_mm(rts[:, head])
         out["rigid_head_mm"] = {names[i]: float(np.nanmedian(r[:, k])) for k, i in enumerate(head)}
@@ -203,33 +227,43 @@ def print_report(title: str, fig: dict) -> None:
         )
     fl = fig.get("floors")
     if fl:
-        per_cam = fl["unregularised_px"]
-        print(
-            f"{'unregularised body vs rts joints':<34}"
-            + "".join(f"{per_cam[c]:>9.1f}       " for c in cams)
-        )
+        for key, label in (
+            ("unregularised_px", "unregularised body vs rts joints"),
+            ("every_offset_px", "  + every keypoint an offset"),
+            ("every_offset_no_head_px", "    the same without the head"),
+            ("raw_jitter_px", "ours raw vs rts (jitter)"),
+        ):
+            per_cam = fl[key]
+            print(f"{label:<34}" + "".join(f"{per_cam[c]:>9.1f}       " for c in cams))
     for name, per_cam in fig["reprojection_px"].items():
         print(
             f"{name:<34}" + "".join(f"{per_cam[c][0]:>9.1f} /{per_cam[c][1]:>5.1f}" for c in cams)
         )
     if fig.get("body_vs_rts_mm"):
         bodies = list(fig["body_vs_rts_mm"])
+        extra = (("every_offset_per_keypoint_mm", "every-offset floor"),
+                 ("raw_jitter_mm", "raw vs rts mm"), ("raw_2d_px", "raw vs 2D px"),
+                 ("rigid_head_mm", "rigid-head floor"))  # fmt: skip
+        extra = [(k, t) for k, t in extra if k in (fl or {})]
         print(f"\n{'body keypoint vs rts (mm)':<26}" + "".join(f"{b:>20}" for b in bodies)
-              + f"{'rigid-head floor':>20}")  # fmt: skip
-        head = (fl or {}).get("rigid_head_mm", {})
+              + "".join(f"{t:>20}" for _, t in extra))  # fmt: skip
         for n in fig["body_vs_rts_mm"][bodies[0]]:
             row = "".join(f"{fig['body_vs_rts_mm'][b].get(n, np.nan):>20.1f}" for b in bodies)
-            print(f"{n:<26}" + row + (f"{head[n]:>20.1f}" if n in head else ""))
+            row += "".join(f"{fl[k][n]:>20.1f}" if n in fl[k] else " " * 20 for k, _ in extra)
+            print(f"{n:<26}" + row)
         meds = "".join(
             f"{np.median(list(fig['body_vs_rts_mm'][b].values())):>20.1f}" for b in bodies
         )
         print(f"{'median':<26}" + meds)
     if fl:
-        print(
-            f"unregularised fit ({UNREGULARISED.iters} iterations, "
-            f"{fl['unregularised_seconds']:.1f} s): median {fl['unregularised_mm']:.1f} mm "
-            "from the rts joints"
-        )
+        for tag, label in (("unregularised", "unregularised fit"),
+                           ("every_offset", "the same, every keypoint an offset")):  # fmt: skip
+            print(
+                f"{label} ({UNREGULARISED.iters} iterations, {fl[tag + '_seconds']:.1f} s): "
+                f"median {fl[tag + '_mm']:.1f} mm from the rts joints, "
+                f"{fl[tag + '_limit_violations_per_1000']:.0f} joint-limit violations per "
+                "1,000 bodies"
+            )
 
 
 def run_detect(scene: Scene) -> tuple[Scene, float]:

@@ -66,7 +66,9 @@ Optimisation (all person-frames of all tracks in one batch, Adam):
   ``smpl_kinematics.OFFSET_FRAMES``, and the ankle or foot frame of the foot points that
   are not joints, heels and toes, ``FOOT_OFFSET_FRAMES``), shared by all its frames,
   L2-regularised: ``SmplFit.keypoints`` include them, the mesh and ``SmplFit.joints`` are
-  the plain body. Limb joints (knees, ankles, elbows, wrists) never get one.
+  the plain body. Limb joints (knees, ankles, elbows, wrists) get one only with
+  ``FitParams.limb_offsets`` (measured there: it costs the SMPL joints 4-6 mm on the
+  shipped scenes).
   Measured on a CMU mocap scene (campus rig, 2 people, 40 frames): step I fitted to the
   *true* keypoints misses them by 18.4 mm without offsets, 8.6 mm with them; step I on
   the RTS tracks 23.1 -> 15.3 mm against the truth (RTS itself 11.0 mm).
@@ -161,6 +163,15 @@ class FitParams:
     foot_offsets: bool = True
     """Whether heels and toes (foot points that are not joints) learn offsets too, in
     their ankle or foot frame (``smpl_kinematics.FOOT_OFFSET_FRAMES``)."""
+    limb_offsets: bool = False
+    """Whether every fitted keypoint learns an offset, limb joints (knees, ankles, elbows,
+    wrists) too, each in its parent body part's frame (MoSh's markers). Off by default:
+    on the shipped scenes, whose keypoints are exactly the model's, the limb offsets
+    absorb noise and regulariser bias (up to 30 mm) and the SMPL joints drift from the
+    truth (clean 13.3 -> 17.2 mm, noisy 15.8 -> 21.9 mm, keypoints within 0.15 mm), while
+    on Pose2Sim's balancing trial they bring the body keypoints only 6.0 / 4.7 / 6.0 / 5.9
+    -> 5.7 / 4.6 / 5.6 / 5.5 px nearer the RTS joints (``bench/bench_peer_pose2sim.py``
+    reports the floor with them)."""
     w_limit: float = 1e-3
     """Squared excess (rad^2) over the joint limits (:mod:`pipeline.limit_penalty`), step I."""
     min_torso_points: int = 3
@@ -630,8 +641,11 @@ def fit_sequence(
     x = _check_tracks(tracks_mm, joint_set)
     if weights is not None and np.shape(weights) != x.shape[:3]:
         raise ValueError(f"weights must have shape {x.shape[:3]}, got {np.shape(weights)}")
+    buf = keypoint_buffers(model, joint_set)
+    if params.limb_offsets:  # every fitted target may carry an offset (FitParams.limb_offsets)
+        buf = dataclasses.replace(buf, offset_mask=torch.as_tensor(buf.fitted, dtype=torch.float32))
     with _torch_threads(params.num_threads):
-        return _fit(x, keypoint_buffers(model, joint_set), model, prior, params, weights, progress)
+        return _fit(x, buf, model, prior, params, weights, progress)
 
 
 def _fit(
