@@ -15,7 +15,7 @@ from tests.mvviz.conftest import open_tab, open_viewer, settle, wait_rendered
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
-TABS = ("Layers", "Selection", "Pipeline", "Filter A/B", "Failures", "Export")
+TABS = ("Layers", "Selection", "Pipeline", "Filter A/B", "Failures", "Export", "Diagnose")
 
 
 def test_selected_camera_is_highlighted(running_app):
