@@ -4,6 +4,7 @@ chromium: scenes sorted by a metric, a click opens another scene at its worst mo
 from __future__ import annotations
 
 import argparse
+from concurrent.futures import ThreadPoolExecutor
 import time
 from types import SimpleNamespace
 
@@ -134,6 +135,13 @@ def page_text(page) -> str:
 
 
 def test_app_batch_switches_scenes_in_chromium(batch_dir, tmp_path):
+    # Playwright's sync API refuses a thread where an asyncio loop is marked running
+    # (an earlier test in the session can leave one); a fresh thread has none.
+    with ThreadPoolExecutor(1) as pool:
+        pool.submit(_switch_scenes_in_chromium, batch_dir, tmp_path).result()
+
+
+def _switch_scenes_in_chromium(batch_dir, tmp_path):
     if not CHROMIUM.exists():
         pytest.skip(f"{CHROMIUM} is absent")
     sync_api = pytest.importorskip("playwright.sync_api")
