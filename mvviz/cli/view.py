@@ -149,16 +149,21 @@ def _open_at(app: ViewerApp, args: argparse.Namespace, num_frames: int, num_trac
         app.jump_to(frame=frame, track=track)
 
 
-def run(args: argparse.Namespace) -> int:
-    app = start(args)
+def serve_until_interrupted(stop_serving) -> int:
+    """Keep the process alive for the server threads until Ctrl-C, then ``stop_serving()``."""
     try:
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
         print("\nstopping")
     finally:
-        stop(app)
+        stop_serving()
     return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    app = start(args)
+    return serve_until_interrupted(lambda: stop(app))
 
 
 def stop(app: ViewerApp) -> None:

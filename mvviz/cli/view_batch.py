@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import argparse
 import threading
-import time
 import traceback
 from pathlib import Path
 
 import viser
 
-from mvviz.cli.view import start, stop
+from mvviz.cli.view import serve_until_interrupted, start, stop
 from mvviz.panels.dataset_panel import DatasetPanel, make_dataset_panel
 from pipeline.batch.report import load_report
 from pipeline.files import SceneFormatError
@@ -110,11 +109,4 @@ def start_batch(args: argparse.Namespace, *, progress: bool = True) -> BatchView
 
 def run_batch(args: argparse.Namespace) -> int:
     viewer = start_batch(args)
-    try:
-        while True:
-            time.sleep(3600)
-    except KeyboardInterrupt:
-        print("\nstopping")
-    finally:
-        viewer.stop()
-    return 0
+    return serve_until_interrupted(viewer.stop)
