@@ -16,8 +16,9 @@ Each test scene: :func:`pipeline.synth.mocap_scene.write_mocap_scene` on the cam
 ``--frames`` frames at 25 fps, default detector noise, seed 0 (BVH clips as
 ``mvviz synth --motion``; library motion and the balancing poses through
 :func:`pipeline.mocap.clip_from_body`, whose truth is our body model: all 24 SMPL joints
-scored). Each prior: :func:`pipeline.prior_sources.train_on`, the shipped prior's
-recipe with fewer poses and epochs (``--num-poses 20000 --epochs 30``: a split takes
+scored; library walking with the measured ankle gait curve, see :func:`library_clip`).
+Each prior: :func:`pipeline.prior_sources.train_on`, the shipped prior's recipe with
+fewer poses and epochs (``--num-poses 20000 --epochs 30``: a split takes
 minutes, not ten, on 2 shared cores; ``--num-poses 60000 --epochs 60`` is the shipped
 recipe). Before scoring, :func:`pipeline.heldout.check_disjoint` proves the prior never saw
 a frame the scene plays, and for an activity split
@@ -95,7 +96,10 @@ SPLITS: dict[str, Split] = {
 def library_clip(kind: str, variant: int, model: BodyModel, *, fps: float = 25.0,
                  seconds: float = 3.0) -> MocapClip:  # fmt: skip
     """``seconds`` of one library activity played by a random body (seeded by ``variant``);
-    walking goes straight ahead at 1.2 m/s."""
+    walking goes straight ahead at 1.2 m/s, its ankles on the measured gait curve
+    (``walk_params(gait_ankles=True)``; the default +-8.6 deg sine dorsiflexes at toe off,
+    where people plantarflex 20 deg). The shipped samples and the training library keep
+    the sine."""
     rng = np.random.default_rng(1000 + variant)
     n = int(round(seconds * fps))
     t = np.arange(n) / fps
@@ -103,7 +107,7 @@ def library_clip(kind: str, variant: int, model: BodyModel, *, fps: float = 25.0
     position = np.zeros((n, 2))
     if kind == "walk":
         speed = np.full(n, 1.2)
-        params = walk_params(rng.uniform() + t * 1.2 / 1.35, speed)
+        params = walk_params(rng.uniform() + t * 1.2 / 1.35, speed, gait_ankles=True)
         position[:, 1] = 1000.0 * speed * t  # heading 0 faces world +y
     else:
         params = activity_params(kind, t, rng.uniform(size=8))
@@ -245,7 +249,9 @@ def main() -> None:
         ckpt = args.work / f"prior_without_{tag}_e{args.epochs}_n{args.num_poses}.pt"
         prior = make_prior(split, ckpt, epochs=args.epochs, num_poses=args.num_poses)
         t1 = time.perf_counter()
-        scene = make_scene(split, args.work / f"scene_{tag}_{args.frames}", args.frames, model)
+        # "_gait": scenes cached before the library walk took the gait ankles are not reused.
+        scene_dir = args.work / f"scene_{tag}_{args.frames}_gait"
+        scene = make_scene(split, scene_dir, args.frames, model)
         table[name] = score(scene, prior, split, model)
         t2 = time.perf_counter()
         print(f"\n{name}: prior without sources {list(split.exclude_sources)} and activities "

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
 from pipeline.joint_sets import SMPL24
@@ -110,8 +111,48 @@ STAND[[P["elbow_l"], P["elbow_r"]]] = 0.15
 STAND[[P["knee_l"], P["knee_r"]]] = 0.05
 
 
-def walk_params(phase: np.ndarray, speed: np.ndarray) -> np.ndarray:
-    """Gait cycle. phase: (N,) cycles; speed: (N,) m/s -> (N, num_params)."""
+# The ankle's sagittal angle over a gait cycle, at the ends of the Rancho Los Amigos
+# phases (% of the cycle from initial contact, degrees, + plantarflexion as ``ankle_*``):
+# Perry J, Burnfield JM, "Gait Analysis: Normal and Pathological Function", 2nd ed., 2010,
+# ch. 4 (Ankle-Foot Complex): neutral at initial contact, 10 deg plantarflexion in loading
+# response (heel rocker, 0-12 %), 5 deg dorsiflexion by the end of mid stance (31 %), 10
+# deg at the end of terminal stance (heel off, 50 %), 20 deg plantarflexion at toe off
+# (62 %), 10 deg at the end of initial swing (75 %), neutral from mid swing (87 %) on.
+# Inside PARAM_LIMITS["ankle_*"] and pose_limits' ankle box even at walk_params' largest
+# amplitude (1.3 x: 26 deg plantarflexion, 13 deg dorsiflexion).
+GAIT_ANKLE_DEG = ((0, 0.0), (12, 10.0), (31, -5.0), (50, -10.0), (62, 20.0), (75, 10.0),
+                  (87, 0.0), (100, 0.0))  # fmt: skip
+# Where initial contact falls in walk_params' phase: its knee term peaks at -0.35 rad
+# (-0.056 cycles) and the knee's peak flexion is at 73 % of the cycle (Perry, ch. 5), so
+# contact comes 0.27 cycles later; the hip term's peak extension (0.75 cycles) then falls
+# at 54 % (Perry: 50 %).
+GAIT_CONTACT_PHASE = -0.35 / (2 * np.pi) + 0.27
+
+
+def _periodic_pchip(keys: tuple[tuple[float, float], ...]) -> PchipInterpolator:
+    """Shape-preserving interpolation (no overshoot past the keyframes) of a 100-periodic
+    curve: the keyframes repeated one period either side."""
+    x = np.array([k[0] for k in keys[:-1]], float)
+    y = np.array([k[1] for k in keys[:-1]], float)
+    return PchipInterpolator(np.concatenate([x - 100, x, x + 100]), np.tile(y, 3))
+
+
+_GAIT_ANKLE = _periodic_pchip(GAIT_ANKLE_DEG)
+
+
+def gait_ankle(cycles: np.ndarray) -> np.ndarray:
+    """Ankle sagittal angle (radians, + plantarflexion) at ``cycles`` (N,) of the gait
+    cycle counted from initial contact (:data:`GAIT_ANKLE_DEG`)."""
+    return np.deg2rad(_GAIT_ANKLE(100.0 * np.mod(np.asarray(cycles, float), 1.0)))
+
+
+def walk_params(phase: np.ndarray, speed: np.ndarray, *, gait_ankles: bool = False) -> np.ndarray:
+    """Gait cycle. phase: (N,) cycles; speed: (N,) m/s -> (N, num_params).
+
+    ``gait_ankles``: the ankles follow the measured gait curve (:func:`gait_ankle`, its
+    amplitude scaled with speed like every joint here) instead of the +-8.6 deg sine
+    that the shipped samples and the shipped prior's library were made with (the default,
+    so they stay reproducible)."""
     a = np.clip(np.asarray(speed, float) / 1.3, 0, 1.3)[:, None]
     w = 2 * np.pi * np.asarray(phase, float)
     out = np.tile(STAND, (len(w), 1))
@@ -120,7 +161,11 @@ def walk_params(phase: np.ndarray, speed: np.ndarray) -> np.ndarray:
         out[:, P[f"hip_flex_{side}"]] += a[:, 0] * (0.12 + 0.38 * np.sin(ph))
         swing = np.maximum(0.0, np.cos(ph + 0.35)) ** 2  # knee flexes early in the swing
         out[:, P[f"knee_{side}"]] += a[:, 0] * (0.1 + 0.95 * swing)
-        out[:, P[f"ankle_{side}"]] += a[:, 0] * 0.15 * np.sin(ph - 0.6)
+        if gait_ankles:
+            ankle = gait_ankle(ph / (2 * np.pi) - GAIT_CONTACT_PHASE)
+        else:
+            ankle = 0.15 * np.sin(ph - 0.6)
+        out[:, P[f"ankle_{side}"]] += a[:, 0] * ankle
         out[:, P[f"arm_fwd_{side}"]] += a[:, 0] * 0.4 * np.sin(ph + np.pi)
         out[:, P[f"elbow_{side}"]] += a[:, 0] * (0.2 + 0.15 * np.sin(ph + np.pi))
     out[:, P["spine_twist"]] += a[:, 0] * 0.12 * np.sin(w)

@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
+from pipeline import pose_limits
 from pipeline.synth.motion import (
+    GAIT_ANKLE_DEG,
+    GAIT_CONTACT_PHASE,
     HIGH,
     LOW,
     PARAM_NAMES,
     activity_params,
+    gait_ankle,
     plan_people,
     pose_from_params,
     root_to_world,
@@ -58,3 +63,39 @@ def test_pose_library_has_zero_root():
     assert lib.shape == (50, 72)
     assert np.abs(lib[:, :3]).max() == 0
     assert np.abs(lib[:, 3:]).max() > 0.5
+
+
+def test_walk_default_keeps_the_sine_ankles_of_the_shipped_samples():
+    # The shipped samples and the shipped prior's library were made with this sine.
+    phase, speed = np.linspace(0, 2, 37), np.full(37, 1.1)
+    ankle = walk_params(phase, speed)[:, PARAM_NAMES.index("ankle_l")]
+    np.testing.assert_allclose(ankle, 1.1 / 1.3 * 0.15 * np.sin(2 * np.pi * phase - 0.6))
+
+
+def test_gait_ankles_follow_the_measured_curve():
+    # Perry & Burnfield's values at the ends of the gait phases (degrees, + plantarflexion).
+    pct = np.array([k[0] for k in GAIT_ANKLE_DEG], float)
+    want = np.array([k[1] for k in GAIT_ANKLE_DEG])
+    np.testing.assert_allclose(np.rad2deg(gait_ankle(pct / 100)), want, atol=1e-9)
+    fine = np.rad2deg(gait_ankle(np.linspace(0, 1, 1001)))
+    assert fine.min() == pytest.approx(-10.0) and fine.max() == pytest.approx(20.0)  # no overshoot
+    # At 1.3 m/s (amplitude 1) the left ankle's peak plantarflexion is at toe off, 62 % of
+    # the cycle after initial contact, and the right ankle is half a cycle behind.
+    phase = np.linspace(0, 1, 2001)[:-1]
+    p = walk_params(phase, np.full(len(phase), 1.3), gait_ankles=True)
+    left, right = p[:, PARAM_NAMES.index("ankle_l")], p[:, PARAM_NAMES.index("ankle_r")]
+    assert np.rad2deg(left.max()) == pytest.approx(20.0, abs=1e-3)  # on a 1/2000 grid
+    assert (phase[left.argmax()] - GAIT_CONTACT_PHASE) % 1 == pytest.approx(0.62, abs=1e-3)
+    np.testing.assert_allclose(right, np.roll(left, -1000), atol=1e-12)
+    # Only the ankles differ from the default gait.
+    legacy = walk_params(phase, np.full(len(phase), 1.3))
+    other = [i for i, n in enumerate(PARAM_NAMES) if not n.startswith("ankle_")]
+    np.testing.assert_array_equal(p[:, other], legacy[:, other])
+
+
+def test_gait_ankles_stay_inside_the_limits_at_the_fastest_walk():
+    phase = np.linspace(0, 1, 400)
+    for speed in (0.3, 1.2, 2.5):  # 2.5 m/s: walk_params' largest amplitude (1.3)
+        p = walk_params(phase, np.full(len(phase), speed), gait_ankles=True)
+        assert (p >= LOW).all() and (p <= HIGH).all()  # nothing for pose_from_params to clip
+        assert pose_limits.limit_excess(pose_from_params(p)).max() < 1e-6
