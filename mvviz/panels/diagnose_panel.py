@@ -60,8 +60,10 @@ def camera_residuals(
     scene: Scene, results: PipelineResults, diagnosis: Diagnosis, *, cancelled=None, progress=None
 ) -> dict[str, CameraResidual] | None:
     """Each camera against the others' joints, the suspects left out of the others'
-    references (what :func:`~pipeline.diagnose.calibration.check_calibration` judged);
-    None if ``cancelled()`` between cameras."""
+    references, on the run the calibration was judged on (``results`` re-timed by the
+    confident sync offsets, :mod:`pipeline.diagnose.in_sync`); None if ``cancelled()``
+    between cameras."""
+    results = diagnosis.calibration_run or results
     bad = frozenset(
         scene.rig.index_of(n) for n, f in diagnosis.calibration.items() if f.suspect
     )  # fmt: skip
@@ -89,6 +91,8 @@ def summary_markdown(d: Diagnosis) -> str:
         calib, moved = "—", "—"
         if c is not None:
             calib = f"**{c.systematic_px:.1f} suspect**" if c.suspect else f"{c.systematic_px:.1f}"
+            if c.out_of_sync:
+                calib += " (in time)"
             moved = "—" if c.step is None else f"**{c.step.frame}**"
             if c.suspect:
                 notes.append(
@@ -104,13 +108,17 @@ def summary_markdown(d: Diagnosis) -> str:
                     f"({c.step.before_px:.1f} → {c.step.after_px:.1f} px): moved then?"
                 )
         lines.append(f"| {name} | {sync} | {e.confidence:.2f} | {calib} | {moved} |")
-    late = [n for n, e in d.sync.items() if e.offset and n in d.calibration]
-    late = [n for n in late if d.calibration[n].suspect or d.calibration[n].step is not None]
-    if late:
-        notes.append(
-            f"_Camera {', '.join(late)} is out of sync: its calibration is judged on 2D of "
-            "other instants; apply the offset and diagnose again before trusting it._"
-        )
+    for name, c in d.calibration.items():
+        if c.out_of_sync:
+            notes.append(
+                f"Camera **{name}** is out of sync, not miscalibrated: "
+                f"{c.systematic_as_recorded_px:.1f} px as recorded, "
+                f"{c.systematic_px:.1f} px with its 2D re-timed by "
+                f"{c.retimed_by_frames:+.2f} frames."
+            )
+    if d.retimed:
+        offs = ", ".join(f"{k} {v:+.2f}" for k, v in d.retimed.items())
+        notes.append(f"_Calibration judged with the offsets found applied ({offs})._")
     return "\n".join(lines) + ("\n\n" + "\n\n".join(notes) if notes else "")
 
 

@@ -164,6 +164,10 @@ class CalibrationFinding:
     focal_error_px: float = 0.0
     residual_after_px: float = float("nan")
     refined: Camera | None = None
+    # Set by pipeline.diagnose.in_sync when the camera's 2D was re-timed before judging:
+    retimed_by_frames: float = 0.0  # the sync offset applied to it
+    systematic_as_recorded_px: float = float("nan")  # its systematic residual without it
+    out_of_sync: bool = False  # a suspect as recorded, not once re-timed
 
     def to_dict(self) -> dict:
         out = {
@@ -176,7 +180,11 @@ class CalibrationFinding:
             "focal_error_px": round(self.focal_error_px, 1),
             "residual_after_px": round(self.residual_after_px, 2),
             "moved_at_frame": None if self.step is None else self.step.frame,
+            "out_of_sync": bool(self.out_of_sync),
         }
+        if self.retimed_by_frames:
+            out["retimed_by_frames"] = round(self.retimed_by_frames, 3)
+            out["systematic_as_recorded_px"] = round(self.systematic_as_recorded_px, 2)
         if self.step is not None:
             out["residual_before_after_step_px"] = [
                 round(self.step.before_px, 2), round(self.step.after_px, 2)

@@ -7,8 +7,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from pipeline.diagnose.calibration import CalibrationFinding, check_calibration
+from pipeline.diagnose.calibration import CalibrationFinding
 from pipeline.diagnose.floor import FloorEstimate, estimate_floor
+from pipeline.diagnose.in_sync import check_calibration_in_sync
 from pipeline.diagnose.sync import MAX_SHIFT, SyncEstimate, estimate_offsets, offsets_over_windows
 from pipeline.progress import ProgressFn
 from pipeline.results import PipelineResults
@@ -21,6 +22,16 @@ class Diagnosis:
     calibration: dict[str, CalibrationFinding]
     floor: FloorEstimate | None
     sync_windows: list = field(default_factory=list)  # (start, stop, {camera: SyncEstimate})
+    # The run the calibration was judged on: the given one, or it re-timed by the
+    # confident sync offsets (pipeline.diagnose.in_sync); None when not known.
+    calibration_run: PipelineResults | None = None
+
+    @property
+    def retimed(self) -> dict[str, float]:
+        """Camera -> the offset (frames) its 2D was re-timed by before the calibration
+        check judged it (empty: judged as recorded)."""
+        c = self.calibration
+        return {n: f.retimed_by_frames for n, f in c.items() if f.retimed_by_frames}
 
     def to_json(self) -> dict:
         out = {
@@ -28,6 +39,10 @@ class Diagnosis:
             "calibration": {k: f.to_dict() for k, f in self.calibration.items()},
             "floor": None if self.floor is None else self.floor.to_dict(),
         }
+        if self.retimed:  # the calibration was judged on the run re-timed by these
+            out["calibration_retimed_by_frames"] = {
+                k: round(v, 3) for k, v in self.retimed.items()
+            }  # fmt: skip
         if self.sync_windows:
             out["sync_windows"] = [
                 {"start": a, "stop": b, "offset_frames": {
@@ -55,11 +70,20 @@ class Diagnosis:
             offs = ", ".join(f"{k} {e.offset_frames:+.2f}" for k, e in est.items())
             out.append(f"  frames {a}-{b - 1}: {offs}")
         out.append("calibration (each camera against the joints the others triangulate):")
+        if self.retimed:
+            offs = ", ".join(f"{k} {v:+.2f}" for k, v in self.retimed.items())
+            out.append(f"  (judged with the sync offsets found applied: {offs})")
         for name, f in self.calibration.items():
             line = (
                 f"  {name:>10}: residual {f.residual_px:.1f} px, systematic "
                 f"{f.systematic_px:.1f} px (others {f.others_systematic_px:.1f})"
             )
+            if f.out_of_sync:
+                line += (
+                    f"  OUT OF SYNC, not miscalibrated: {f.systematic_as_recorded_px:.1f} px"
+                    f" as recorded, {f.systematic_px:.1f} px re-timed by"
+                    f" {f.retimed_by_frames:+.2f} frames"
+                )
             if f.suspect:
                 line += (
                     f"  SUSPECT: off by {f.rotation_error_deg:.2f} deg / "
@@ -118,10 +142,18 @@ def diagnose(
         windows = offsets_over_windows(scene, results, window=window, max_shift=max_shift)
     if not start("calibration"):
         return None
-    calibration = check_calibration(scene, results, refine=refine, refine_focal=refine_focal)
+    judged = check_calibration_in_sync(
+        scene, results, sync, refine=refine, refine_focal=refine_focal, cancelled=cancelled
+    )
+    if judged is None:
+        return None
+    calibration, calibration_run = judged
     if not start("floor"):
         return None
     floor = estimate_floor(results.track_smoothed, scene.joint_set.names)
     if progress is not None:
         progress("done", len(steps), len(steps))
-    return Diagnosis(sync=sync, calibration=calibration, floor=floor, sync_windows=windows)
+    return Diagnosis(
+        sync=sync, calibration=calibration, floor=floor, sync_windows=windows,
+        calibration_run=calibration_run,
+    )  # fmt: skip

@@ -64,6 +64,14 @@ def test_the_late_camera_shows_its_offset(diagnosed):
     assert f"--set sync.offsets={LATE}:{e.offset_frames:+.2f}" in panel.gui.commands.content
     assert "ok" in panel.gui.floor.content and d.floor is not None and d.floor.ok
     assert panel.camera == LATE  # the camera shown first is the one at fault
+    # its calibration is judged with its 2D re-timed: late, not miscalibrated
+    c = d.calibration[LATE]
+    assert not c.suspect and c.retimed_by_frames == pytest.approx(e.offset_frames)
+    assert c.systematic_px < c.systematic_as_recorded_px
+    summary = panel.gui.summary.content
+    assert f"offsets found applied ({LATE} {e.offset_frames:+.2f})" in summary
+    assert ("out of sync, not miscalibrated" in summary) == c.out_of_sync
+    assert "suspect" not in summary
     assert "Diagnosed in" in panel.gui.status.content and not panel.gui.progress.visible
 
 
