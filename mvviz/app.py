@@ -47,6 +47,7 @@ from mvviz.scene.images import (
     blank_frame,
     draw_overlay,
     image_overlay,
+    video_frame,
 )
 from mvviz.scene.layers import make_scene_layers
 from mvviz.state import ViewerState
@@ -334,14 +335,15 @@ class ViewerApp:
         images: dict[str, tuple[object, np.ndarray | None]] = {}
         fw = lay.frustum_image_width
         for cam in data.cameras:
-            img = None
+            img, vf = None, video_frame(data, cam.name, f)  # a re-timed camera's own frame
             if lay.frustum_images and lay.cameras and self.frames is not None:
-                img = self.frames.small(cam.name, f, fw)
-            images[cam.name] = ((f, fw) if img is not None else None, img)
+                img = self.frames.small(cam.name, vf, fw)
+            images[cam.name] = ((vf, fw) if img is not None else None, img)
         camera = st.scene.rig[st.camera]
         w = st.panel_image_width
         h = max(1, round(camera.height * w / camera.width))
-        base = self.frames.frame(camera.name, f) if self.frames is not None else None
+        vf = video_frame(data, camera.name, f)
+        base = self.frames.frame(camera.name, vf) if self.frames is not None else None
         if base is None:
             base = blank_frame(w, h)
         elif base.shape[1] != w:  # overlays are drawn after resizing: crisp at any width

@@ -29,6 +29,7 @@ from mvviz.analysis.diagnose_plots import (
     sync_curve_image,
 )
 from mvviz.panels.contract import PanelHost
+from mvviz.scene.images import video_frame
 from mvviz.workers import LatestWins
 from pipeline.diagnose.calibration import CameraResidual, camera_residual
 from pipeline.diagnose.report import Diagnosis, diagnose
@@ -345,7 +346,8 @@ class DiagnosePanel:
         cam = scene.rig[scene.rig.index_of(name)]
         base = None
         if self.host.frames is not None:
-            base = self.host.frames.frame(name, self.host.state.frame)
+            st = self.host.state
+            base = self.host.frames.frame(name, video_frame(st.data, name, st.frame))
         g.field.image, _ = residual_field_image(
             f.residuals[name], cam, width=FIELD_WIDTH, base=base
         )

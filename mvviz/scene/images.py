@@ -37,6 +37,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from mvviz.scene.bodies import Bodies
 from mvviz.scene.geometry import FRUSTUM_WIDTHS, UNASSIGNED, LayerToggles, ViewerData, track_color
+from pipeline.diagnose.retime import split_offset
 from pipeline.files import save_npz_atomic
 from pipeline.scene import Scene
 from pipeline.video_crop import CalibratedFrames
@@ -356,6 +357,21 @@ class Overlay2D:
     gt_bones: tuple[tuple[int, int], ...]
     label: str
     bodies: BodyOutlines | None = None  # the fitted bodies reprojected (their layer on)
+
+
+def video_frame(data: ViewerData, camera: str, frame: int) -> int:
+    """The frame of ``camera``'s video (or image folder) shown at the pipeline's ``frame``.
+
+    A camera re-timed by the results' ``sync.offsets`` (offset d; positive: it lags) has
+    its 2D recorded at ``frame`` + round(d) used at ``frame`` (:mod:`pipeline.diagnose.
+    retime`), so its picture is taken from there too, and the drawn 2D stays on the
+    person it was detected on. Only the nearest whole frame: the sub-frame part of d
+    moves the 2D (interpolated toward the neighbouring frame) but not the picture, which
+    is never blended between frames; on a fast limb the 2D can then sit up to half a
+    frame's motion off the picture. Outside the clip (the camera has no recording of that
+    moment) the frame store gives no picture."""
+    d = data.results.config.sync.by_camera().get(camera, 0.0)
+    return int(frame) + split_offset(d)[0] if d else int(frame)
 
 
 def image_overlay(data: ViewerData, view: int, frame: int, lay: LayerToggles) -> Overlay2D:
