@@ -16,8 +16,13 @@ server showing a grid and a box, opened the same way, the floor of the browser s
 viser's client and software-rendering WebGL in headless chromium). Prints medians of
 --runs starts and the differences to the floors.
 
+With --compare-with DIR (another checkout of the project, e.g. ``git worktree add
+/tmp/before REV``), every start of this checkout's ``app.py`` is followed by one of
+DIR's (its own package first on PYTHONPATH, its own cache under DIR/sample_data), in the
+same browser: medians of both and the ratios, measured under the same load.
+
 Usage:
-    python bench/bench_startup.py [--scene DIR] [--runs N] [--json FILE]
+    python bench/bench_startup.py [--scene DIR] [--runs N] [--json FILE] [--compare-with DIR]
 """
 
 from __future__ import annotations
@@ -42,9 +47,16 @@ from bench.common import free_port, write_json  # noqa: E402
 from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium  # noqa: E402
 
 
-def time_imports() -> float:
+def repo_env(repo: Path) -> dict[str, str]:
+    """The environment that makes ``repo``'s own package the one imported."""
+    return {**os.environ, "PYTHONPATH": str(repo)}
+
+
+def time_imports(repo: Path = REPO) -> float:
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import mvviz.app"], check=True, cwd=REPO)
+    subprocess.run(
+        [sys.executable, "-c", "import mvviz.app"], check=True, cwd=repo, env=repo_env(repo)
+    )
     return time.perf_counter() - t0
 
 
@@ -76,9 +88,10 @@ def poll_http(url: str, t0: float, out: dict[str, float], stop: threading.Event)
             time.sleep(0.02)
 
 
-def time_start(scene: Path | None, browser) -> dict[str, float]:
+def time_start(scene: Path | None, browser, repo: Path = REPO) -> dict[str, float]:
     """Seconds from the command to the first HTTP answer, the URL line and (with
-    ``browser``) a drawn page. ``scene`` None: the bare viser server instead of the app."""
+    ``browser``) a drawn page. ``scene`` None: the bare viser server instead of the app;
+    ``repo``: the checkout whose app.py runs."""
     port = free_port()
     out: dict[str, float] = {}
     stop = threading.Event()
@@ -91,8 +104,9 @@ def time_start(scene: Path | None, browser) -> dict[str, float]:
     if scene is None:
         cmd = [sys.executable, "-c", BARE_VISER, str(port)]
     proc = subprocess.Popen(
-        cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-    )
+        cmd, cwd=repo, env=repo_env(repo), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True,
+    )  # fmt: skip
     try:
         for line in proc.stdout:
             if line.startswith("ready in"):
@@ -128,7 +142,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--scene", type=Path, default=REPO / "sample_data" / "shelf_synth")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument(
+        "--compare-with", type=Path, default=None, metavar="DIR",
+        help="another checkout: its app.py started after each of this one's",
+    )  # fmt: skip
     args = ap.parse_args(argv)
+    if args.compare_with is not None:
+        return compare(args)
 
     load = os.getloadavg()[0] / (os.cpu_count() or 1)
     print(f"{args.scene.name}: {args.runs} starts after a warm-up; load {load:.1f} per CPU")
@@ -174,6 +194,56 @@ def main(argv: list[str] | None = None) -> dict:
             f"{out['page_s'] - out['url_s']:.2f} s vs "
             f"{out['bare_viser_page_s'] - out['bare_viser_url_s']:.2f} s for the bare server"
         )
+    if args.json:
+        write_json(args.json, out)
+    return out
+
+
+def compare(args: argparse.Namespace) -> dict:
+    """This checkout's starts alternated with ``args.compare_with``'s, same browser."""
+    other = args.compare_with.resolve()
+    scene_rel = args.scene.resolve().relative_to(REPO)
+    repos = {"this": (REPO, REPO / scene_rel), "other": (other, other / scene_rel)}
+    load = os.getloadavg()[0] / (os.cpu_count() or 1)
+    print(f"{scene_rel}: {args.runs} alternated starts of {REPO} and {other}; load {load:.1f}")
+    pw_ctx = browser = None
+    if CHROMIUM.exists():
+        from playwright.sync_api import sync_playwright  # noqa: PLC0415  (dev extra)
+
+        pw_ctx = sync_playwright().start()
+        browser = launch_chromium(pw_ctx)
+    starts: dict[str, list[dict[str, float]]] = {k: [] for k in repos}
+    imports: dict[str, list[float]] = {k: [] for k in repos}
+    try:
+        for repo, scene in repos.values():
+            time_start(scene, None, repo)  # warm-up: each checkout's caches, OS file cache
+        for _ in range(args.runs):
+            for key, (repo, scene) in repos.items():
+                imports[key].append(time_imports(repo))
+                starts[key].append(time_start(scene, browser, repo))
+    finally:
+        if browser is not None:
+            browser.close()
+            pw_ctx.stop()
+    out: dict = {"scene": str(scene_rel), "runs": args.runs, "load_per_cpu": load,
+                 "this": str(REPO), "other": str(other)}  # fmt: skip
+    for key in repos:
+        out[key + "_imports_s"] = statistics.median(imports[key])
+        out[key + "_imports_s_runs"] = imports[key]
+        for m in ("http_s", "url_s", "page_s"):
+            values = [s[m] for s in starts[key] if m in s]
+            if values:
+                out[f"{key}_{m}"] = statistics.median(values)
+                out[f"{key}_{m}_runs"] = values
+    for m, label in (("imports_s", "import mvviz.app"), ("http_s", "first HTTP answer"),
+                     ("url_s", "URL line (scene ready)"), ("page_s", "drawn page")):  # fmt: skip
+        if f"this_{m}" in out and f"other_{m}" in out:
+            a, b = out[f"this_{m}"], out[f"other_{m}"]
+            runs = {k: ", ".join(f"{v:.2f}" for v in out.get(f"{k}_{m}_runs", [])) for k in repos}
+            print(f"{label}: this {a:.2f} s ({runs['this']}), other {b:.2f} s "
+                  f"({runs['other']}); this / other {a / b:.2f}")  # fmt: skip
+    out["load_per_cpu_after"] = os.getloadavg()[0] / (os.cpu_count() or 1)
+    print(f"load after: {out['load_per_cpu_after']:.1f} per CPU")
     if args.json:
         write_json(args.json, out)
     return out

@@ -27,6 +27,10 @@ panels detached). And the same frame changes with ``--rerun`` (mvviz/export/reru
 logging into rerun's server): the frame-change time with and without it, the rerun
 logging time per frame, and 1x playback with it (frames logged / dropped, lag).
 
+With --meshes-on-off, only the frame changes with the meshes on (skinned, as above) and
+off (``meshes``, ``fit_meshes`` and ``bodies_on_images`` off), alternated --repeats times
+in the same run, medians and the ratio (what the meshes cost per frame change).
+
 With --browser-playback, only 1x playback of the app as ``python app.py`` starts it
 (default layers) in headless chromium (software WebGL): how far the camera panel's
 picture trails the 3D view and how far the page trails the newest frame sent
@@ -35,6 +39,7 @@ picture trails the 3D view and how far the page trails the newest frame sent
 Usage:
     python bench/bench_viewer.py [--scene DIR] [--changes N] [--client] [--json FILE]
                                  [--rerun-only] [--browser-playback [--seconds S]]
+                                 [--meshes-on-off [--repeats R]]
 """
 
 from __future__ import annotations
@@ -408,6 +413,32 @@ def start_app(scene, results, model, frames, **options) -> tuple[ViewerApp, Mess
     return app, MessageTap(app.server)
 
 
+def meshes_on_off(run, repeats: int) -> dict:
+    """Frame changes with the meshes on and off, alternated ``repeats`` times: medians over
+    the runs' medians, and on / off."""
+    off = {"meshes": False, "fit_meshes": False, "bodies_on_images": False}
+    runs: dict[str, list[dict]] = {"on": [], "off": []}
+    for i in range(repeats):
+        runs["on"].append(run(f"meshes on, run {i + 1}/{repeats}"))
+        runs["off"].append(run(f"meshes off, run {i + 1}/{repeats}", **off))
+    out = {}
+    for key in ("on", "off"):
+        rs = runs[key]
+        out[f"meshes_{key}"] = {
+            k: float(np.median([r[k] for r in rs]))
+            for k in ("median_ms", "p95_ms", "median_cpu_ms", "median_kb")
+        }
+    on, of = out["meshes_on"], out["meshes_off"]
+    print(
+        f"meshes on: {on['median_ms']:.1f} ms (CPU {on['median_cpu_ms']:.1f} ms), "
+        f"{on['median_kb']:.1f} KB; off: {of['median_ms']:.1f} ms (CPU "
+        f"{of['median_cpu_ms']:.1f} ms), {of['median_kb']:.1f} KB per frame change; on / off "
+        f"{on['median_ms'] / of['median_ms']:.2f}x the time, "
+        f"{on['median_kb'] / of['median_kb']:.2f}x the bytes (medians of {repeats} runs)"
+    )
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -425,6 +456,11 @@ def main(argv: list[str] | None = None) -> dict:
         help="only 1x playback in headless chromium: the page's lag (tools/playback_probe.py)",
     )  # fmt: skip
     ap.add_argument("--seconds", type=float, default=15.0, help="--browser-playback's length")
+    ap.add_argument(
+        "--meshes-on-off", action="store_true",
+        help="only the frame changes with the meshes on and off, alternated",
+    )  # fmt: skip
+    ap.add_argument("--repeats", type=int, default=3, help="--meshes-on-off's alternations")
     args = ap.parse_args(argv)
 
     scene = load_scene(args.scene)
@@ -474,6 +510,11 @@ def main(argv: list[str] | None = None) -> dict:
         f"times grow with it; CPU times much less)"
     )
     out["load_per_cpu"] = load
+    if args.meshes_on_off:
+        out.update(meshes_on_off(run, args.repeats))
+        if args.json:
+            write_json(args.json, out)
+        return out
     skinned = out["skinned"] = run("skinned meshes (bone poses)")
     out["rerun"] = rerun_overhead(lambda: start_app(scene, results, model, frames), changes, warm)
     if args.rerun_only:

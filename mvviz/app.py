@@ -20,7 +20,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import cv2
 import numpy as np
@@ -52,8 +52,11 @@ from mvviz.scene.images import (
 from mvviz.scene.layers import make_scene_layers
 from mvviz.state import ViewerState
 from mvviz.workers import LatestWins, PageAcks
-from pipeline.body_model import BodyModel
 from pipeline.results import PipelineResults
+
+if TYPE_CHECKING:
+    from pipeline.body_arrays import BodyModelData
+    from pipeline.body_model import BodyModel
 
 STATS_INTERVAL_S = 1.0  # the render-time line updates at most this often
 P = TypeVar("P", bound=Panel)
@@ -74,7 +77,7 @@ class ViewerApp:
         host: str = "127.0.0.1",
         port: int = 8080,
         frames: FrameStore | None = None,
-        model: BodyModel | None = None,
+        model: BodyModel | BodyModelData | None = None,
         verbose: bool = False,
         server: viser.ViserServer | None = None,
     ) -> None:

@@ -7,11 +7,15 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from mvviz.scene.geometry import LayerToggles, Selection, ViewerData, prepare
-from pipeline.body_model import BodyModel
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
+
+if TYPE_CHECKING:
+    from pipeline.body_arrays import BodyModelData
+    from pipeline.body_model import BodyModel
 
 # The camera panel's image: as wide as the panel (400 px) by default, so a frame change
 # sends ~12 kB for it; 640 px (the stored frames' width) for a sharper look.
@@ -42,7 +46,7 @@ class ViewerState:
 
     @classmethod
     def create(
-        cls, scene: Scene, results: PipelineResults, model: BodyModel | None = None
+        cls, scene: Scene, results: PipelineResults, model: BodyModel | BodyModelData | None = None
     ) -> ViewerState:
         data = prepare(scene, results, model)
         names = data.joint_set.names

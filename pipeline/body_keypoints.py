@@ -37,11 +37,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
-from pipeline.body_model import BodyModel
 from pipeline.joint_sets import (
     _HAND_POINTS,
     COCO17_NAMES,
@@ -50,6 +49,15 @@ from pipeline.joint_sets import (
     SMPL24,
     get_joint_set,
 )
+
+if TYPE_CHECKING:
+    import torch
+
+    from pipeline.body_model import BodyModel
+
+# torch is imported by the functions that build or apply regressors (the fit's): the
+# table (layout_ties, FITTABLE_JOINT_SETS) is read by code that never fits, e.g. the
+# viewer loading cached results.
 
 _J = SMPL24.index
 SIDES = (("left", 1.0), ("right", -1.0))  # side name, sign of its x
@@ -344,6 +352,8 @@ def landmark_regressors(model: BodyModel) -> dict[str, Landmark]:
     of :data:`SMPL_VERTEX_IDS` replace the rules' picks. A landmark a rule cannot place
     (e.g. a model without a segment) is absent, and the keypoints tied to it are not fitted.
     """
+    import torch  # noqa: PLC0415
+
     with torch.no_grad():
         v = model.v_template.double().numpy()
         J = model.J_template.double().numpy()
@@ -445,6 +455,8 @@ def keypoint_regressor(model: BodyModel, joint_set: str) -> KeypointRegressor:
     COCO rows are copied from ``coco_regressor`` unchanged (float32), so a COCO-17
     layout reproduces :meth:`BodyModel.coco_keypoints` exactly.
     """
+    import torch  # noqa: PLC0415
+
     js = get_joint_set(joint_set)
     key = (id(model), js.name)
     if key in _REGRESSOR_CACHE:
@@ -485,6 +497,8 @@ def layout_keypoints(
     reg: KeypointRegressor, vertices: torch.Tensor, joints: torch.Tensor
 ) -> torch.Tensor:
     """(B, V, 3) vertices and (B, 24, 3) joints -> (B, T, 3) keypoints; NaN where not fitted."""
+    import torch  # noqa: PLC0415
+
     kp = torch.einsum("kv,nvc->nkc", reg.vertex_weights.to(vertices.dtype), vertices)
     kp = kp + torch.einsum("kj,njc->nkc", reg.joint_weights.to(joints.dtype), joints)
     kp[:, torch.as_tensor(~reg.fitted)] = float("nan")

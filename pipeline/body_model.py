@@ -1,5 +1,8 @@
 """SMPL-format body model: linear blend skinning in torch, batched, plus a joints-only path.
 
+The arrays, their loading and checks and the model's fingerprint live in
+:mod:`pipeline.body_arrays` (numpy only: what the viewer needs); this module is what
+the fit and the restoration run, built from those arrays (:func:`torch_body_model`).
 Loads any file in the standard SMPL layout (``v_template, shapedirs, posedirs,
 J_regressor, weights, kintree_table, faces``) from ``.npz`` or from ``.pkl``
 (without chumpy). The shipped default is ``sample_data/body_models/open_body_24.npz``,
@@ -12,39 +15,28 @@ Shapes use B for batch, V vertices, J = 24 joints.
 
 from __future__ import annotations
 
-import hashlib
-import os
-import pickle
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from pipeline.files import SceneFormatError
+from pipeline.body_arrays import (  # noqa: F401  (re-exported: the loaders' old home)
+    DEFAULT_MODEL_PATH,
+    MODEL_ENV_VAR,
+    NUM_BETAS,
+    NUM_JOINTS,
+    REQUIRED_KEYS,
+    BodyModelData,
+    body_data,
+    kinematic_levels,
+    load_body_model_arrays,
+    load_body_model_data,
+    resolve_model_path,
+)
 from pipeline.rotations import axis_angle_to_matrix
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_MODEL_PATH = REPO_ROOT / "sample_data" / "body_models" / "open_body_24.npz"
-MODEL_ENV_VAR = "MVVIZ_SMPL_MODEL"
-NUM_JOINTS = 24
-NUM_BETAS = 10
-REQUIRED_KEYS = ("v_template", "shapedirs", "J_regressor", "weights", "kintree_table", "faces")
-
-
 # --------------------------------------------------------------------------- pure functions
-
-
-def kinematic_levels(parents: np.ndarray) -> list[np.ndarray]:
-    """Group joints by depth in the tree, so a chain can be composed level by level."""
-    depth = np.zeros(len(parents), int)
-    for j, p in enumerate(parents):
-        if p >= 0:
-            if p >= j:
-                raise ValueError("kintree parents must precede their children")
-            depth[j] = depth[p] + 1
-    return [np.flatnonzero(depth == d) for d in range(depth.max() + 1)]
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,20 +118,19 @@ class BodyModel(torch.nn.Module):
     kinematics of the regressed rest joints only, which never touches vertices.
     """
 
-    def __init__(self, arrays: dict[str, np.ndarray], *, source: str = "<memory>") -> None:
+    def __init__(
+        self, arrays: dict[str, np.ndarray] | BodyModelData, *, source: str = "<memory>"
+    ) -> None:
         super().__init__()
-        a = _check_model_arrays(arrays, source)
-        self.source = source
-        # What the model is, not where it lives: results cached with one install are
-        # reused by another (pipeline/results.py's cache key).
-        h = hashlib.sha256()
-        for k in sorted(k for k in a if a[k] is not None):
-            h.update(k.encode() + str(a[k].shape).encode() + np.ascontiguousarray(a[k]).tobytes())
-        self.fingerprint = h.hexdigest()
+        if not isinstance(arrays, BodyModelData):
+            arrays = BodyModelData.from_arrays(arrays, source=source)
+        self.data = arrays  # the numpy side (pipeline/body_arrays.py), checked there
+        a = arrays.arrays
+        self.source = arrays.source
+        self.fingerprint = arrays.fingerprint
         self.num_vertices = a["v_template"].shape[0]
         self.num_betas = a["shapedirs"].shape[-1]
-        parents = a["kintree_table"][0].astype(np.int64)
-        parents[0] = -1
+        parents = arrays.parents
         self.parents = parents
         self.tree = KinematicTree.from_parents(parents)
         f32 = torch.float32
@@ -234,131 +225,22 @@ class BodyModel(torch.nn.Module):
         return torch.einsum("kv,nvc->nkc", self.coco_regressor, vertices)
 
 
-# --------------------------------------------------------------------------- loading
+_CACHE: dict[int, BodyModel] = {}  # id of the BodyModelData -> its torch model
 
 
-def _check_model_arrays(a: dict, source: str) -> dict[str, np.ndarray]:
-    missing = [k for k in REQUIRED_KEYS if k not in a]
-    if missing:
-        raise SceneFormatError(source, missing[0], f"missing body model arrays {missing}")
-    out = {k: np.asarray(v) for k, v in a.items()}
-    V = out["v_template"].shape[0]
-    checks = {
-        "v_template": (V, 3),
-        "J_regressor": (NUM_JOINTS, V),
-        "weights": (V, NUM_JOINTS),
-        "kintree_table": (2, NUM_JOINTS),
-    }
-    for k, shape in checks.items():
-        if out[k].shape != shape:
-            raise SceneFormatError(source, k, f"expected shape {shape}, got {out[k].shape}")
-    sd = out["shapedirs"]
-    if sd.ndim != 3 or sd.shape[:2] != (V, 3):
-        raise SceneFormatError(source, "shapedirs", f"expected shape ({V}, 3, B), got {sd.shape}")
-    if out["faces"].ndim != 2 or out["faces"].shape[1] != 3:
-        raise SceneFormatError(source, "faces", f"expected shape (F, 3), got {out['faces'].shape}")
-    pd = out.get("posedirs")
-    if pd is not None and pd.shape != (V, 3, 9 * (NUM_JOINTS - 1)):
-        raise SceneFormatError(source, "posedirs", f"expected shape ({V}, 3, 207), got {pd.shape}")
-    return out
+def torch_body_model(model: BodyModel | BodyModelData) -> BodyModel:
+    """The torch model of ``model`` (built once per loaded model): what the fit and the
+    restoration need; everything else reads :class:`BodyModelData`."""
+    if isinstance(model, BodyModel):
+        return model
+    if id(model) not in _CACHE or _CACHE[id(model)].data is not model:
+        _CACHE[id(model)] = BodyModel(model)
+    return _CACHE[id(model)]
 
 
-class _ChumpyStub:
-    """Stands in for chumpy objects while unpickling a SMPL .pkl; keeps their state."""
-
-    def __init__(self, *args, **kwargs) -> None:
-        pass
-
-    def __setstate__(self, state) -> None:
-        self.__dict__["_state"] = state
-
-    def to_array(self) -> np.ndarray:
-        state = self.__dict__.get("_state", {})
-        if isinstance(state, dict) and "x" in state:
-            return np.asarray(state["x"])
-        raise ValueError("chumpy object without an 'x' array")
-
-
-# The only globals a SMPL .pkl may name: numpy arrays and dtypes, scipy's sparse
-# matrices (J_regressor), Python 2's object reconstruction of those, and chumpy (replaced
-# by a stub). Anything else (os.system, builtins.eval, ...) would run code from a model
-# file: refused before it is looked up.
-_PICKLE_GLOBALS = {
-    ("numpy", "ndarray"), ("numpy", "dtype"),
-    ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
-    ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
-    ("numpy.core.numeric", "_frombuffer"), ("numpy._core.numeric", "_frombuffer"),
-    ("copy_reg", "_reconstructor"), ("copyreg", "_reconstructor"),
-    ("__builtin__", "object"), ("builtins", "object"),
-    ("_codecs", "encode"),
-}  # fmt: skip
-_SPARSE = ("csc_matrix", "csr_matrix", "coo_matrix")
-_SPARSE_MODULES = (
-    "scipy.sparse", "scipy.sparse.csc", "scipy.sparse.csr", "scipy.sparse.coo",
-    "scipy.sparse._csc", "scipy.sparse._csr", "scipy.sparse._coo",
-)  # fmt: skip
-
-
-class _SafeModelUnpickler(pickle.Unpickler):
-    """Unpickles a SMPL model file without chumpy, and without running anything: only
-    the globals of :data:`_PICKLE_GLOBALS` (and scipy's sparse matrices) are found."""
-
-    def find_class(self, module: str, name: str):
-        if module.startswith("chumpy"):
-            return _ChumpyStub
-        if (module, name) in _PICKLE_GLOBALS or (module in _SPARSE_MODULES and name in _SPARSE):
-            return super().find_class(module, name)
-        raise pickle.UnpicklingError(
-            f"the file names {module}.{name}, which a body model never needs (only numpy "
-            "arrays, scipy sparse matrices and chumpy objects are read; nothing is executed)"
-        )
-
-
-def _plain(value) -> np.ndarray:
-    if isinstance(value, _ChumpyStub):
-        return value.to_array()
-    if hasattr(value, "toarray"):  # scipy.sparse (SMPL stores J_regressor that way)
-        return value.toarray()
-    return np.asarray(value)
-
-
-def load_body_model_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Arrays of a model file in the SMPL layout, from ``.npz`` or ``.pkl`` (no chumpy needed)."""
-    path = Path(path)
-    if not path.is_file():
-        raise SceneFormatError(path, None, "body model file not found")
-    if path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    if path.suffix == ".pkl":
-        with open(path, "rb") as fh:
-            try:
-                data = _SafeModelUnpickler(fh, encoding="latin1").load()
-            except Exception as exc:
-                raise SceneFormatError(path, None, f"not a readable SMPL pickle ({exc})") from exc
-        if not isinstance(data, dict):
-            raise SceneFormatError(path, None, f"expected a dict, got {type(data).__name__}")
-        return {k: _plain(v) for k, v in data.items() if k in REQUIRED_KEYS + ("posedirs",)}
-    raise SceneFormatError(path, None, "expected a .npz or .pkl body model file")
-
-
-def resolve_model_path(path: str | os.PathLike | None = None) -> Path:
-    """Explicit path, else ``$MVVIZ_SMPL_MODEL``, else the shipped open model."""
-    if path:
-        return Path(path)
-    env = os.environ.get(MODEL_ENV_VAR)
-    return Path(env) if env else DEFAULT_MODEL_PATH
-
-
-_CACHE: dict[Path, BodyModel] = {}
-
-
-def load_body_model(path: str | os.PathLike | None = None) -> BodyModel:
-    """Load (once per process) the body model that every stage uses."""
-    p = resolve_model_path(path).resolve()
-    if p not in _CACHE:
-        _CACHE[p] = BodyModel(load_body_model_arrays(p), source=str(p))
-    return _CACHE[p]
+def load_body_model(path=None) -> BodyModel:
+    """Load (once per process) the body model that every stage uses, as torch."""
+    return torch_body_model(load_body_model_data(path))
 
 
 if __name__ == "__main__":  # pragma: no cover - manual check

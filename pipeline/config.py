@@ -16,7 +16,7 @@ from pipeline.associate import AssociationParams
 from pipeline.files import SceneFormatError, atomic_write
 from pipeline.kalman import KalmanParams
 from pipeline.schema import Anything, Bool, CameraOffsets, Int, Number, Spec, Str, StrList
-from pipeline.smpl_fit import FitParams
+from pipeline.smpl_fit_types import FitParams
 from pipeline.track import TrackingParams
 
 SOURCES = ("keypoints", "smpl")

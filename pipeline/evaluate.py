@@ -31,7 +31,7 @@ from pipeline.label_check import LabelCheck, check_results
 from pipeline.results import PipelineResults
 from pipeline.run import row_frames
 from pipeline.scene import GroundTruth, Scene
-from pipeline.smpl_fit import plausibility
+from pipeline.smpl_fit_types import plausibility
 
 STAGES = ("raw", "kalman", "rts", "smpl", "smpl_vae")
 

@@ -46,6 +46,7 @@ import torch
 
 from pipeline import mocap, pose_limits
 from pipeline.files import SceneFormatError
+from pipeline.prior_path import DEFAULT_PRIOR_PATH, resolve_prior_path  # noqa: F401
 from pipeline.progress import StageBar
 from pipeline.smpl_kinematics import (
     matrix_to_rot6d,
@@ -56,7 +57,6 @@ from pipeline.smpl_kinematics import (
 from pipeline.synth.motion import LIBRARY_ACTIVITIES, sample_pose_library
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_PRIOR_PATH = REPO_ROOT / "sample_data" / "priors" / "pose_vae.pt"
 BODY_JOINTS = tuple(range(1, 22))
 """SMPL joints the prior models (hips .. wrists)."""
 CHECKPOINT_VERSION = 1
@@ -382,11 +382,6 @@ def save_prior(prior: PosePrior, path: str | os.PathLike) -> None:
         tmp,
     )
     os.replace(tmp, path)
-
-
-def resolve_prior_path(path: str | os.PathLike | None = None) -> Path:
-    """An explicit checkpoint path, else the shipped one."""
-    return Path(path) if path else DEFAULT_PRIOR_PATH
 
 
 def load_prior(path: str | os.PathLike | None = None) -> PosePrior:

@@ -16,14 +16,16 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.body_model import BodyModel, load_body_model
+from pipeline.body_arrays import BodyModelData, load_body_model_data
+from pipeline.body_keypoints import FITTABLE_JOINT_SETS
 from pipeline.config import PipelineConfig
 from pipeline.files import CACHE_DIR, SceneFormatError, load_npz, save_npz_atomic
 from pipeline.kalman import FilterResult
-from pipeline.pose_prior import load_prior, resolve_prior_path
+from pipeline.prior_path import resolve_prior_path
 from pipeline.progress import Progress
 from pipeline.run import (
     FrameResult,
@@ -35,12 +37,14 @@ from pipeline.run import (
     source_joint_set,
 )
 from pipeline.scene import Scene
-from pipeline.smpl_fit import SmplFit, fit_sequence
-from pipeline.smpl_kinematics import SUPPORTED_JOINT_SETS
+from pipeline.smpl_fit_types import SmplFit
+
+if TYPE_CHECKING:
+    from pipeline.body_model import BodyModel
 
 RESULTS_VERSION = 5  # 5: track_rejected
 RESULTS_FILE = "results.npz"  # in the scene's CACHE_DIR
-FIT_JOINT_SETS = SUPPORTED_JOINT_SETS
+FIT_JOINT_SETS = FITTABLE_JOINT_SETS  # = smpl_kinematics.SUPPORTED_JOINT_SETS, read torch-free
 """Joint sets whose tracks get SMPL bodies: every set the body-model table
 (:mod:`pipeline.body_keypoints`) ties all limbs of."""
 
@@ -243,7 +247,9 @@ def scene_fingerprint(scene: Scene) -> str:
     return h.hexdigest()
 
 
-def cache_key(scene: Scene, config: PipelineConfig, model: BodyModel) -> str:
+def cache_key(
+    scene: Scene, config: PipelineConfig, model: BodyModel | BodyModelData
+) -> str:
     h = hashlib.sha256()
     h.update(scene_fingerprint(scene).encode())
     h.update(dataclasses.replace(config, pose_prior="").to_json().encode())  # its content below
@@ -270,7 +276,11 @@ def code_digest() -> str:
 
 
 def fit_bodies(
-    results: PipelineResults, config: PipelineConfig, model: BodyModel, *, progress: Progress = True
+    results: PipelineResults,
+    config: PipelineConfig,
+    model: BodyModel | BodyModelData,
+    *,
+    progress: Progress = True,
 ) -> PipelineResults:
     """Step I SMPL fit to the RTS-smoothed tracks, and its VAE-corrected version.
 
@@ -279,11 +289,16 @@ def fit_bodies(
     filtered ones: the forward filter lags (on a mocap walk 15.3 mm where RTS is 11.0)."""
     if not config.fit_smpl or results.joint_set not in FIT_JOINT_SETS or results.num_tracks == 0:
         return results
+    # torch (~3-7 s to import) only once a fit runs: loading cached results never needs it
+    from pipeline.body_model import torch_body_model  # noqa: PLC0415
+    from pipeline.pose_prior import load_prior  # noqa: PLC0415
+    from pipeline.smpl_fit import fit_sequence  # noqa: PLC0415
+
     prior = load_prior(config.pose_prior or None) if config.use_pose_prior else None
     fit_i, fit_vae = fit_sequence(
         results.track_smoothed,
         results.joint_set,
-        model,
+        torch_body_model(model),
         prior=prior,
         params=config.smpl_fit,
         progress=progress,
@@ -315,7 +330,11 @@ def run_stages(
 
 
 def run_pipeline(
-    scene: Scene, config: PipelineConfig, model: BodyModel, *, progress: Progress = True
+    scene: Scene,
+    config: PipelineConfig,
+    model: BodyModel | BodyModelData,
+    *,
+    progress: Progress = True,
 ) -> PipelineResults:
     """All stages, from a loaded scene to :class:`PipelineResults`."""
     restored = restored_joints(scene, model)
@@ -362,7 +381,9 @@ def save_results(results: PipelineResults, path: str | os.PathLike) -> None:
     save_npz_atomic(path, meta=np.array(json.dumps(meta)), **arrays)
 
 
-def load_results(path: str | os.PathLike, *, model: BodyModel | None = None) -> PipelineResults:
+def load_results(
+    path: str | os.PathLike, *, model: BodyModel | BodyModelData | None = None
+) -> PipelineResults:
     """Read a results file; SMPL fits are bound to ``model`` (default: the one they used)."""
     path = Path(path)
     a = load_npz(path)
@@ -379,7 +400,7 @@ def load_results(path: str | os.PathLike, *, model: BodyModel | None = None) -> 
     for name, prefix in _FIT_PREFIXES.items():
         if prefix + "transl" in a:
             if model is None:
-                model = load_body_model(meta.get("body_model"))
+                model = load_body_model_data(meta.get("body_model"))
             fits[name] = SmplFit.from_arrays(
                 a, prefix, joint_set=meta["joint_set"], model=model, stage=name
             )
@@ -403,7 +424,7 @@ def default_results_path(scene: Scene) -> Path:
 def run_or_load(
     scene: Scene,
     config: PipelineConfig,
-    model: BodyModel,
+    model: BodyModel | BodyModelData,
     *,
     out: str | os.PathLike | None = None,
     progress: Progress = True,

@@ -13,20 +13,23 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.associate import Association, associate_frame
-from pipeline.body_model import BodyModel
 from pipeline.config import PipelineConfig
 from pipeline.diagnose.retime import retimed_frames, retimed_rows
 from pipeline.joint_sets import SMPL24, JointSet
 from pipeline.kalman import FilterResult, kalman_filter
 from pipeline.progress import Progress, StageBar
-from pipeline.restore import restore_joints_2d, restore_mono_joints_2d
 from pipeline.scene import Scene
 from pipeline.track import Tracks, track_people
 from pipeline.triangulate import Triangulation, triangulate_people
+
+if TYPE_CHECKING:
+    from pipeline.body_arrays import BodyModelData
+    from pipeline.body_model import BodyModel
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,7 +71,7 @@ def source_joint_set(scene: Scene, config: PipelineConfig) -> JointSet:
     return SMPL24 if config.source == "smpl" else scene.joint_set
 
 
-def restored_joints(scene: Scene, model: BodyModel) -> np.ndarray | None:
+def restored_joints(scene: Scene, model: BodyModel | BodyModelData) -> np.ndarray | None:
     """(N, 24, 3) SMPL joints restored from the monocular predictions, or None.
 
     Rows with SMPL regressor output restore its joints; rows without it but with
@@ -80,13 +83,18 @@ def restored_joints(scene: Scene, model: BodyModel) -> np.ndarray | None:
     det = scene.detections
     if not det.has_mono3d:
         return None
+    # torch (the SMPL regressor's joints) only when a scene has monocular predictions
+    from pipeline.body_model import torch_body_model  # noqa: PLC0415
+    from pipeline.restore import restore_joints_2d, restore_mono_joints_2d  # noqa: PLC0415
+
     conf = det.keypoints[..., 2]
     score = np.where((conf > 0).any(1), conf.sum(1) / np.maximum((conf > 0).sum(1), 1), 1.0)
     out = np.full((len(det), SMPL24.num_joints, 3), np.nan)
     out[..., 2] = 0.0
     if det.has_smpl:
         out = restore_joints_2d(
-            det.smpl_pose, det.smpl_betas, det.cam_weak, det.bbox, model, score=score
+            det.smpl_pose, det.smpl_betas, det.cam_weak, det.bbox, torch_body_model(model),
+            score=score,
         )
     mono = det.mono_valid
     if mono.any():

@@ -8,14 +8,17 @@ Units: frames, pixels (the camera's full-resolution image), as the diagnoses giv
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 
 from pipeline.cameras import Camera
 from pipeline.diagnose.calibration import CameraResidual, StepChange
 from pipeline.diagnose.sync import SyncEstimate
+
+if TYPE_CHECKING:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 PLOT_SIZE, PLOT_DPI = (680, 330), 200  # px; shown ~300 px wide in the panel
 CURVE, MARK, SPAN = "#1f77b4", "#d62728", "#7f7f7f"
@@ -23,6 +26,10 @@ ARROW_RGB, CELL_RGB = (255, 200, 40), (90, 90, 90)
 
 
 def _figure(size: tuple[int, int] = PLOT_SIZE, dpi: int = PLOT_DPI):
+    # matplotlib (~0.5 s to import) loads with the first plot, not with the viewer
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
+    from matplotlib.figure import Figure  # noqa: PLC0415
+
     fig = Figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi, facecolor="white")
     canvas = FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)

@@ -12,16 +12,16 @@ Units: mm and frames, as in the results.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.ticker import MaxNLocator
 
 from mvviz.analysis.filter_runs import FilterRun
 from mvviz.scene.geometry import ViewerData
+
+if TYPE_CHECKING:
+    from matplotlib.lines import Line2D
 
 PLOT_WIDTH, PLOT_HEIGHT, PLOT_DPI = 680, 860, 220  # shown ~300 px wide in the panel
 PLAYHEAD_HEIGHT = 36  # px of the strip marking the current frame (shown at ~1/3 scale)
@@ -96,6 +96,11 @@ class TracePlot:
     def __init__(
         self, *, width: int = PLOT_WIDTH, height: int = PLOT_HEIGHT, dpi: int = PLOT_DPI
     ) -> None:
+        # matplotlib (~0.5 s to import) loads with the first plot, not with the viewer
+        from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
+        from matplotlib.figure import Figure  # noqa: PLC0415
+        from matplotlib.ticker import MaxNLocator  # noqa: PLC0415
+
         fig = self.fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="white")
         self.canvas = FigureCanvasAgg(fig)
         self.axes = fig.subplots(4, 1, sharex=True, gridspec_kw={"height_ratios": [1, 1, 1, 1.15]})

@@ -9,13 +9,13 @@ import sys
 import time
 from pathlib import Path
 
-from pipeline.body_model import BodyModel, load_body_model
+from pipeline.body_arrays import BodyModelData, load_body_model_data
 from pipeline.config import CONFIG_FILE, PipelineConfig, load_config
 from pipeline.diagnose.retime import offsets_setting
 from pipeline.diagnose.sync import estimate_offsets
 from pipeline.evaluate import evaluate, format_table
-from pipeline.files import atomic_write
-from pipeline.pose_prior import load_prior
+from pipeline.files import SceneFormatError, atomic_write
+from pipeline.prior_path import resolve_prior_path
 from pipeline.results import default_results_path, run_or_load
 from pipeline.scene import Scene, load_scene
 
@@ -51,15 +51,26 @@ def resolve_config(args: argparse.Namespace) -> PipelineConfig:
     return config.with_overrides(args.set)
 
 
-def prepare(args: argparse.Namespace) -> tuple[Scene, PipelineConfig, BodyModel]:
+def prepare(
+    args: argparse.Namespace, *, read_prior: bool = True
+) -> tuple[Scene, PipelineConfig, BodyModelData]:
     """Scene, config and body model, every input checked before any stage runs (the
-    config against the scene's cameras, the pose prior checkpoint if the fit uses it)."""
+    config against the scene's cameras, the pose prior checkpoint if the fit uses it).
+
+    ``read_prior`` False (the viewer, which mostly loads cached results): the checkpoint
+    is only checked to exist; reading it needs torch, which loads once a fit runs."""
     scene = load_scene(args.scene)
     config = resolve_config(args)
     config.check_cameras(scene.rig.names, source=str(args.config or "--set"))
-    model = load_body_model(args.smpl_model)
+    model = load_body_model_data(args.smpl_model)
     if config.fit_smpl and config.use_pose_prior:
-        load_prior(config.pose_prior or None)
+        if read_prior:
+            from pipeline.pose_prior import load_prior  # noqa: PLC0415  (torch)
+
+            load_prior(config.pose_prior or None)
+        elif not resolve_prior_path(config.pose_prior or None).is_file():
+            path = resolve_prior_path(config.pose_prior or None)
+            raise SceneFormatError(path, None, "pose prior checkpoint not found")
     return scene, config, model
 
 
@@ -69,7 +80,9 @@ def cached_results(args: argparse.Namespace):
     scene, config, model = prepare(args)
     results, cached = run_or_load(scene, config, model)
     print(f"{'reused cached' if cached else 'computed'} results: {results.num_tracks} tracks")
-    return scene, results, model
+    from pipeline.body_model import torch_body_model  # noqa: PLC0415  (the exports skin)
+
+    return scene, results, torch_body_model(model)
 
 
 def load_and_run(args: argparse.Namespace, *, progress: bool = True):
@@ -174,7 +187,7 @@ def run_eval(args: argparse.Namespace) -> int:
     if scene.detections.has_mono3d and not args.no_other_source:
         # Rows carry both 2D keypoints and monocular SMPL output: score the other source too.
         other = "smpl" if results.config.source == "keypoints" else "keypoints"
-        model = load_body_model(args.smpl_model)
+        model = load_body_model_data(args.smpl_model)
         alt_cfg = dataclasses.replace(results.config, source=other)
         alt_out = (
             (args.out.with_name(args.out.stem + f"_{other}.npz"))

@@ -113,7 +113,7 @@ def _build_viewer(
     from mvviz.state import ViewerState  # noqa: PLC0415
     from pipeline.results import run_or_load  # noqa: PLC0415
 
-    scene, config, model = prepare(args)
+    scene, config, model = prepare(args, read_prior=False)
     print(f"scene {scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames")
     results, cached = run_or_load(
         scene, config, model, out=args.out, progress=progress, force=args.force

@@ -41,7 +41,8 @@ from mvviz.analysis.filter_runs import FilterRun
 from mvviz.export.rerun import APP_ID, SceneLogger, make_blueprint
 from mvviz.scene.images import FrameStore
 from mvviz.state import ViewerState
-from pipeline.body_model import BodyModel
+from pipeline.body_arrays import BodyModelData
+from pipeline.body_model import BodyModel, torch_body_model
 
 DEFAULT_WEB_PORT = 9090
 POLL_S = 0.25  # how often the logger looks at filter B and the stop flag
@@ -58,7 +59,7 @@ class LiveHost(Protocol):
     @property
     def state(self) -> ViewerState: ...
     @property
-    def model(self) -> BodyModel | None: ...
+    def model(self) -> BodyModel | BodyModelData | None: ...
     @property
     def frames(self) -> FrameStore | None: ...
     @property
@@ -305,6 +306,7 @@ class LiveRerun:
         if results is not self._results:
             first = self._results is None
             model = self.app.model if data.bodies is not None else None
+            model = None if model is None else torch_body_model(model)  # the GT meshes skin
             self._logger = SceneLogger(
                 data.scene, results, self.rec, body_model=model,
                 image_width=self._image_width(), sparse=True, pause=self._pause,

@@ -41,7 +41,8 @@ from mvviz.export.rerun import (  # noqa: F401  (re-exported: the names this mod
     select_frames,
     track_color,
 )
-from pipeline.body_model import BodyModel
+from pipeline.body_arrays import BodyModelData
+from pipeline.body_model import BodyModel, torch_body_model
 from pipeline.progress import Progress, track
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
@@ -214,7 +215,7 @@ class _Prefetcher:
 def export_rrd(
     scene: Scene,
     results: PipelineResults,
-    body_model: BodyModel | None,
+    body_model: BodyModel | BodyModelData | None,
     path: str | os.PathLike,
     *,
     frames: slice | range | Iterable[int] | None = None,
@@ -263,7 +264,8 @@ def export_rrd(
     torch.set_num_threads(1)
     try:
         logger = SceneLogger(
-            scene, results, rec, body_model=body_model, images=images,
+            scene, results, rec, images=images,
+            body_model=None if body_model is None else torch_body_model(body_model),
             image_width=image_width, jpeg_quality=jpeg_quality, meshes=meshes, bodies=bodies,
             mesh_cell_mm=mesh_cell_mm, extra_meshes=extra_meshes, plot_joints=plot_joints,
         )  # fmt: skip

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Sequence
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import viser
@@ -25,8 +25,11 @@ from mvviz.analysis.filter_runs import FilterRun
 from mvviz.scene.geometry import ViewerData
 from mvviz.scene.images import FrameStore
 from mvviz.state import ViewerState
-from pipeline.body_model import BodyModel
 from pipeline.results import PipelineResults
+
+if TYPE_CHECKING:
+    from pipeline.body_arrays import BodyModelData
+    from pipeline.body_model import BodyModel
 
 # ``callback(state, reason)`` after each render: ``state`` a snapshot of what was drawn,
 # ``reason`` the comma-joined reasons of the redraw ("frame", "results", "layers", ...).
@@ -60,7 +63,7 @@ class PanelHost(Protocol):
         ...
 
     @property
-    def model(self) -> BodyModel | None:
+    def model(self) -> BodyModel | BodyModelData | None:
         """The run's body model (None: the shipped one)."""
         ...
 

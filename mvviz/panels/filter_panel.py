@@ -62,6 +62,10 @@ B_DASHES = 4  # dashes per bone
 PLACEMENTS = ("over A, dashed", "strip beside everyone")
 STRIP_GAP_M = 1.0  # between the people's x range and B's strip
 PLOT_INTERVAL_S = 0.1  # at most ~10 plot renders per second while the selection changes
+FIRST_PLOT_DELAY_S = 3.0
+"""The first plot (matplotlib's import and figure, ~0.5-1 s of CPU) waits this long after
+the panel is made, so that it does not compete with the start of the viewer and the first
+page load; the plot sits in a tab that is not open at the start."""
 WINDOWS = {"all": None, "±25": 25, "±50": 50, "±100": 100}  # plotted frames around the frame
 Q_SCALES = {"÷4": 0.25, "÷2": 0.5, "×2": 2.0, "×4": 4.0}  # B's q scale buttons
 
@@ -285,10 +289,10 @@ class FilterPanel:
         self.message = ""
         self._gt = gt_dense(data)
         self._score_cache: dict[tuple, dict[str, float]] = {}
-        self._plot = TracePlot()
+        self._plot: TracePlot | None = None  # made at the first plot (imports matplotlib)
         self._plot_key: tuple | None = None
         self._marker_frame: int | None = None
-        self._last_plot_t = 0.0
+        self._last_plot_t = time.monotonic() + FIRST_PLOT_DELAY_S - PLOT_INTERVAL_S
         self._drawn_key: tuple | None = None
         self._auto_show = True  # "Show B" turns on at B's first edit, unless touched
         self._nodes: dict[str, viser.SceneNodeHandle] = {}
@@ -519,6 +523,8 @@ class FilterPanel:
                 self._worker.request(delay=wait)
                 return
             t0 = time.perf_counter()
+            if self._plot is None:
+                self._plot = TracePlot()
             self._plot.render(joint_trace(data, run_a, run_b, sel.track, sel.joint), lo, hi)
             img = self._plot.image()
             self.timings["plot_ms"] = (time.perf_counter() - t0) * 1e3
@@ -527,7 +533,7 @@ class FilterPanel:
             self.gui.plot.image = img
             self.plot_image, self._plot_key, self._marker_frame = img, key, None
             self._last_plot_t = time.monotonic()
-        if frame != self._marker_frame:
+        if frame != self._marker_frame and self._plot is not None:
             strip = self._plot.playhead(frame)
             if self._halted():
                 return

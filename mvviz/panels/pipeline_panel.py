@@ -29,7 +29,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import viser
@@ -37,7 +37,7 @@ import viser
 from mvviz.panels.contract import PanelHost
 from mvviz.panels.run_compare import RunCompare, make_run_compare
 from mvviz.scene.geometry import ViewerData, detection_rays, person_indices
-from pipeline.body_model import BodyModel, load_body_model
+from pipeline.body_arrays import BodyModelData, load_body_model_data
 from pipeline.config import CONFIG_FILE, PipelineConfig, save_config
 from pipeline.files import CACHE_DIR
 from pipeline.joint_sets import get_joint_set
@@ -65,6 +65,9 @@ from pipeline.run import (
 )
 from pipeline.scene import Scene
 from pipeline.track import match_to_tracks
+
+if TYPE_CHECKING:
+    from pipeline.body_model import BodyModel
 
 # --------------------------------------------------------------------------- pure parts
 
@@ -388,10 +391,10 @@ class PipelinePanel:
     # ------------------------------------------------------------------ public
 
     @property
-    def model(self) -> BodyModel:
+    def model(self) -> BodyModel | BodyModelData:
         """The body model (the shipped one unless the host has another)."""
         if self._model is None:
-            self._model = load_body_model()
+            self._model = load_body_model_data()
         return self._model
 
     def diff_lines(self) -> list[str]:

@@ -26,13 +26,13 @@ import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import viser
 
 from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import MM, OFFSET_FILTERED_M, bone_segments
-from pipeline.body_model import BodyModel
 from pipeline.config import CONFIG_FILE, PipelineConfig, load_config
 from pipeline.diagnose.compare_runs import (
     MATCH_GATE_MM,
@@ -42,6 +42,10 @@ from pipeline.diagnose.compare_runs import (
     run_cached,
 )
 from pipeline.results import PipelineResults
+
+if TYPE_CHECKING:
+    from pipeline.body_arrays import BodyModelData
+    from pipeline.body_model import BodyModel
 
 B_ROOT = "/world/skeletons/compare_b"
 B_COLOR = (230, 40, 200)  # magenta: no track colour of the palette, and not filter B's
@@ -125,7 +129,7 @@ class RunCompare:
         host: PanelHost,
         *,
         current: Callable[[], PipelineResults],
-        model: Callable[[], BodyModel],
+        model: Callable[[], BodyModel | BodyModelData],
     ) -> None:
         self.host = host
         self.scene = host.state.scene
@@ -286,7 +290,7 @@ def make_run_compare(
     host: PanelHost,
     *,
     current: Callable[[], PipelineResults],
-    model: Callable[[], BodyModel],
+    model: Callable[[], BodyModel | BodyModelData],
 ) -> RunCompare:
     """The section, built in the GUI container open at the call (the Pipeline folder)."""
     return RunCompare(host, current=current, model=model)

@@ -11,15 +11,17 @@ shapes.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 import viser.transforms as vtf
 
-from pipeline.body_model import BodyModel, rigid_chain
+from pipeline.body_arrays import BodyModelData, body_data
 from pipeline.results import PipelineResults
-from pipeline.rotations import axis_angle_to_matrix
 from pipeline.scene import Scene
+
+if TYPE_CHECKING:
+    from pipeline.body_model import BodyModel
 
 MM = 1e-3  # millimetres -> metres
 
@@ -51,10 +53,10 @@ def skinned_bodies(
     pose: np.ndarray,
     betas: np.ndarray,
     transl_mm: np.ndarray,
-    model: BodyModel,
+    model: BodyModel | BodyModelData,
     num_frames: int,
 ) -> Bodies | None:
-    """Bone poses of body-frames.
+    """Bone poses of body-frames (numpy: the viewer's start never imports torch).
 
     Args:
         ids: (R,) body id of each row; frames: (R,) frame of each row.
@@ -65,23 +67,14 @@ def skinned_bodies(
     P, F = len(uniq), num_frames
     if P == 0:
         return None
-
-    def betas_tensor(b: np.ndarray) -> torch.Tensor:
-        b = torch.as_tensor(b, dtype=torch.float32).reshape(len(b), -1)[:, : model.num_betas]
-        return torch.nn.functional.pad(b, (0, model.num_betas - b.shape[1]))
-
-    with torch.no_grad():
-        # 1. forward kinematics of every row
-        rot = axis_angle_to_matrix(torch.as_tensor(pose, dtype=torch.float32).reshape(-1, 24, 3))
-        rest = model.rest_joints(betas_tensor(betas))
-        posed, T = rigid_chain(rot, rest, model.tree)
-        glob_rot = T[..., :3, :3].numpy().astype(np.float64)
-        pos = posed.numpy() + transl_mm[:, None, :] * MM
-        # 2. bind pose per body, from its first row
-        first = np.array([np.flatnonzero(ids == p)[0] for p in uniq])
-        b0 = betas_tensor(betas[first])
-        verts = model.v_template + torch.einsum("vcb,nb->nvc", model.shapedirs, b0)
-        rest0 = model.rest_joints(b0)
+    m = body_data(model)
+    # 1. forward kinematics of every row
+    glob_rot, posed = m.pose_chain(np.asarray(pose).reshape(-1, 24, 3), betas)
+    pos = posed + transl_mm[:, None, :] * MM
+    # 2. bind pose per body, from its first row
+    first = np.array([np.flatnonzero(ids == p)[0] for p in uniq])
+    verts = m.shaped_vertices(betas[first]).astype(np.float32)
+    rest0 = m.rest_joints(betas[first]).astype(np.float32)
     wxyz = vtf.SO3.from_matrix(glob_rot.reshape(-1, 3, 3)).wxyz.reshape(len(ids), 24, 4)
     bone_wxyz = np.tile(np.array([1.0, 0, 0, 0]), (P, F, 24, 1))
     bone_pos = np.zeros((P, F, 24, 3))
@@ -92,17 +85,17 @@ def skinned_bodies(
     present[pi, frames] = True
     return Bodies(
         ids=uniq,
-        vertices=verts.numpy(),
-        rest_joints=rest0.numpy(),
-        faces=model.faces.numpy(),
-        weights=model.weights.numpy(),
+        vertices=verts,
+        rest_joints=rest0,
+        faces=m.faces,
+        weights=m.weights.astype(np.float32),
         bone_wxyz=bone_wxyz,
         bone_position=bone_pos,
         present=present,
     )
 
 
-def gt_bodies(scene: Scene, model: BodyModel) -> Bodies | None:
+def gt_bodies(scene: Scene, model: BodyModel | BodyModelData) -> Bodies | None:
     """Ground-truth bodies (None without GT SMPL parameters)."""
     gt = scene.gt
     if gt is None or gt.smpl_pose is None or gt.smpl_betas is None or gt.transl is None:

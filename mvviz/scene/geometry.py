@@ -13,19 +13,22 @@ frame, which :class:`mvviz.scene.layers.SceneLayers` assigns to the viser nodes.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import viser.transforms as vtf
 
 from mvviz.scene.bodies import Bodies, GtBodies, fitted_bodies, gt_bodies
-from pipeline.body_model import BodyModel
 from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 from pipeline.palette import TRACK_PALETTE
 from pipeline.results import PipelineResults
 from pipeline.run import frame_rows, group_by_frame
 from pipeline.scene import Scene
+
+if TYPE_CHECKING:
+    from pipeline.body_arrays import BodyModelData
+    from pipeline.body_model import BodyModel
 
 MM = 1e-3  # millimetres -> metres
 
@@ -206,7 +209,7 @@ class ViewerData:
 def prepare(
     scene: Scene,
     results: PipelineResults,
-    model: BodyModel | None,
+    model: BodyModel | BodyModelData | None,
     *,
     bodies: GtBodies | None = None,
 ) -> ViewerData:

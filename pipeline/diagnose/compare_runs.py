@@ -31,11 +31,11 @@ import shlex
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.assignment import gated_assignment
-from pipeline.body_model import BodyModel
 from pipeline.config import PipelineConfig
 from pipeline.evaluate import evaluate
 from pipeline.files import CACHE_DIR, SceneFormatError
@@ -56,11 +56,15 @@ a few times the detector noise a triangulated joint keeps (~5-10 mm on the sampl
 MATCH_GATE_MM = 500.0  # two people farther apart than this are different people
 MERGE_GAP = 2  # spans of one person this many frames apart are one span
 
+if TYPE_CHECKING:
+    from pipeline.body_arrays import BodyModelData
+    from pipeline.body_model import BodyModel
+
 
 def run_cached(
     scene: Scene,
     config: PipelineConfig,
-    model: BodyModel,
+    model: BodyModel | BodyModelData,
     *,
     progress: Progress = True,
     force: bool = False,

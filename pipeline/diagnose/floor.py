@@ -15,14 +15,18 @@ from __future__ import annotations
 import dataclasses
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.body_model import BodyModel
+from pipeline.body_arrays import BodyModelData, body_data
 from pipeline.cameras import CameraRig
 from pipeline.references import ReferenceTrack
 from pipeline.scene import GroundTruth, Scene
+
+if TYPE_CHECKING:
+    from pipeline.body_model import BodyModel
 
 ANKLE_HEIGHT_MM = 90.0  # ankle joint above the sole, standing; detectors' ankles differ by
 # +-25 mm (the open model's COCO ankle stands at ~105 mm, OpenPose's on the demo at ~75)
@@ -170,7 +174,9 @@ def _planted_feet(ankles: np.ndarray, up: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- the fix
 
 
-def transform_scene(scene: Scene, T: np.ndarray, model: BodyModel | None = None) -> Scene:
+def transform_scene(
+    scene: Scene, T: np.ndarray, model: BodyModel | BodyModelData | None = None
+) -> Scene:
     """The scene re-expressed in world' = T world (a rigid (4, 4), mm): cameras, ground
     truth (joints, keypoints, and SMPL root orientation and translation, which needs the
     body model when the truth has SMPL parameters) and reference tracks."""
@@ -191,22 +197,20 @@ def transform_scene(scene: Scene, T: np.ndarray, model: BodyModel | None = None)
     return dataclasses.replace(scene, rig=CameraRig(tuple(cams)), gt=gt, references=refs)
 
 
-def _transform_gt(gt: GroundTruth, R, t, points, model: BodyModel | None) -> GroundTruth:
+def _transform_gt(
+    gt: GroundTruth, R, t, points, model: BodyModel | BodyModelData | None
+) -> GroundTruth:
     kw = {"joints3d": points(gt.joints3d)}
     if gt.keypoints3d is not None:
         kw["keypoints3d"] = points(gt.keypoints3d)
     if gt.smpl_pose is not None and gt.transl is not None:
         if model is None:
             raise ValueError("transforming SMPL ground truth needs the body model")
-        import torch  # noqa: PLC0415  (only SMPL ground truth needs it)
-
         pose = gt.smpl_pose.copy()
         pose[:, :3] = (Rotation.from_matrix(R) * Rotation.from_rotvec(pose[:, :3])).as_rotvec()
         # The root turns about the rest pelvis j0 (metres), not the origin:
         # R (M(pose) + transl) + t = M(pose') + R transl + t + 1000 (R j0 - j0).
-        with torch.no_grad():
-            j0 = model.rest_joints(torch.as_tensor(gt.smpl_betas, dtype=torch.float32))[:, 0]
-        j0 = 1000.0 * j0.double().numpy()
+        j0 = 1000.0 * body_data(model).rest_joints(gt.smpl_betas)[:, 0]
         kw["smpl_pose"] = pose
         kw["transl"] = gt.transl @ R.T + t + j0 @ R.T - j0
     return dataclasses.replace(gt, **kw)

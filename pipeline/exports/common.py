@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.results import PipelineResults
-from pipeline.smpl_fit import SmplFit
+from pipeline.smpl_fit_types import SmplFit
 
 STAGES = ("raw", "kalman", "rts", "smpl", "smpl_vae")
 """Stage names of ``--stage``: raw triangulation, Kalman forward filter, RTS smoother,

@@ -36,11 +36,12 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from pipeline.body_model import torch_body_model
 from pipeline.exports.common import gap_note
 from pipeline.exports.skeleton import TrackSkeleton, track_skeleton
 from pipeline.files import atomic_write
 from pipeline.palette import track_rgb
-from pipeline.smpl_fit import SmplFit
+from pipeline.smpl_fit_types import SmplFit
 
 FLOAT, UINT, UBYTE = 5126, 5125, 5121
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -261,7 +262,7 @@ def glb_bytes(fit: SmplFit, tracks: list[int], *, fps: float) -> tuple[bytes, li
     """The GLB of ``tracks`` of ``fit`` (see the module docstring), and notes."""
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps}")
-    model = fit.model
+    model = torch_body_model(fit.model)  # a loaded run's fit holds the numpy arrays
     faces = model.faces.numpy().astype(np.uint32)
     influences = _influences(model.weights.numpy().astype(np.float64))
     buf = _Buffer()

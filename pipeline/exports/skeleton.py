@@ -24,9 +24,10 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
+from pipeline.body_model import torch_body_model
 from pipeline.exports.common import WORLD_TO_Y_UP, hold_indices
 from pipeline.joint_sets import SMPL24
-from pipeline.smpl_fit import SmplFit
+from pipeline.smpl_fit_types import SmplFit
 
 MM_PER_M = 1000.0
 
@@ -64,7 +65,7 @@ class TrackSkeleton:
 
 def track_skeleton(fit: SmplFit, k: int) -> TrackSkeleton:
     """The skeleton of track ``k`` of ``fit`` (see the module docstring)."""
-    model = fit.model
+    model = torch_body_model(fit.model)  # a loaded run's fit holds the numpy arrays
     present = fit.present[k]
     if not present.any():
         raise ValueError(f"track {k} has no fitted frame")
@@ -94,7 +95,7 @@ def end_site_offsets(fit: SmplFit, skel: TrackSkeleton) -> dict[int, np.ndarray]
     """Leaf joint -> (3,) offset of a bone tip (metres, canonical axes): twice the mean
     offset of the rest-mesh vertices the leaf moves most (the top of the head, the toes,
     the fingertips, roughly), so importers draw leaf bones of a sensible length."""
-    model = fit.model
+    model = torch_body_model(fit.model)  # a loaded run's fit holds the numpy arrays
     parents = skel.parents
     leaves = [j for j in range(len(parents)) if j not in set(parents.tolist())]
     with torch.no_grad():

@@ -34,7 +34,7 @@ import numpy as np
 
 from pipeline.exports.common import gap_note, hold_indices
 from pipeline.files import save_npz_atomic
-from pipeline.smpl_fit import SmplFit
+from pipeline.smpl_fit_types import SmplFit
 
 MM_PER_M = 1000.0
 WORLD_CONVENTION = (

@@ -38,12 +38,12 @@ from mvviz.export.rerun.layout import (
 )
 from mvviz.export.rerun.meshes import display_mesh, skin_subset
 from mvviz.export.rerun.series import _log_plots
-from pipeline.body_model import BodyModel
+from pipeline.body_model import BodyModel, torch_body_model
 from pipeline.joint_sets import get_joint_set
 from pipeline.results import PipelineResults
 from pipeline.run import row_frames
 from pipeline.scene import Scene
-from pipeline.smpl_fit import SmplFit
+from pipeline.smpl_fit_types import SmplFit
 
 ImageLike = bytes | np.ndarray  # JPEG bytes, or a BGR uint8 image (h, w, 3)
 
@@ -134,7 +134,7 @@ class SceneLogger:
             fit = getattr(results, stage, None)
             if fit is not None and fit.present.any():
                 self.fits[stage] = fit
-                self.body_meshes[stage] = display_mesh(fit.model, mesh_cell_mm)
+                self.body_meshes[stage] = display_mesh(torch_body_model(fit.model), mesh_cell_mm)
         self._frames = _FrameLogger(self.rec, sparse=sparse, pause=pause)
 
     @property
@@ -200,10 +200,11 @@ class SceneLogger:
         ``tracks[i]`` at ``frames[i]`` (present person-frames), skinned in batches."""
         fit, (keep, _) = self.fits[stage], self.body_meshes[stage]
         out = np.empty((len(tracks), len(keep), 3), np.float32)
+        model = torch_body_model(fit.model)  # a loaded run's fit holds the numpy arrays
         with torch.no_grad():
             for a in range(0, len(out), 128):
                 k, f = tracks[a : a + 128], frames[a : a + 128]
-                v = skin_subset(fit.model, fit.pose_rotvecs[k, f], fit.betas[k], keep)
+                v = skin_subset(model, fit.pose_rotvecs[k, f], fit.betas[k], keep)
                 out[a : a + len(k)] = v + fit.transl[k, f][:, None, :] * MM_TO_M
         return out
 

@@ -1,0 +1,69 @@
+"""Time to a usable page: the viewer's entry module, a cached results file with SMPL fits
+and the viewer's state (skinned ground-truth and fitted bodies) load without torch or
+matplotlib (~3-7 s and ~0.5 s of imports here); torch loads only when a fit runs,
+matplotlib with the first plot."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from mvviz.scene.layers import icosphere
+from pipeline.results import default_results_path
+
+REPO = Path(__file__).resolve().parents[2]
+
+PROBE = """
+import json, sys
+import mvviz.cli.view  # the entry module of app.py and mvviz view
+from mvviz.app import ViewerApp  # what it imports once the server is up
+from mvviz.state import ViewerState
+from pipeline.body_arrays import load_body_model_data
+from pipeline.results import load_results
+from pipeline.scene import load_scene
+
+model = load_body_model_data()
+results = load_results(sys.argv[1], model=model)
+state = ViewerState.create(load_scene(sys.argv[2]), results, model)
+print(json.dumps({
+    "torch": "torch" in sys.modules, "matplotlib": "matplotlib" in sys.modules,
+    "trimesh": "trimesh" in sys.modules,
+    "fits": results.smpl is not None, "gt_bodies": state.data.bodies is not None,
+    "fit_bodies": state.data.fit_bodies is not None,
+    "vertices": int(state.data.fit_bodies.vertices.shape[1]),
+}))
+"""
+
+
+def test_viewer_and_cached_results_load_without_torch_or_matplotlib(viewer_scene):
+    scene, results, model = viewer_scene
+    path = default_results_path(scene)
+    assert path.is_file() and results.smpl is not None  # cached, with fits
+    # a fresh interpreter, so that other tests' imports do not leak in
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, str(path), str(scene.root)],
+        cwd=REPO, capture_output=True, text=True, timeout=300, check=True,
+    )  # fmt: skip
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["fits"] and got["gt_bodies"] and got["fit_bodies"], got  # meshes prepared
+    assert got["vertices"] == model.num_vertices
+    assert not got["torch"], "the viewer or loading cached results imported torch"
+    assert not got["matplotlib"], "the viewer or loading cached results imported matplotlib"
+    assert not got["trimesh"], "the viewer imported trimesh (~0.5 s)"
+
+
+def test_icosphere_is_trimesh_s():
+    """The joint marker made without trimesh is trimesh's subdivided icosahedron."""
+    v, f = icosphere(0.025)
+    ours = trimesh.Trimesh(v, f, process=False)
+    theirs = trimesh.creation.icosphere(subdivisions=1, radius=0.025)
+    assert v.shape == (42, 3) and f.shape == (80, 3)
+    assert ours.is_watertight and ours.is_winding_consistent
+    assert ours.volume > 0  # faces wound outwards
+    assert abs(ours.volume - theirs.volume) < 1e-6 * theirs.volume
+    np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.025, rtol=1e-6)
