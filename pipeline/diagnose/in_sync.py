@@ -8,17 +8,20 @@ estimate is confident about offsets, the stages are re-run with those cameras' 2
 re-timed (``sync.offsets``, as ``--set`` would apply them) and the calibration is judged
 on that run. A camera that was a suspect as recorded and is not once re-timed is reported
 *out of sync*: its residual was its time offset. A camera that is both late and off is
-still a suspect, and its bundle adjustment works on 2D that is in time.
+still a suspect, and its bundle adjustment works on 2D that is in time. The other way
+round, a miscalibrated camera can hide another's offset (it is in that camera's sync
+reference): the suspects are left out of the references and the offsets estimated again.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from pipeline.config import SyncParams
 from pipeline.diagnose.calibration import CalibrationFinding, check_calibration
-from pipeline.diagnose.sync import SyncEstimate
+from pipeline.diagnose.sync import MAX_SHIFT, SyncEstimate, estimate_offsets
 from pipeline.results import PipelineResults, run_stages
 from pipeline.run import select_2d
 from pipeline.scene import Scene
@@ -51,6 +54,16 @@ def retimed_run(
     )  # fmt: skip
 
 
+@dataclass(frozen=True, eq=False)
+class InSyncCalibration:
+    """The calibration check judged in time (:func:`check_calibration_in_sync`)."""
+
+    findings: dict[str, CalibrationFinding]
+    run: PipelineResults  # the run judged: the given one, or it re-timed
+    sync: dict[str, SyncEstimate]  # the sync estimate whose confident offsets were applied
+    sync_without: tuple[str, ...] = ()  # calibration suspects left out of its references
+
+
 def check_calibration_in_sync(
     scene: Scene,
     results: PipelineResults,
@@ -58,29 +71,60 @@ def check_calibration_in_sync(
     *,
     refine: bool = True,
     refine_focal: bool = False,
+    max_shift: int = MAX_SHIFT,
     cancelled: Callable[[], bool] | None = None,
-) -> tuple[dict[str, CalibrationFinding], PipelineResults] | None:
+) -> InSyncCalibration | None:
     """The calibration check on the run re-timed by ``sync``'s confident offsets (on
-    ``results`` itself when there are none), and the run it judged. Each re-timed
-    camera's finding says by how much it was re-timed, its systematic residual as
-    recorded, and whether it is out of sync rather than miscalibrated. None if
-    ``cancelled()``."""
-    offsets = confident_offsets(sync)
-    if not offsets:
-        return check_calibration(scene, results, refine=refine, refine_focal=refine_focal), results
-    judged = retimed_run(scene, results, offsets, cancelled=cancelled)
-    if judged is None or (cancelled is not None and cancelled()):
+    ``results`` itself when there are none). Each re-timed camera's finding says by how
+    much it was re-timed, its systematic residual as recorded, and whether it is out of
+    sync rather than miscalibrated.
+
+    A miscalibrated camera spoils the other cameras' sync references too (a late camera
+    beside it can be missed): when the check names suspects, the offsets are estimated
+    again with them left out of the references, and if that finds a confident offset the
+    first estimate did not, the check is run again on that re-timing. The bundle
+    adjustment runs once, on the final run. None if ``cancelled()``."""
+    stop = lambda: cancelled is not None and cancelled()  # noqa: E731
+    judged = _judge(scene, results, sync, cancelled)
+    if judged is None:
         return None
-    # As recorded, without the bundle adjustment (it would fit a pose to 2D of other
-    # instants): only to say whether the time offset explains the residual.
-    recorded = check_calibration(scene, results, refine=False)
-    found = check_calibration(scene, judged, refine=refine, refine_focal=refine_focal)
-    for name, d in offsets.items():
-        f, before = found[name], recorded[name]
-        found[name] = dataclasses.replace(
-            f,
-            retimed_by_frames=d,
-            systematic_as_recorded_px=before.systematic_px,
-            out_of_sync=before.suspect and not f.suspect,
-        )
-    return found, judged
+    found, run = judged
+    recorded = found if run is results else None
+    without: tuple[str, ...] = ()
+    suspects = tuple(k for k, f in found.items() if f.suspect)
+    if suspects and not stop():
+        left_out = frozenset(scene.rig.index_of(k) for k in suspects)
+        again = estimate_offsets(scene, results, max_shift=max_shift, reference_exclude=left_out)
+        if set(confident_offsets(again)) - set(confident_offsets(sync)):
+            sync, without = again, suspects
+            judged = _judge(scene, results, sync, cancelled)
+            if judged is None:
+                return None
+            found, run = judged
+    if stop():
+        return None
+    if refine and any(f.suspect for f in found.values()):
+        found = check_calibration(scene, run, refine=True, refine_focal=refine_focal)
+    if run is not results:
+        # As recorded, without the bundle adjustment (it would fit a pose to 2D of other
+        # instants): only to say whether the time offset explains the residual.
+        recorded = recorded or check_calibration(scene, results, refine=False)
+        for name, d in confident_offsets(sync).items():
+            f, before = found[name], recorded[name]
+            found[name] = dataclasses.replace(
+                f,
+                retimed_by_frames=d,
+                systematic_as_recorded_px=before.systematic_px,
+                out_of_sync=before.suspect and not f.suspect,
+            )
+    return InSyncCalibration(found, run, sync, without)
+
+
+def _judge(scene, results, sync, cancelled):
+    """(findings without refinement, the run judged) on ``results`` re-timed by
+    ``sync``'s confident offsets; None if cancelled."""
+    offsets = confident_offsets(sync)
+    run = results if not offsets else retimed_run(scene, results, offsets, cancelled=cancelled)
+    if run is None or (cancelled is not None and cancelled()):
+        return None
+    return check_calibration(scene, run, refine=False), run

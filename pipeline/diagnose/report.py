@@ -25,6 +25,7 @@ class Diagnosis:
     # The run the calibration was judged on: the given one, or it re-timed by the
     # confident sync offsets (pipeline.diagnose.in_sync); None when not known.
     calibration_run: PipelineResults | None = None
+    sync_without: tuple[str, ...] = ()  # calibration suspects left out of sync's references
 
     @property
     def retimed(self) -> dict[str, float]:
@@ -39,6 +40,8 @@ class Diagnosis:
             "calibration": {k: f.to_dict() for k, f in self.calibration.items()},
             "floor": None if self.floor is None else self.floor.to_dict(),
         }
+        if self.sync_without:
+            out["sync_reference_exclude"] = list(self.sync_without)
         if self.retimed:  # the calibration was judged on the run re-timed by these
             out["calibration_retimed_by_frames"] = {
                 k: round(v, 3) for k, v in self.retimed.items()
@@ -65,6 +68,11 @@ class Diagnosis:
                 f"  {name:>10}: {e.offset_frames:+6.2f} frames +- {e.offset_std_frames:.2f}"
                 f" (confidence {e.confidence:.2f}; residual {e.residual_zero_px:.1f} px as"
                 f" recorded, {e.residual_best_px:.1f} px shifted)  {verdict}"
+            )
+        if self.sync_without:
+            out.append(
+                f"  (estimated again with the calibration suspects {', '.join(self.sync_without)}"
+                " left out of the references)"
             )
         for a, b, est in self.sync_windows:
             offs = ", ".join(f"{k} {e.offset_frames:+.2f}" for k, e in est.items())
@@ -143,17 +151,17 @@ def diagnose(
     if not start("calibration"):
         return None
     judged = check_calibration_in_sync(
-        scene, results, sync, refine=refine, refine_focal=refine_focal, cancelled=cancelled
-    )
+        scene, results, sync, refine=refine, refine_focal=refine_focal, max_shift=max_shift,
+        cancelled=cancelled,
+    )  # fmt: skip
     if judged is None:
         return None
-    calibration, calibration_run = judged
     if not start("floor"):
         return None
     floor = estimate_floor(results.track_smoothed, scene.joint_set.names)
     if progress is not None:
         progress("done", len(steps), len(steps))
     return Diagnosis(
-        sync=sync, calibration=calibration, floor=floor, sync_windows=windows,
-        calibration_run=calibration_run,
+        sync=judged.sync, calibration=judged.findings, floor=floor, sync_windows=windows,
+        calibration_run=judged.run, sync_without=judged.sync_without,
     )  # fmt: skip

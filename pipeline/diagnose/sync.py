@@ -270,14 +270,16 @@ def estimate_offsets(
     *,
     max_shift: int = MAX_SHIFT,
     frames: np.ndarray | None = None,
+    reference_exclude: frozenset[int] = frozenset(),
 ) -> dict[str, SyncEstimate]:
-    """Every camera's offset (two passes, see the module docstring)."""
+    """Every camera's offset (two passes, see the module docstring); the cameras in
+    ``reference_exclude`` (e.g. calibration suspects) are in no other camera's reference."""
     V = len(scene.rig)
 
     def run(exclude_of) -> list[SyncEstimate]:
         return [
             estimate_camera_offset(
-                scene, results, v, reference_exclude=exclude_of(v),
+                scene, results, v, reference_exclude=exclude_of(v) | (reference_exclude - {v}),
                 max_shift=max_shift, frames=frames,
             )
             for v in range(V)
@@ -290,9 +292,10 @@ def estimate_offsets(
         gain = {
             v: e.residual_zero_px - e.residual_best_px
             for v, e in enumerate(estimates)
-            if e.offset and v not in bad
+            if e.offset and v not in bad | reference_exclude
         }
-        if not gain or V - len(bad) - 1 < 3:  # keep >= 2 reference cameras per estimate
+        # keep >= 2 reference cameras per estimate
+        if not gain or V - len(bad | reference_exclude) - 1 < 3:
             break
         bad = bad | {max(gain, key=gain.get)}
         estimates = run(lambda v, bad=bad: bad - {v})

@@ -52,7 +52,9 @@ def test_late_camera_is_out_of_sync_not_a_calibration_suspect(camera, delay):
     as_recorded = check_calibration(scene, results, refine=False)
     assert _suspects(as_recorded) == [camera]
     sync = estimate_offsets(scene, results)
-    found, judged = check_calibration_in_sync(scene, results, sync)
+    r = check_calibration_in_sync(scene, results, sync)
+    found, judged = r.findings, r.run
+    assert r.sync is sync and r.sync_without == ()
     assert _suspects(found) == []
     f = found[camera]
     assert f.out_of_sync and f.retimed_by_frames == pytest.approx(delay, abs=0.15)
@@ -73,10 +75,34 @@ def test_late_and_rotated_cameras_told_apart():
         delay_camera(truth, "4", 10), "2", rotation_deg=1.0, axis=(0.3, 1.0, 0.2)
     )
     results = _run(scene)
-    found, _ = check_calibration_in_sync(scene, results, estimate_offsets(scene, results))
+    found = check_calibration_in_sync(scene, results, estimate_offsets(scene, results)).findings
     assert _suspects(found) == ["2"]
     assert found["4"].out_of_sync and not found["2"].out_of_sync
-    new, true_cam = found["2"].refined, truth.rig[2]
+    _assert_back_to_truth(found["2"].refined, truth.rig[2])
+
+
+def test_a_rotated_camera_hiding_a_late_one():
+    """Camera 3 four frames late and camera 2 rotated 1 degree: with camera 2 in its
+    reference camera 3's offset is not trusted (confidence < 0.5), so as recorded both
+    are suspects; with the suspects left out of each other's references camera 3's offset
+    is found, and judged in sync only camera 2 is a suspect."""
+    truth = _scene()
+    scene = perturb_camera_pose(
+        delay_camera(truth, "3", 4), "2", rotation_deg=1.0, axis=(0.3, 1.0, 0.2)
+    )
+    results = _run(scene)
+    first = estimate_offsets(scene, results)
+    assert not first["3"].trusted
+    assert _suspects(check_calibration(scene, results, refine=False)) == ["2", "3"]
+    r = check_calibration_in_sync(scene, results, first)
+    assert r.sync_without == ("2", "3") and r.sync["3"].trusted
+    assert abs(r.sync["3"].offset_frames - 4) < 0.15
+    assert all(abs(e.offset_frames) < 0.15 for k, e in r.sync.items() if k != "3")
+    assert _suspects(r.findings) == ["2"] and r.findings["3"].out_of_sync
+    _assert_back_to_truth(r.findings["2"].refined, truth.rig[2])
+
+
+def _assert_back_to_truth(new, true_cam):
     assert np.degrees(Rotation.from_matrix(new.R @ true_cam.R.T).magnitude()) < 0.1
     assert np.linalg.norm(new.center - true_cam.center) < 5.0
 
@@ -84,8 +110,9 @@ def test_late_and_rotated_cameras_told_apart():
 def test_in_sync_scene_is_judged_as_recorded():
     scene = _scene()
     results = _run(scene)
-    found, judged = check_calibration_in_sync(scene, results, estimate_offsets(scene, results))
-    assert judged is results  # no confident offset: nothing re-run
+    r = check_calibration_in_sync(scene, results, estimate_offsets(scene, results))
+    found = r.findings
+    assert r.run is results and r.sync_without == ()  # no confident offset: nothing re-run
     assert _suspects(found) == [] and not any(f.out_of_sync for f in found.values())
     assert all(f.retimed_by_frames == 0 for f in found.values())
 
