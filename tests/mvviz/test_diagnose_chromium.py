@@ -62,6 +62,11 @@ def test_the_diagnose_tab_shows_a_late_camera(browser, tmp_path):
             assert abs(float(m.group(1)) - DELAY) < 0.15
             assert float(m.group(1)) == pytest.approx(found.offset_frames, abs=0.005)
             assert "--set sync.offsets=" in text
+            # judged in sync, the late camera is not a calibration suspect: out of sync
+            c = app.diagnose_panel.findings.diagnosis.calibration[LATE]
+            assert c.out_of_sync and not c.suspect, c.to_dict()
+            assert f"Camera {LATE} is out of sync, not miscalibrated" in text
+            assert "suspect" not in text
             # the plots and the field are on the page, drawn (not blank)
             imgs = [page.locator("img").nth(i) for i in range(page.locator("img").count())]
             shown = [im for im in imgs if (b := im.bounding_box()) and b["x"] > 1000
