@@ -212,7 +212,7 @@ def compare(args: argparse.Namespace) -> dict:
 
         pw_ctx = sync_playwright().start()
         browser = launch_chromium(pw_ctx)
-    starts: dict[str, list[dict[str, float]]] = {k: [] for k in repos}
+    starts: dict[str, list[dict[str, float]]] = {k: [] for k in [*repos, "bare"]}
     imports: dict[str, list[float]] = {k: [] for k in repos}
     try:
         for repo, scene in repos.values():
@@ -221,15 +221,18 @@ def compare(args: argparse.Namespace) -> dict:
             for key, (repo, scene) in repos.items():
                 imports[key].append(time_imports(repo))
                 starts[key].append(time_start(scene, browser, repo))
+            if browser is not None:  # the floor: a bare viser server, same browser and load
+                starts["bare"].append(time_start(None, browser))
     finally:
         if browser is not None:
             browser.close()
             pw_ctx.stop()
     out: dict = {"scene": str(scene_rel), "runs": args.runs, "load_per_cpu": load,
                  "this": str(REPO), "other": str(other)}  # fmt: skip
-    for key in repos:
-        out[key + "_imports_s"] = statistics.median(imports[key])
-        out[key + "_imports_s_runs"] = imports[key]
+    for key in [*repos, "bare"]:
+        if imports.get(key):
+            out[key + "_imports_s"] = statistics.median(imports[key])
+            out[key + "_imports_s_runs"] = imports[key]
         for m in ("http_s", "url_s", "page_s"):
             values = [s[m] for s in starts[key] if m in s]
             if values:
@@ -242,6 +245,17 @@ def compare(args: argparse.Namespace) -> dict:
             runs = {k: ", ".join(f"{v:.2f}" for v in out.get(f"{k}_{m}_runs", [])) for k in repos}
             print(f"{label}: this {a:.2f} s ({runs['this']}), other {b:.2f} s "
                   f"({runs['other']}); this / other {a / b:.2f}")  # fmt: skip
+    if "bare_page_s" in out:
+        bare_runs = ", ".join(f"{v:.2f}" for v in out["bare_page_s_runs"])
+        bare_side = out["bare_page_s"] - out["bare_url_s"]
+        print(
+            f"bare viser server (grid and box): URL {out['bare_url_s']:.2f} s, drawn page "
+            f"{out['bare_page_s']:.2f} s ({bare_runs})"
+        )
+        for key in repos:
+            if f"{key}_page_s" in out:
+                side = out[f"{key}_page_s"] - out[f"{key}_url_s"]
+                print(f"{key}: the browser side takes {side:.2f} s vs {bare_side:.2f} s bare")
     out["load_per_cpu_after"] = os.getloadavg()[0] / (os.cpu_count() or 1)
     print(f"load after: {out['load_per_cpu_after']:.1f} per CPU")
     if args.json:
