@@ -4,13 +4,16 @@ motion, score on a scene synthesised from exactly that motion (issue 19).
 Splits (``--split``, default all; sources and activities of
 :mod:`pipeline.prior_sources`):
 
-* leave one source out: ``no-library`` (prior: CMU + balancing; test: library motion of
-  every activity, 4 people), ``no-cmu`` (prior: library + balancing; test: CMU 131_01
-  walking and 131_03 hopping), ``no-balancing`` (prior: library + CMU; test: the balancing
-  trial's poses; it is also the leave-one-activity-out split of ``balance``);
+* leave one source out: ``no-library`` (prior: CMU + balancing + demo; test: library
+  motion of every activity, 4 people), ``no-cmu`` (prior: library + balancing + demo; test:
+  CMU 131_01 walking and 131_03 hopping), ``no-balancing`` (prior: library + CMU + demo;
+  test: the balancing trial's poses; it is also the leave-one-activity-out split of
+  ``balance``); the demo (the Pose2Sim demo's two people, standing and walking) is a
+  training source only;
 * leave one activity out, in every source at once: ``no-walk`` (test: CMU walking
-  131_01/131_02), ``no-hop`` (test: 131_03), ``no-reach``, ``no-crouch``, ``no-wave`` (test:
-  library motion of that activity, two variants).
+  131_01/131_02; the demo, which shows walking, left out whole), ``no-hop`` (test:
+  131_03), ``no-reach``, ``no-crouch``, ``no-wave`` (test: library motion of that
+  activity, two variants).
 
 Each test scene: :func:`pipeline.synth.mocap_scene.write_mocap_scene` on the campus rig,
 ``--frames`` frames at 25 fps, default detector noise, seed 0 (BVH clips as

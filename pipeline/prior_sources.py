@@ -17,6 +17,13 @@ licence; :mod:`pipeline.heldout` reads it back):
   learning from itself), 100 frames at 60 fps; stored in
   ``sample_data/mocap/pose2sim_balancing/balancing_trial_poses.npz`` by
   :func:`make_balancing_poses`; BSD-3-Clause.
+* ``demo``: the Pose2Sim multi-person demo (``sample_data/pose2sim_demo``: real video,
+  BlazePose 2D of two people, 100 frames at 60 fps), the step-I poses of both people the
+  same way: one stands almost still (pelvis median speed 0.20 m/s, knees bent 16-19 deg
+  on average), the other walks across (0.58 m/s) and lifts a leg; the only real source of
+  someone standing upright (the CMU 131 subject stands and walks with the knees bent
+  29-55 deg). ``sample_data/mocap/pose2sim_demo/demo_people_poses.npz`` by
+  :func:`make_demo_poses`; BSD-3-Clause.
 
 The real sources are few poses beside the library's 42,000, so :func:`mix_poses` repeats
 each to at least ``min_real_poses`` (the record says how often: ``repeat``).
@@ -39,11 +46,18 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 CMU_DIR = REPO_ROOT / "sample_data" / "mocap" / "cmu131"
 BALANCING_DIR = REPO_ROOT / "sample_data" / "mocap" / "pose2sim_balancing"
 BALANCING_POSES = BALANCING_DIR / "balancing_trial_poses.npz"
-SOURCE_NAMES = ("library", "cmu", "balancing")
+DEMO_DIR = REPO_ROOT / "sample_data" / "mocap" / "pose2sim_demo"
+DEMO_POSES = DEMO_DIR / "demo_people_poses.npz"
+DEMO_ACTIVITIES = ("stand", "walk")
+SOURCE_NAMES = ("library", "cmu", "balancing", "demo")
 CMU_CLIPS = {"131_01.bvh": ("walk",), "131_02.bvh": ("walk",), "131_03.bvh": ("hop",)}
 BALANCING_LICENCE = (
     "BSD-3-Clause (Pose2Sim demo data, credited to @aaiaueil, Universite Gustave Eiffel; "
     "sample_data/pose2sim_balancing/NOTICE.txt)"
+)
+DEMO_LICENCE = (
+    "BSD-3-Clause (Pose2Sim 0.10.49 Demo_MultiPerson; "
+    "sample_data/pose2sim_demo/LICENSE-pose2sim.txt)"
 )
 
 
@@ -52,7 +66,7 @@ class PoseSource:
     """Training poses of one source. N poses.
 
     Attributes:
-        name: ``library``, ``cmu`` or ``balancing`` (:data:`SOURCE_NAMES`).
+        name: ``library``, ``cmu``, ``balancing`` or ``demo`` (:data:`SOURCE_NAMES`).
         poses: (N, 72) axis-angle, SMPL layout (root included, the prior ignores it).
         record: the checkpoint record (``file``, ``frames``, ``activities``, ``licence``;
             a recorded source also ``source_frames``, what :mod:`pipeline.heldout` checks).
@@ -114,14 +128,20 @@ def balancing_source(path: str | os.PathLike = BALANCING_POSES) -> PoseSource:
     return PoseSource("balancing", poses, rec)
 
 
-def make_balancing_poses(
-    scene_dir: str | os.PathLike = REPO_ROOT / "sample_data" / "pose2sim_balancing",
-    out: str | os.PathLike = BALANCING_POSES,
-) -> Path:
-    """Run the pipeline (no prior) on the balancing trial and store its subject's step-I
-    poses as an AMASS-style npz: ``poses`` (F, 72), ``trans`` (F, 3) m, ``betas`` (10,),
-    ``mocap_framerate``, ``meta`` (JSON: activity, licence, how it was made, fit residual).
-    The subject is the track with the most fitted frames."""
+def demo_source(path: str | os.PathLike = DEMO_POSES) -> PoseSource:
+    """Both people of the Pose2Sim demo, their fitted poses (:func:`make_demo_poses`)."""
+    path = Path(path)
+    with np.load(path, allow_pickle=False) as z:
+        poses = np.asarray(z["poses"], float)
+        meta = json.loads(str(z["meta"]))
+    rec = dict(meta, source="demo", file=str(path.relative_to(REPO_ROOT)))
+    rec.update(frames=int(len(poses)), source_frames=int(len(poses)))
+    return PoseSource("demo", poses, rec)
+
+
+def _step_one_fit(scene_dir: Path):
+    """The scene and the pipeline's step-I SMPL fit of it (no prior: a prior's output would
+    be the prior learning from itself)."""
     from pipeline.body_model import load_body_model  # noqa: PLC0415  (heavy imports)
     from pipeline.config import PipelineConfig  # noqa: PLC0415
     from pipeline.results import run_pipeline  # noqa: PLC0415
@@ -131,7 +151,18 @@ def make_balancing_poses(
     results = run_pipeline(
         scene, PipelineConfig(use_pose_prior=False), load_body_model(), progress=False
     )
-    fit = results.smpl
+    return scene, results.smpl
+
+
+def make_balancing_poses(
+    scene_dir: str | os.PathLike = REPO_ROOT / "sample_data" / "pose2sim_balancing",
+    out: str | os.PathLike = BALANCING_POSES,
+) -> Path:
+    """Run the pipeline (no prior) on the balancing trial and store its subject's step-I
+    poses as an AMASS-style npz: ``poses`` (F, 72), ``trans`` (F, 3) m, ``betas`` (10,),
+    ``mocap_framerate``, ``meta`` (JSON: activity, licence, how it was made, fit residual).
+    The subject is the track with the most fitted frames."""
+    scene, fit = _step_one_fit(Path(scene_dir))
     k = int(fit.present.sum(1).argmax())
     rows = fit.present[k]
     meta = {
@@ -158,6 +189,50 @@ def make_balancing_poses(
     return out
 
 
+def make_demo_poses(
+    scene_dir: str | os.PathLike = REPO_ROOT / "sample_data" / "pose2sim_demo",
+    out: str | os.PathLike = DEMO_POSES,
+    *,
+    min_frames: int = 50,
+) -> Path:
+    """Run the pipeline (no prior) on the Pose2Sim demo and store the step-I poses of every
+    track fitted in at least ``min_frames`` frames (both people): ``poses`` (N, 72) and
+    ``trans`` (N, 3) m, the tracks one after the other; ``track`` and ``frame`` (N,) say
+    whose and which scene frame each row is; ``betas`` (K, 10) per kept track;
+    ``mocap_framerate``; ``meta`` (JSON, as :func:`make_balancing_poses`'s)."""
+    scene, fit = _step_one_fit(Path(scene_dir))
+    kept = [k for k in range(fit.present.shape[0]) if fit.present[k].sum() >= min_frames]
+    if not kept:
+        raise ValueError(f"{scene_dir}: no track fitted in {min_frames} frames or more")
+    rows = [np.flatnonzero(fit.present[k]) for k in kept]
+    pairs = list(zip(kept, rows, strict=True))
+    meta = {
+        "activity": "stand, walk (Pose2Sim's Demo_MultiPerson: two people, real video; one "
+        "stands almost still, the other walks across and lifts a leg)",
+        "activities": list(DEMO_ACTIVITIES),
+        "licence": DEMO_LICENCE,
+        "made_by": "pipeline.prior_sources.make_demo_poses: mvviz run (no prior), step-I "
+        f"SMPL fit of every track with >= {min_frames} fitted frames",
+        "scene": "sample_data/pose2sim_demo",
+        "tracks": kept,
+        "fps": float(scene.fps),
+        "fit_residual_mm": [round(float(np.nanmean(fit.residual[k][r])), 1) for k, r in pairs],
+    }
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        out,
+        poses=np.concatenate([fit.pose_rotvecs[k][r].reshape(-1, 72) for k, r in pairs]),
+        trans=np.concatenate([fit.transl[k][r] / 1000.0 for k, r in pairs]),
+        track=np.concatenate([np.full(len(r), k) for k, r in pairs]),
+        frame=np.concatenate(rows),
+        betas=fit.betas[kept],
+        mocap_framerate=np.float64(scene.fps),
+        meta=np.array(json.dumps(meta)),
+    )
+    return out
+
+
 def sources_for(
     *,
     exclude_sources: tuple[str, ...] = (),
@@ -167,7 +242,7 @@ def sources_for(
 ) -> list[PoseSource]:
     """Every source but ``exclude_sources``, each without the motion of
     ``exclude_activities`` (library activities dropped from the sampler, CMU clips and the
-    balancing trial dropped whole)."""
+    balancing trial and the demo dropped whole)."""
     bad = set(exclude_sources) - set(SOURCE_NAMES)
     if bad:
         raise ValueError(f"unknown sources {sorted(bad)}; known {SOURCE_NAMES}")
@@ -184,6 +259,8 @@ def sources_for(
         ]
     if "balancing" not in exclude_sources and "balance" not in exclude_activities:
         out.append(balancing_source())
+    if "demo" not in exclude_sources and not set(DEMO_ACTIVITIES) & set(exclude_activities):
+        out.append(demo_source())
     return out
 
 

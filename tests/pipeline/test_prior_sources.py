@@ -16,7 +16,9 @@ from pipeline.pose_prior import load_prior
 from pipeline.prior_correction import in_distribution
 from pipeline.prior_sources import (
     BALANCING_POSES,
+    DEMO_POSES,
     balancing_source,
+    demo_source,
     library_source,
     mix_poses,
     sources_for,
@@ -35,6 +37,32 @@ def test_balancing_source_is_the_trials_fitted_poses_with_its_terms():
     assert pose_limits.violations_per_1000(src.poses.reshape(-1, 24, 3)) < 100
     assert np.abs(src.poses[:, 3:66]).max() > 0.3
     assert training_frames([rec]) == {(BALANCING_POSES.name, i) for i in range(100)}
+
+
+def test_demo_source_is_two_real_people_one_standing_upright():
+    src = demo_source()
+    assert src.poses.shape == (200, 72) and np.isfinite(src.poses).all() and src.real
+    rec = src.record
+    assert rec["activities"] == ["stand", "walk"] and "BSD-3-Clause" in rec["licence"]
+    assert rec["tracks"] == [0, 1] and rec["source_frames"] == 200
+    assert training_frames([rec]) == {(DEMO_POSES.name, i) for i in range(200)}
+    with np.load(DEMO_POSES) as z:
+        track, trans = z["track"], z["trans"]
+        assert z["betas"].shape == (2, 10) and (np.bincount(track) == 100).all()
+    poses = src.poses.reshape(-1, 24, 3)
+    knee = np.degrees(
+        np.linalg.norm(poses[:, [pose_limits.J["left_knee"], pose_limits.J["right_knee"]]], axis=-1)
+    )
+    speed = [
+        np.median(np.linalg.norm(np.diff(trans[track == k, :2], axis=0), axis=1)) * 60
+        for k in (0, 1)
+    ]
+    # measured: person 0 stands almost still (0.20 m/s median, knees bent 16-19 deg on
+    # average), person 1 walks across (0.58 m/s)
+    assert speed[0] < 0.3 < 0.45 < speed[1], speed
+    assert np.median(knee[track == 0]) < 25.0
+    # step I on real 2D (no prior): 130 and 160 per 1,000 bodies outside a joint limit, measured
+    assert pose_limits.violations_per_1000(poses) < 200
 
 
 def test_library_without_an_activity_and_the_mix_records():
@@ -59,12 +87,14 @@ def test_library_without_an_activity_and_the_mix_records():
 def test_sources_for_a_split_hold_no_held_out_activity():
     sources = sources_for(exclude_sources=("cmu",), exclude_activities=("wave",), num_poses=1000)
     records = [s.record for s in sources]
-    assert [s.name for s in sources] == ["library", "balancing"]
+    assert [s.name for s in sources] == ["library", "balancing", "demo"]
     check_activity_held_out(records, "wave")  # passes
     with pytest.raises(ValueError, match="balance"):
         check_activity_held_out(records, "balance")
     no_bal = sources_for(exclude_sources=("cmu",), exclude_activities=("balance",), num_poses=1000)
-    assert [s.name for s in no_bal] == ["library"]
+    assert [s.name for s in no_bal] == ["library", "demo"]
+    no_walk = sources_for(exclude_sources=("cmu",), exclude_activities=("walk",), num_poses=1000)
+    assert [s.name for s in no_walk] == ["library", "balancing"]  # the demo shows walking
     assert source_activities({"activity": "start, hop, stop"}) == {"hop"}
     with pytest.raises(ValueError, match="unknown sources"):
         sources_for(exclude_sources=("amass",))
