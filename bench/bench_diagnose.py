@@ -7,6 +7,9 @@ checks that need no truth, Pose2Sim's real balancing trial and demo. Prints:
   error and confidence, the largest false offset of the other cameras; in the same run
   the baseline of Pose2Sim's kind, a cross-correlation of the camera's 2D keypoint speed
   with the other cameras' (integer lag, parabola-refined), on the same scenes;
+- **late camera vs calibration**: for each delay, the calibration suspects as recorded
+  and once judged in sync (``pipeline.diagnose.in_sync``: a late camera is out of sync,
+  not a suspect);
 - **calibration**: a camera rotated 1 degree or moved 5 cm: whether it is named, the
   refined camera's distance from the truth, the raw MPJPE with the true, the wrong and
   the refined calibration;
@@ -14,8 +17,11 @@ checks that need no truth, Pose2Sim's real balancing trial and demo. Prints:
   and y-up: up's angle to +z, the floor height, and after the fix;
 - the time each diagnosis takes (medians of the runs above).
 
+``--sweep`` instead: camera 1 late by 0..10 whole frames on both scenes, and a drift
+(in sync, then 3 frames late) seen per window.
+
 Usage:
-    python bench/bench_diagnose.py [--json FILE] [--quick]
+    python bench/bench_diagnose.py [--json FILE] [--quick | --sweep]
 """
 
 from __future__ import annotations
@@ -37,16 +43,17 @@ from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.diagnose.calibration import check_calibration, replace_camera  # noqa: E402
 from pipeline.diagnose.floor import estimate_floor, transform_scene  # noqa: E402
-from pipeline.diagnose.perturb import delay_camera, perturb_camera_pose  # noqa: E402
+from pipeline.diagnose.in_sync import check_calibration_in_sync  # noqa: E402
+from pipeline.diagnose.perturb import _concat, delay_camera, perturb_camera_pose  # noqa: E402
 from pipeline.diagnose.reference import camera_detections  # noqa: E402
-from pipeline.diagnose.sync import estimate_offsets  # noqa: E402
+from pipeline.diagnose.sync import estimate_offsets, offsets_over_windows  # noqa: E402
 from pipeline.evaluate import evaluate  # noqa: E402
 from pipeline.results import run_pipeline  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = PipelineConfig(fit_smpl=False)
-TIMES: dict[str, list[float]] = {"sync": [], "calibration": [], "floor": []}
+TIMES: dict[str, list[float]] = {"sync": [], "calibration": [], "floor": [], "in sync": []}
 
 
 def run(scene):
@@ -118,13 +125,51 @@ def sync_rows(name: str, scene, cases) -> list[dict]:
         e = est[cam]
         false = max(abs(x.offset_frames) for k, x in est.items() if k != cam)
         base = speed_correlation_offset(sc, res, sc.rig.index_of(cam), 12)
+        # The late camera and the calibration check: as recorded, and judged in sync
+        # (re-timed by the offsets found; what `mvviz diagnose` reports).
+        recorded = check_calibration(sc, res, refine=False)
+        in_sync = timed("in sync", check_calibration_in_sync, sc, res, est, refine=False).findings
         rows.append({
             "scene": name, "camera": cam, "delay": delay, "found": e.offset_frames,
             "error": abs(e.offset_frames - delay), "confidence": e.confidence,
             "max_false_offset": false, "speed_corr_found": base,
             "speed_corr_error": abs(base - delay),
+            "suspects_as_recorded": [k for k, f in recorded.items() if f.suspect],
+            "suspects_in_sync": [k for k, f in in_sync.items() if f.suspect],
+            "out_of_sync": [k for k, f in in_sync.items() if f.out_of_sync],
+            "systematic_px": [recorded[cam].systematic_px, in_sync[cam].systematic_px],
         })  # fmt: skip
     return rows
+
+
+def sweep_rows(name: str, scene, camera: str = "1") -> list[dict]:
+    """``camera`` late by 0 (in sync) .. 10 whole frames: the offset found, its error,
+    confidence, and the other cameras' largest |offset|."""
+    rows = []
+    for delay in range(11):
+        sc = delay_camera(scene, camera, delay) if delay else scene
+        est = estimate_offsets(sc, run(sc))
+        e = est[camera]
+        rows.append({
+            "scene": name, "camera": camera, "delay": delay, "found": e.offset_frames,
+            "error": abs(e.offset_frames - delay), "confidence": e.confidence,
+            "max_false_offset": max(abs(x.offset_frames) for k, x in est.items() if k != camera),
+        })  # fmt: skip
+    return rows
+
+
+def drift_row(name: str, scene, camera: str = "1", late: int = 3, at: int = 125) -> dict:
+    """``camera`` in sync until frame ``at``, ``late`` frames late after: the offsets per
+    window of ``at`` frames (``mvviz diagnose --window``)."""
+    det, shifted = scene.detections, delay_camera(scene, camera, late).detections
+    v = scene.rig.index_of(camera)
+    early = det.take((det.view != v) | (det.frame < at))
+    after = shifted.take((shifted.view == v) & (shifted.frame >= at + late))
+    drifted = dataclasses.replace(scene, detections=_concat(early, after))
+    windows = offsets_over_windows(drifted, run(drifted), window=at)
+    return {"scene": name, "camera": camera, "late_after": at, "delay": late,
+            "windows": [(a, b, est[camera].offset_frames, est[camera].confidence)
+                        for a, b, est in windows]}  # fmt: skip
 
 
 def calibration_rows(name: str, truth, faults) -> list[dict]:
@@ -168,11 +213,17 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--quick", action="store_true", help="fewer cases")
+    ap.add_argument(
+        "--sweep", action="store_true",
+        help="only: camera 1 late by 0..10 frames on both scenes, and a drift by windows",
+    )  # fmt: skip
     args = ap.parse_args()
     global MODEL
     MODEL = load_body_model()
     clean = load_scene(REPO / "sample_data" / "shelf_synth")
     noisy = load_scene(REPO / "sample_data" / "shelf_synth_noisy")
+    if args.sweep:
+        return _sweep(clean, noisy, args.json)
     cases = [("1", 1), ("3", 4), ("0", -7), ("4", 10), ("2", 0.5), ("2", 2.5)]
     if args.quick:
         cases = cases[1:2] + cases[4:5]
@@ -183,6 +234,13 @@ def main() -> int:
         print(f"  {r['scene']:<12} cam {r['camera']} {r['delay']:+5.1f}: {r['found']:+7.3f} "
               f"({r['error']:.3f}, {r['confidence']:.2f}; {r['max_false_offset']:.3f}) | "
               f"{r['speed_corr_found']:+7.3f} ({r['speed_corr_error']:.3f})")  # fmt: skip
+    print("late camera and calibration: suspects as recorded -> judged in sync (out of sync); "
+          "its systematic residual as recorded -> re-timed")  # fmt: skip
+    for r in sync:
+        a, b = r["systematic_px"]
+        print(f"  {r['scene']:<12} cam {r['camera']} {r['delay']:+5.1f}: "
+              f"{r['suspects_as_recorded']} -> {r['suspects_in_sync']} ({r['out_of_sync']}); "
+              f"{a:.1f} -> {b:.1f} px")  # fmt: skip
     faults = [("rotated 1 deg", dict(rotation_deg=1.0, axis=(0.3, 1.0, 0.2))),
               ("moved 5 cm", dict(translation_mm=(50.0, 0.0, 0.0)))]  # fmt: skip
     cal = calibration_rows("shelf", clean, faults) + calibration_rows("shelf noisy", noisy, faults)
@@ -216,6 +274,23 @@ def main() -> int:
     print("time (median s): " + ", ".join(f"{k} {v:.2f}" for k, v in med.items()))
     if args.json:
         write_json(args.json, {"sync": sync, "calibration": cal, "floor": floor, "seconds": med})
+    return 0
+
+
+def _sweep(clean, noisy, json_path) -> int:
+    rows = sweep_rows("shelf", clean) + sweep_rows("shelf noisy", noisy)
+    print("sync sweep: delay -> found (error, confidence; largest |offset| of the others)")
+    for r in rows:
+        print(f"  {r['scene']:<12} cam {r['camera']} {r['delay']:+3d}: {r['found']:+7.3f} "
+              f"({r['error']:.3f}, {r['confidence']:.2f}; "
+              f"{r['max_false_offset']:.3f})")  # fmt: skip
+    drift = [drift_row("shelf", clean), drift_row("shelf noisy", noisy)]
+    print("drift: camera 1 in sync until frame 125, 3 frames late after; per 125-frame window")
+    for d in drift:
+        w = "; ".join(f"{a}-{b - 1}: {o:+.3f} (conf {c:.2f})" for a, b, o, c in d["windows"])
+        print(f"  {d['scene']:<12} {w}")
+    if json_path:
+        write_json(json_path, {"sweep": rows, "drift": drift})
     return 0
 
 
