@@ -15,49 +15,36 @@ bug, reported in one line with exit code 1 (``--debug`` prints its traceback).
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 import traceback
 from collections.abc import Callable
 
 from pipeline.files import SceneFormatError
 
+COMMAND_MODULES = {
+    "convert": "convert", "add-reference": "reference", "synth": "synth", "detect": "detect",
+    "run": "run", "eval": "run", "batch": "batch", "export-rrd": "export_rrd",
+    "export": "export_formats", "diagnose": "diagnose", "compare": "compare", "view": "view",
+    "train-prior": "prior",
+}  # fmt: skip
+"""Each subcommand's module, in --help's order. A command line naming one imports only
+that module: every module together imports ray, torch and matplotlib (~12 s here), which
+``mvviz view`` and ``mvviz export-rrd`` would otherwise pay before doing anything."""
 
-def build_parser() -> argparse.ArgumentParser:
-    from mvviz.cli import (  # noqa: PLC0415  (keeps --help fast)
-        batch,
-        compare,
-        convert,
-        detect,
-        diagnose,
-        export_formats,
-        export_rrd,
-        prior,
-        reference,
-        run,
-        synth,
-        view,
-    )
 
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser of ``argv``'s subcommand (all of them when it names none, e.g. --help)."""
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    named = words[0] if words and words[0] in COMMAND_MODULES else None
+    wanted = [COMMAND_MODULES[named]] if named else list(dict.fromkeys(COMMAND_MODULES.values()))
     parser = argparse.ArgumentParser(
         prog="mvviz",
         description="Multi-view, multi-person 3D pose and SMPL reconstruction, and its debugger.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in (
-        convert,
-        reference,
-        synth,
-        detect,
-        run,
-        batch,
-        export_rrd,
-        export_formats,
-        diagnose,
-        compare,
-        view,
-        prior,
-    ):
-        module.register(sub)
+    for name in wanted:
+        importlib.import_module(f"mvviz.cli.{name}").register(sub)
     add_debug_option(parser)
     for p in sub.choices.values():
         add_debug_option(p, default=argparse.SUPPRESS)  # also after the subcommand
@@ -94,6 +81,6 @@ def run_command(prog: str, func: Callable[[argparse.Namespace], int | None], arg
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser(argv).parse_args(argv)
     return run_command(f"mvviz {args.command}", args.func, args)
 
