@@ -1,31 +1,36 @@
-"""Cost of the per-frame stages (association + triangulation) over cameras x people.
+"""Cost of the per-frame stages (association, triangulation) over cameras x people.
 
 Scenes: ``mvviz synth``'s fast synthesis (no video) on a Panoptic-like dome of 5 m
 radius (``dome:N:5000``, people in its 3 m capture circle), the shipped detector noise,
---frames frames per scene, for every cameras x people of the grid. Per scene, alternated
-over --repeats runs: ``pipeline.run.run_frame`` on every frame with today's association
-kernels (``pipeline.ray_affinity``) and with the ones they replaced (the reference:
-``pipeline.associate.ray_distances_reference`` / ``average_linkage_reference``, patched
-in); the median CPU time per frame (this process's own time: the machine is shared) and
-wall time; association precision / recall (pairs of one frame, pipeline.metrics) and
-triangulation MPJPE against the true keypoints (people matched per frame), both ways.
+--frames frames per scene, for every cameras x people of the grid (kept under --cache
+and reused). Per scene, alternated over --repeats runs: ``pipeline.run.run_frame`` on
+every frame with today's association (``pipeline.ray_affinity.screened_distances``: a
+part-ray screen, then the per-joint kernel on the pairs it keeps) and with the one
+before it (``pipeline.associate.dense_frame_distances``: every pair, patched in), and
+with --reference also the kernels as first written (``ray_distances_reference`` /
+``average_linkage_reference``). Reported: the median CPU time per frame of association
+and of triangulation (this process's own time: the machine is shared), association
+precision / recall (pairs of one frame, pipeline.metrics) and triangulation MPJPE
+against the true keypoints (people matched per frame), every way.
 
 Then: the exponents of a least-squares fit ``cost ~ cameras^a people^b`` and
-``cost ~ detections^c``, a table, and a log-log plot (docs/scale.png). Also the shipped
-sample and its noisy twin (sample_data/shelf_synth, shelf_synth_noisy): frames/s and
-accuracy both ways.
+``cost ~ detections^c``, a table (--markdown writes it for the README), and a log-log
+plot (--plot). Also the shipped sample and its noisy twin (sample_data/shelf_synth,
+shelf_synth_noisy): frames/s end to end (association + triangulation) and accuracy.
 
 Usage:
     python bench/bench_scale.py [--cameras 4 8 16 31] [--people 1 5 10 20] [--frames 8]
-        [--repeats 3] [--plot docs/scale.png] [--json FILE]
+        [--repeats 3] [--reference] [--cache DIR] [--plot docs/scale.png]
+        [--markdown FILE] [--json FILE]
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import contextlib
+import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -34,37 +39,71 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import pipeline.associate as associate  # noqa: E402
+import pipeline.run as run  # noqa: E402
 from bench.common import write_json  # noqa: E402
 from pipeline import metrics  # noqa: E402
-from pipeline.body_model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.run import frame_rows, run_frame, select_2d  # noqa: E402
 from pipeline.scene import Scene, load_scene  # noqa: E402
-from pipeline.synth.rigs import dome_capture_radius, dome_rig  # noqa: E402
-from pipeline.synth.scene_gen import SynthConfig, write_synth_scene  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DOME_MM = 5000.0
+STAGES = ("associate_frame", "triangulate_people")  # pipeline.run's names, timed apart
 
 
 @contextlib.contextmanager
-def reference_kernels():
-    """Run association with the kernels as first written."""
-    saved = associate.ray_distances, associate._average_linkage
-    associate.ray_distances = associate.ray_distances_reference
-    associate._average_linkage = associate.average_linkage_reference
+def kernels(mode: str):
+    """Association as today ("new"), with every pair's distance ("dense", the kernels
+    before the screen) or with the kernels as first written ("reference")."""
+    saved = associate._frame_distances, associate.ray_distances, associate._average_linkage
+    if mode in ("dense", "reference"):
+        associate._frame_distances = associate.dense_frame_distances
+    if mode == "reference":
+        associate.ray_distances = associate.ray_distances_reference
+        associate._average_linkage = associate.average_linkage_reference
     try:
         yield
     finally:
-        associate.ray_distances, associate._average_linkage = saved
+        associate._frame_distances, associate.ray_distances, associate._average_linkage = saved
 
 
-def run_all(scene: Scene, config: PipelineConfig, j2d, rows) -> tuple[list, float, float]:
-    """Every frame's :func:`run_frame`: (results, CPU s per frame, wall s per frame)."""
-    c, w = time.process_time(), time.perf_counter()
-    out = [run_frame(scene, f, config, j2d, rows=rows[f]) for f in range(scene.num_frames)]
+@contextlib.contextmanager
+def stage_clock():
+    """CPU seconds spent in each of :data:`STAGES` (pipeline.run's functions wrapped)."""
+    spent: dict[str, float] = collections.defaultdict(float)
+    saved = {name: getattr(run, name) for name in STAGES}
+
+    def timed(name, fn):
+        def call(*args, **kwargs):
+            c = time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[name] += time.process_time() - c
+
+        return call
+
+    for name, fn in saved.items():
+        setattr(run, name, timed(name, fn))
+    try:
+        yield spent
+    finally:
+        for name, fn in saved.items():
+            setattr(run, name, fn)
+
+
+def run_all(scene: Scene, config: PipelineConfig, j2d, rows) -> tuple[list, dict[str, float]]:
+    """Every frame's :func:`run_frame`: (results, CPU s per frame of each stage and all)."""
     n = max(scene.num_frames, 1)
-    return out, (time.process_time() - c) / n, (time.perf_counter() - w) / n
+    with stage_clock() as spent:
+        c = time.process_time()
+        out = [run_frame(scene, f, config, j2d, rows=rows[f]) for f in range(scene.num_frames)]
+        total = time.process_time() - c
+    return out, {
+        "assoc_s": spent["associate_frame"] / n,
+        "tri_s": spent["triangulate_people"] / n,
+        "frame_s": total / n,
+    }
 
 
 def accuracy(scene: Scene, results: list) -> dict[str, float]:
@@ -90,23 +129,40 @@ def accuracy(scene: Scene, results: list) -> dict[str, float]:
     }
 
 
-def measure(scene: Scene, repeats: int) -> dict:
+def measure(scene: Scene, repeats: int, modes: tuple[str, ...]) -> dict:
+    """Median CPU s per frame of each stage and accuracy, per mode, alternated."""
     config = PipelineConfig()
     j2d = select_2d(scene, config, None)
     rows = frame_rows(scene, config)
-    cost = {"new": [], "reference": []}
+    cost: dict[str, list] = {m: [] for m in modes}
     res = {}
     for _ in range(repeats):
-        for mode in ("reference", "new"):
-            ctx = reference_kernels() if mode == "reference" else contextlib.nullcontext()
-            with ctx:
-                res[mode], cpu, wall = run_all(scene, config, j2d, rows)
-            cost[mode].append((cpu, wall))
+        for mode in modes:
+            with kernels(mode):
+                res[mode], spent = run_all(scene, config, j2d, rows)
+            cost[mode].append(spent)
     out = {"detections_per_frame": float(len(scene.detections.frame) / scene.num_frames)}
     for mode, runs in cost.items():
-        cpu, wall = np.median(np.array(runs), axis=0)
-        out[mode] = {"cpu_s": float(cpu), "wall_s": float(wall), **accuracy(scene, res[mode])}
+        med = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
+        out[mode] = {**med, **accuracy(scene, res[mode])}
     return out
+
+
+def dome_scene(cache: Path, cams: int, people: int, frames: int) -> Scene:
+    """The grid's scene, synthesised once into ``cache``."""
+    out = cache / f"dome{cams}_p{people}_f{frames}"
+    if not (out / "scene.json").exists():
+        from pipeline.body_model import load_body_model
+        from pipeline.synth.rigs import dome_capture_radius, dome_rig
+        from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
+
+        cfg = SynthConfig(
+            num_people=people, num_frames=frames, seed=cams * 100 + people,
+            render_video=False, area_radius_mm=dome_capture_radius(DOME_MM), occlusion="proxy",
+        )  # fmt: skip
+        rig = dome_rig(cams, radius_mm=DOME_MM)
+        write_synth_scene(out, rig, load_body_model(), cfg, progress=False)
+    return load_scene(out)
 
 
 def fit_exponents(cams, people, dets, cost) -> dict[str, float]:
@@ -118,35 +174,86 @@ def fit_exponents(cams, people, dets, cost) -> dict[str, float]:
     return {"cameras": float(a), "people": float(b), "detections": float(c)}
 
 
+def all_fits(grid: list[dict], modes: tuple[str, ...]) -> dict[str, dict[str, float]]:
+    """Exponents of association per mode and of today's triangulation."""
+    arr = [np.array([g[k] for g in grid], float) for k in ("cameras", "people", "dets")]
+    fits = {f"assoc_{m}": fit_exponents(*arr, np.array([g[m]["assoc_s"] for g in grid]))
+            for m in modes}  # fmt: skip
+    fits["tri_new"] = fit_exponents(*arr, np.array([g["new"]["tri_s"] for g in grid]))
+    return fits
+
+
 def plot(grid: list[dict], path: Path, fits: dict) -> None:
+    """Association (left) and triangulation (right), CPU ms per frame against detections
+    per frame, log-log, one colour per camera count."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.6), dpi=110)
     for k, cams in enumerate(sorted({g["cameras"] for g in grid})):
         rows = sorted((g for g in grid if g["cameras"] == cams), key=lambda g: g["dets"])
-        x = [g["dets"] for g in rows]
-        colour = f"C{k}"
-        ax.loglog(x, [g["new"]["cpu_s"] * 1000 for g in rows], "o-", color=colour,
-                  label=f"{cams} cameras")  # fmt: skip
-        ax.loglog(x, [g["reference"]["cpu_s"] * 1000 for g in rows], "x--", color=colour,
-                  alpha=0.6)  # fmt: skip
-    ax.axhline(4.0, color="grey", lw=0.8, ls=":")
-    ax.text(ax.get_xlim()[0] * 1.1, 4.3, "250 frames/s", color="grey", fontsize=8)
-    ax.set_xlabel("detections per frame")
-    ax.set_ylabel("association + triangulation, CPU ms / frame")
-    n, r = fits["new"], fits["reference"]
+        x, colour = [g["dets"] for g in rows], f"C{k}"
+        ms = {(m, k): [g[m][k] * 1000 for g in rows] for m in ("new", "dense") for k in
+              ("assoc_s", "tri_s")}  # fmt: skip
+        label = f"{cams} cameras"
+        ax.loglog(x, ms["new", "assoc_s"], "o-", color=colour, label=label)
+        ax.loglog(x, ms["dense", "assoc_s"], "x--", color=colour, alpha=0.6)
+        ax2.loglog(x, ms["new", "tri_s"], "o-", color=colour, label=label)
+    for a, limit, text in ((ax, 4.0, "250 frames/s"), (ax, 10.0, "100 frames/s")):
+        a.axhline(limit, color="grey", lw=0.8, ls=":")
+        a.text(2, limit * 1.08, text, color="grey", fontsize=8)
+    n, d, t = fits["assoc_new"], fits["assoc_dense"], fits["tri_new"]
     ax.set_title(
-        "solid: now (cost ~ dets^%.2f), dashed: before (~ dets^%.2f)" % (n["detections"], r["detections"]),
+        f"association (solid: now ~ dets^{n['detections']:.2f} = cams^{n['cameras']:.2f}"
+        f" people^{n['people']:.2f};\ndashed: every pair ~ dets^{d['detections']:.2f})",
         fontsize=9,
-    )  # fmt: skip
-    ax.legend(fontsize=8)
-    ax.grid(True, which="both", alpha=0.3)
+    )
+    ax2.set_title(
+        f"triangulation (~ dets^{t['detections']:.2f} = cams^{t['cameras']:.2f}"
+        f" people^{t['people']:.2f})",
+        fontsize=9,
+    )
+    for a in (ax, ax2):
+        a.set_xlabel("detections per frame")
+        a.set_ylabel("CPU ms / frame")
+        a.grid(True, which="both", alpha=0.3)
+        a.legend(fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
+
+
+def table(grid: list[dict]) -> list[str]:
+    """The grid as a Markdown table: frames/s (CPU) per stage, accuracy."""
+    out = [
+        "| cameras | people | detections / frame | association frames/s (every pair) | "
+        "speed-up | triangulation frames/s | association P / R | MPJPE mm (every pair) |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for g in grid:
+        n, d = g["new"], g["dense"]
+        out.append(
+            f"| {g['cameras']} | {g['people']} | {g['dets']:.0f} | {1 / n['assoc_s']:,.0f} "
+            f"({1 / d['assoc_s']:,.0f}) | {d['assoc_s'] / n['assoc_s']:.1f}x | "
+            f"{1 / n['tri_s']:,.0f} | {n['precision']:.4f} / {n['recall']:.4f} | "
+            f"{n['mpjpe_mm']:.2f} ({d['mpjpe_mm']:.2f}) |"
+        )
+    return out
+
+
+def report(name: str, m: dict, modes: tuple[str, ...]) -> str:
+    """One line per scene: frames/s and accuracy of every mode."""
+    parts = []
+    for mode in modes:
+        r = m[mode]
+        parts.append(
+            f"{mode}: assoc {1 / r['assoc_s']:7.0f}/s tri {1 / r['tri_s']:6.0f}/s "
+            f"end to end {1 / r['frame_s']:6.0f}/s P/R {r['precision']:.4f}/{r['recall']:.4f} "
+            f"MPJPE {r['mpjpe_mm']:.2f}"
+        )
+    return f"{name} ({m['detections_per_frame']:.0f} dets/frame) | " + " | ".join(parts)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -155,50 +262,34 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--people", type=int, nargs="+", default=[1, 5, 10, 20])
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--plot", type=Path, default=REPO / "docs" / "scale.png")
+    ap.add_argument("--reference", action="store_true", help="also the first kernels")
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/bench_scale_scenes"))
+    optional_path = lambda s: Path(s) if s else None  # noqa: E731  ("" = no plot)
+    ap.add_argument("--plot", type=optional_path, default=REPO / "docs" / "scale.png")
+    ap.add_argument("--markdown", type=Path, default=None)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
-    model = load_body_model()
+    modes = ("new", "dense") + (("reference",) if args.reference else ())
+    print(f"load average at start: {os.getloadavg()}", flush=True)
     grid = []
-    print(f"{'cams':>4s} {'people':>6s} {'dets':>6s} | {'ms/frame now':>12s} {'before':>8s} "
-          f"{'ratio':>6s} | {'P/R now':>13s} {'P/R before':>13s} | {'MPJPE now/before':>16s}")  # fmt: skip
-    with tempfile.TemporaryDirectory(prefix="bench_scale.") as tmp:
-        for cams in args.cameras:
-            rig = dome_rig(cams, radius_mm=DOME_MM)
-            for people in args.people:
-                cfg = SynthConfig(
-                    num_people=people, num_frames=args.frames, seed=cams * 100 + people,
-                    render_video=False, area_radius_mm=dome_capture_radius(DOME_MM),
-                    occlusion="proxy",
-                )  # fmt: skip
-                out = Path(tmp) / f"d{cams}_p{people}"
-                write_synth_scene(out, rig, model, cfg, progress=False)
-                m = measure(load_scene(out), args.repeats)
-                g = {"cameras": cams, "people": people, "dets": m["detections_per_frame"], **m}
-                grid.append(g)
-                n, r = g["new"], g["reference"]
-                print(f"{cams:4d} {people:6d} {g['dets']:6.1f} | {n['cpu_s'] * 1e3:12.2f} "
-                      f"{r['cpu_s'] * 1e3:8.2f} {r['cpu_s'] / n['cpu_s']:6.1f} | "
-                      f"{n['precision']:.4f}/{n['recall']:.4f} {r['precision']:.4f}/{r['recall']:.4f} | "
-                      f"{n['mpjpe_mm']:7.2f}/{r['mpjpe_mm']:7.2f}", flush=True)  # fmt: skip
-    arr = {k: np.array([g[k] for g in grid], float) for k in ("cameras", "people", "dets")}
-    fits = {
-        mode: fit_exponents(arr["cameras"], arr["people"], arr["dets"],
-                            np.array([g[mode]["cpu_s"] for g in grid]))
-        for mode in ("new", "reference")
-    }  # fmt: skip
-    for mode, f in fits.items():
-        print(f"fit {mode:9s}: cost ~ cameras^{f['cameras']:.2f} people^{f['people']:.2f}; "
+    for cams in args.cameras:
+        for people in args.people:
+            m = measure(dome_scene(args.cache, cams, people, args.frames), args.repeats, modes)
+            grid.append({"cameras": cams, "people": people, "dets": m["detections_per_frame"], **m})
+            print(report(f"dome:{cams} x {people}", m, modes), flush=True)
+    fits = all_fits(grid, modes)
+    for name, f in fits.items():
+        print(f"fit {name:16s}: cost ~ cameras^{f['cameras']:.2f} people^{f['people']:.2f}; "
               f"~ detections^{f['detections']:.2f}")  # fmt: skip
     samples = {}
     for name in ("shelf_synth", "shelf_synth_noisy"):
-        m = measure(load_scene(REPO / "sample_data" / name), args.repeats)
-        samples[name] = m
-        n, r = m["new"], m["reference"]
-        print(f"{name}: {1 / n['cpu_s']:.0f} frames/s CPU now, {1 / r['cpu_s']:.0f} before "
-              f"({1 / n['wall_s']:.0f} / {1 / r['wall_s']:.0f} wall); P/R "
-              f"{n['precision']:.4f}/{n['recall']:.4f} vs {r['precision']:.4f}/{r['recall']:.4f}; "
-              f"MPJPE {n['mpjpe_mm']:.2f} vs {r['mpjpe_mm']:.2f} mm")  # fmt: skip
+        samples[name] = measure(load_scene(REPO / "sample_data" / name), args.repeats, modes)
+        print(report(name, samples[name], modes), flush=True)
+    print(f"load average at end: {os.getloadavg()}")
+    lines = table(grid)
+    print("\n".join(lines))
+    if args.markdown:
+        args.markdown.write_text("\n".join(lines) + "\n")
     if args.plot:
         plot(grid, args.plot, fits)
         print(f"plot: {args.plot}")

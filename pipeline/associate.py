@@ -29,6 +29,11 @@ un-mirrored labels. On the real Pose2Sim demo, 36 of BlazePose's detections (the
 woman's in cam02 and cam03, in 22 frames around f50-90) are mirrored: without this her
 views split into two clusters that disagree and three tracks come out for two people.
 
+Scale: a pair's per-joint distance is computed only where a cheap screen over the body
+parts' mean rays finds the two close (``AssociationParams.prune_mm``, see
+:func:`pipeline.ray_affinity.screened_distances`); on a 31-camera dome with 20 people it
+throws away 3/4 of the pairs.
+
 Duplicates: two clusters with no view in common whose bodies triangulate to the same
 place are one person (``AssociationParams.merge_distance_mm``).
 
@@ -44,7 +49,7 @@ import numpy as np
 
 from pipeline.cameras import CameraRig
 from pipeline.joint_sets import JointSet
-from pipeline.ray_affinity import average_linkage, ray_distances
+from pipeline.ray_affinity import average_linkage, ray_distances, screened_distances
 from pipeline.triangulate import triangulate_people
 
 
@@ -59,6 +64,10 @@ class AssociationParams:
     min_confidence: float = 0.1
     min_shared_joints: int = 3
     min_views: int = 2
+    prune_mm: float = 300.0
+    """Pairs whose distance over body-part mean rays (a cheap screen,
+    :func:`pipeline.ray_affinity.screened_distances`) is at least this skip the per-joint
+    distance and keep the screen's; inf computes every pair."""
     resolve_flips: bool = True
     """Score every pair also with one detection mirrored left/right, and un-mirror the
     detections a cluster finds mirrored (needs the joint set)."""
@@ -88,7 +97,8 @@ class Association:
     Attributes:
         cluster: (n,) person index per detection of the frame, -1 if unassigned.
         affinity: (n, n) pairwise affinity (NaN for same-view pairs and the diagonal).
-        ray_distance: (n, n) weighted mean ray distance, mm (NaN where not computed).
+        ray_distance: (n, n) weighted mean ray distance, mm (NaN where not computed; for
+            a pair the screen pruned, the screen's, >= ``AssociationParams.prune_mm``).
         members: (num_people, num_views) detection index (within the frame) per view, -1.
         linkage: (num_people,) mean affinity within each cluster.
         flipped: (n,) bool, detections whose left and right labels the cluster found
@@ -278,10 +288,7 @@ def associate_frame(
         flip = joint_set.flip_index
         if (flip == np.arange(len(flip))).all():
             flip = None
-    dist = ray_distances(origins, dirs, weights, params)
-    mirrored = np.full_like(dist, np.nan)
-    if flip is not None:
-        mirrored = _mirrored_distances(origins, dirs, weights, views, flip, params)
+    dist, mirrored = _frame_distances(origins, dirs, weights, views, flip, params)
     same_view = views[:, None] == views[None, :]
     dist[same_view] = mirrored[same_view] = np.nan
     best = np.fmin(dist, mirrored)
@@ -320,6 +327,27 @@ def associate_frame(
         linkage=linkage,
         flipped=flipped & (out >= 0),
     )
+
+
+def dense_frame_distances(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
+    views: np.ndarray,
+    flip: np.ndarray | None,
+    params: AssociationParams,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n, n) ray distances as labelled and with one of the pair mirrored (NaN where not
+    scored), every pair by :func:`ray_distances`: what :func:`associate_frame` did before
+    the screen (:func:`pipeline.ray_affinity.screened_distances`), kept for bench_scale."""
+    dist = ray_distances(origins, dirs, weights, params)
+    mirrored = np.full_like(dist, np.nan)
+    if flip is not None:
+        mirrored = _mirrored_distances(origins, dirs, weights, views, flip, params)
+    return dist, mirrored
+
+
+_frame_distances = screened_distances  # bench/bench_scale.py swaps in the dense one
 
 
 def _mirrored_distances(
@@ -402,6 +430,8 @@ def resolve_flips(
         if len(rows) < 2:
             continue
         S, X = same[np.ix_(rows, rows)], cross[np.ix_(rows, rows)]
+        if (X >= S).all():
+            continue  # no pair is closer mirrored: _orient would mirror nobody
         bits = _orient(S, X)
         if not bits.any():
             continue  # every view agrees: nothing for association to decide
@@ -670,36 +700,56 @@ def refine_clusters(
         return cluster
     excess = np.nan_to_num(affinity, nan=0.0) - threshold
     np.fill_diagonal(excess, 0.0)
-    cluster = cluster.copy()
-    V = int(views.max()) + 1
+    # Columns for the clusters at the start (a cluster a move empties keeps its column: no
+    # gain > 0 there, so never a target); one move updates two columns, not all of them.
+    labels, col = np.unique(cluster, return_inverse=True)
+    C, V = len(labels), int(views.max()) + 1
+    member = np.zeros((n, C), bool)
+    member[np.arange(n), col] = True
+    gain = excess @ member  # (n, C): agreement above threshold with each cluster
+    seen = np.zeros((C, V), int)
+    np.add.at(seen, (col, views), 1)
+    size = np.bincount(col, minlength=C)
+    dist = None
+    if geometry is not None:
+        dist = np.zeros((C, n))  # each cluster's body centre to each detection's ray
+        _refine_geometry(geometry, member, np.arange(C), dist)
     for _ in range(n):
-        labels, col = np.unique(cluster, return_inverse=True)
-        member = np.zeros((n, len(labels)))
-        member[np.arange(n), col] = 1.0
-        gain = excess @ member  # (n, C): agreement above threshold with each cluster
-        seen = np.zeros((len(labels), V), bool)
-        seen[col, views] = True
-        allowed = ~seen[:, views].T  # (n, C): the cluster has no detection of its view
-        allowed &= gain > 0  # the detection agrees with it on average
-        if geometry is not None:
-            sets = member.astype(bool) & geometry.has_ray[:, None]
-            solid = sets.sum(0) >= 2  # a centre needs two rays
-            dist = _ray_point_distance(geometry.origins, geometry.rays, geometry.centres(sets))
+        allowed = (seen[:, views].T == 0) & (gain > 0)  # no detection of its view; agrees
+        if dist is not None:
+            solid = (member & geometry.has_ray[:, None]).sum(0) >= 2  # a centre needs two rays
             allowed &= ~solid[None] | (dist.T <= max_mm) | ~geometry.has_ray[:, None]
         own = gain[np.arange(n), col]
         better = np.where(allowed, gain - own[:, None], -np.inf)
         has_home = (better > 1e-9).any(1)
-        size = np.bincount(col, minlength=len(labels))
         # stranded[k]: detections of cluster k without a better cluster of their own
-        stranded = np.bincount(col, weights=~has_home, minlength=len(labels))
+        stranded = np.bincount(col, weights=~has_home, minlength=C)
         left = size[col] - 1  # detections left behind by a move
         keeps = (left >= min_views) | (left == 0) | (stranded[col] - ~has_home == 0)
         better[~keeps] = -np.inf
         i, c = np.unravel_index(np.argmax(better), better.shape)
         if better[i, c] <= 1e-9:
             break
-        cluster[i] = labels[c]
-    return cluster
+        a = col[i]
+        gain[:, a] -= excess[:, i]
+        gain[:, c] += excess[:, i]
+        seen[a, views[i]] -= 1
+        seen[c, views[i]] += 1
+        size[a] -= 1
+        size[c] += 1
+        member[i, a], member[i, c], col[i] = False, True, c
+        if dist is not None:
+            _refine_geometry(geometry, member, np.array([a, c]), dist)
+    return labels[col]
+
+
+def _refine_geometry(
+    geometry: CentreRays, member: np.ndarray, cols: np.ndarray, dist: np.ndarray
+) -> None:
+    """dist[cols] = the distance of each detection's centre ray to the body centre of
+    each cluster in ``cols`` (member: (n, C) bool)."""
+    sets = member[:, cols] & geometry.has_ray[:, None]
+    dist[cols] = _ray_point_distance(geometry.origins, geometry.rays, geometry.centres(sets))
 
 
 def _average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -> np.ndarray:

@@ -23,7 +23,14 @@ from scipy.spatial.distance import squareform
 if TYPE_CHECKING:
     from pipeline.associate import AssociationParams
 
-__all__ = ["average_linkage", "ray_distances"]
+__all__ = [
+    "average_linkage",
+    "pair_ray_distances",
+    "part_groups",
+    "ray_distances",
+    "screen_distances",
+    "screened_distances",
+]
 
 
 def ray_distances(
@@ -111,3 +118,165 @@ def average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -
     first = np.full(flat.max() + 1, n)
     np.minimum.at(first, flat, np.arange(n))
     return first[flat]
+
+
+def part_groups(flip: np.ndarray | None, num_joints: int, parts: int = 4) -> list[np.ndarray]:
+    """The joints split into ``parts`` groups of consecutive left/right orbits of ``flip``
+    (the joint set's flip index; None: no pairs), e.g. COCO-17's head, shoulders and
+    elbows, wrists and hips, knees and ankles. A group holds both joints of each pair, so
+    its mean ray does not move when a detection's labels are mirrored."""
+    flip = np.arange(num_joints) if flip is None else np.asarray(flip)
+    orbits = sorted({tuple(sorted({j, int(flip[j])})) for j in range(num_joints)})
+    chunks = np.array_split(np.arange(len(orbits)), min(parts, len(orbits)))
+    return [np.array([j for k in c for j in orbits[k]], int) for c in chunks if len(c)]
+
+
+def screen_distances(
+    origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray, groups: list[np.ndarray],
+    clip: float,
+) -> np.ndarray:  # fmt: skip
+    """(n, n) a cheap stand-in for :func:`ray_distances`: the same clipped, weighted mean,
+    over each body part's mean ray (``groups``) instead of every joint, and without the
+    behind-the-camera test (which only raises a distance). Float32, NaN where two
+    detections share no part. Each part is 3 matrix products of depth 3 on (n, n)."""
+    o = (origins - origins.mean(0)).astype(np.float32)  # centred: float32 keeps 0.01 mm
+    ray = np.stack([(np.nan_to_num(dirs[:, g]) * weights[:, g, None]).sum(1) for g in groups])
+    norm = np.linalg.norm(ray, axis=-1)  # (K, n)
+    u = (ray / np.maximum(norm, 1e-12)[..., None]).astype(np.float32)  # (K, n, 3) part rays
+    w = np.where(norm > 1e-9, np.stack([weights[:, g].sum(1) for g in groups]), 0.0)
+    w = w.astype(np.float32)
+    m = np.cross(u, o)  # line moments
+    cos, um = _outer_dot(u, u), _outer_dot(u, m)  # (K, n, n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.abs(um + np.swapaxes(um, 1, 2)) / np.sqrt(np.maximum(1.0 - cos * cos, 0.0))
+    pw = w[:, :, None] * w[:, None, :]
+    num = (pw * np.fmin(d, clip)).sum(0)  # fmin: a NaN (parallel rays) is the clip
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return num / pw.sum(0)
+
+
+PARALLEL_SIN2 = 1e-6
+"""Rays closer to parallel than this (sin^2 of their angle; 0.06 degrees) say nothing: in
+float32 a cosine near 1 is known to about 1e-7."""
+
+
+def pair_ray_distances(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
+    ia: np.ndarray,
+    ib: np.ndarray,
+    params: AssociationParams,
+    *,
+    flip: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(P,) :func:`ray_distances` of the pairs ``(ia[k], ib[k])`` only, and (P,) the same
+    with ``ib``'s detection left/right mirrored (``flip``; None without it), mm.
+
+    The Plucker form of :func:`ray_distances` in float32 over (3, J, P) arrays, pairs
+    last: a dot product is 3 whole-array products and the mean over joints adds J rows
+    (an einsum over a length-3 axis or a sum over a length-J one is 3-5 times slower).
+    Origins are centred on their mean so a moment's rounding stays ~1e-3 mm; the signs
+    of the closest points' parameters decide the behind-the-camera clip, so the distance
+    is the only division.
+    """
+    o = (origins - (origins.mean(0) if len(origins) else 0.0)).astype(np.float32)
+    ok = np.isfinite(dirs).all(-1)
+    D = np.where(ok[..., None], dirs, 0.0).astype(np.float32).transpose(2, 1, 0)  # (3, J, n)
+    W = np.where(ok, weights, 0.0).astype(np.float32).T  # (J, n)
+    oc = o.T[:, None, :]  # (3, 1, n)
+    M = np.stack([D[1] * oc[2] - D[2] * oc[1], D[2] * oc[0] - D[0] * oc[2],
+                  D[0] * oc[1] - D[1] * oc[0]])  # (3, J, n) moments d x o  # fmt: skip
+    own = _dot(D, oc)  # (J, n) d . o
+    take = lambda x, rows: np.take(x, rows, axis=-1)  # noqa: E731
+    A, MA, Wa, oa, ob = take(D, ia), take(M, ia), take(W, ia), take(oc, ia), take(oc, ib)
+    w0 = _dot(A, ob) - take(own, ia)  # (ob - oa) . da
+    centre_id = np.unique(origins, axis=0, return_inverse=True)[1].ravel()
+    one_centre = centre_id[ia] == centre_id[ib]
+    clip = np.float32(params.joint_clip_mm)
+    out = []
+    for perm in (None,) if flip is None else (None, np.asarray(flip)):
+        Dv, Mv, Wv, ov = (D, M, W, own) if perm is None else (
+            D[:, perm], M[:, perm], W[perm], own[perm])  # fmt: skip
+        B, MB = take(Dv, ib), take(Mv, ib)
+        dd = _dot(A, B)
+        num = np.abs(_dot(A, MB) + _dot(MA, B))
+        w1 = take(ov, ib) - _dot(B, oa)  # (ob - oa) . db
+        sin2 = 1.0 - dd * dd
+        d = np.fmin(num / np.sqrt(np.maximum(sin2, PARALLEL_SIN2)), clip)
+        behind = (w0 - dd * w1 <= 0) | (dd * w0 - w1 <= 0)
+        behind[:, one_centre] = True
+        d[behind] = clip
+        w = Wa * take(Wv, ib)
+        w[sin2 <= PARALLEL_SIN2] = 0.0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = (w * d).sum(0) / w.sum(0)
+        mean[np.count_nonzero(w, axis=0) < params.min_shared_joints] = np.nan
+        out.append(mean.astype(float))
+    return out[0], (out[1] if flip is not None else None)
+
+
+def _outer_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., n, 3), (..., m, 3) -> (..., n, m) dot products as 3 outer products: a matrix product of
+    depth 3 this size is left to OpenBLAS's threads, whose spinning costs 10-20 times
+    the CPU time on a loaded machine."""
+    out = a[..., :, None, 0] * b[..., None, :, 0]
+    out += a[..., :, None, 1] * b[..., None, :, 1]
+    out += a[..., :, None, 2] * b[..., None, :, 2]
+    return out
+
+
+def shared_joints(seen: np.ndarray) -> np.ndarray:
+    """(n, J) bool -> (n, n) how many joints each pair of detections both see: popcounts
+    of the AND of bit masks (one machine word per detection up to 64 joints)."""
+    n, J = seen.shape
+    if J > 64:
+        s = seen.astype(np.float32)
+        return np.rint(s @ s.T).astype(np.int64)
+    bits = np.left_shift(np.uint64(1), np.arange(J, dtype=np.uint64))
+    mask = np.bitwise_or.reduce(np.where(seen, bits, np.uint64(0)), axis=1)
+    return np.bitwise_count(mask[:, None] & mask[None, :]).astype(np.int64)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot products over the first axis (3 coordinates) of two coordinate-major arrays."""
+    out = a[0] * b[0]
+    out += a[1] * b[1]
+    out += a[2] * b[2]
+    return out
+
+
+def screened_distances(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
+    views: np.ndarray,
+    flip: np.ndarray | None,
+    params: AssociationParams,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n, n) ray distances of one frame's detections as labelled and with one of the two
+    mirrored (``flip``; NaN without it), mm, the full per-joint kernel
+    (:func:`pair_ray_distances`) run only on the pairs of different views whose
+    :func:`screen_distances` is below ``params.prune_mm``.
+
+    On a dome the screen throws away 3/4 of the pairs (another person's); a pair it
+    throws away keeps the screen's distance (>= prune_mm, an affinity <= 1 - prune_mm /
+    max_distance_mm, negative by default) where it shares ``min_shared_joints`` joints,
+    and no mirrored distance: its part rays, which mirroring does not move, already
+    miss each other. NaN on the diagonal and for pairs of one view.
+    """
+    n, J = dirs.shape[:2]
+    shared = shared_joints(np.isfinite(dirs).all(-1) & (weights > 0)) >= params.min_shared_joints
+    screen = screen_distances(origins, dirs, weights, part_groups(flip, J), params.joint_clip_mm)
+    other_view = views[:, None] != views[None, :]
+    near = np.triu(other_view & (screen < params.prune_mm), 1)
+    dist = np.where(shared & other_view & ~near & ~near.T, screen, np.nan).astype(float)
+    mirrored = np.full((n, n), np.nan)
+    ia, ib = np.nonzero(near)
+    if len(ia):
+        straight, mirror = pair_ray_distances(origins, dirs, weights, ia, ib, params, flip=flip)
+        dist[ia, ib] = dist[ib, ia] = straight
+        if mirror is not None:
+            mirrored[ia, ib] = mirrored[ib, ia] = mirror
+    np.fill_diagonal(dist, np.nan)
+    return dist, mirrored

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,15 @@ from pipeline.associate import (
     average_linkage_reference,
     ray_distances_reference,
 )
-from pipeline.ray_affinity import average_linkage, ray_distances
+from pipeline.ray_affinity import (
+    average_linkage,
+    pair_ray_distances,
+    part_groups,
+    ray_distances,
+    screen_distances,
+    screened_distances,
+    shared_joints,
+)
 
 
 def _detections(rng, n_people=6, n_views=8, J=17):
@@ -61,3 +71,46 @@ def test_average_linkage_equals_the_loop(seed):
 def test_linkage_of_one_and_none():
     assert average_linkage(np.full((1, 1), np.nan), np.array([0]), 0.3).tolist() == [0]
     assert average_linkage(np.zeros((0, 0)), np.zeros(0, int), 0.3).shape == (0,)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_pair_kernel_equals_the_dense_one(seed):
+    o, d, w, views = _detections(np.random.default_rng(seed))
+    p = AssociationParams()
+    dense = ray_distances(o, d, w, p)
+    ia, ib = np.triu_indices(len(o), 1)
+    flip = np.arange(17).reshape(-1, 1)[::-1].ravel()  # any permutation will do
+    straight, mirrored = pair_ray_distances(o, d, w, ia, ib, p, flip=flip)
+    np.testing.assert_array_equal(np.isnan(straight), np.isnan(dense[ia, ib]))
+    np.testing.assert_allclose(straight, dense[ia, ib], atol=0.05, equal_nan=True)  # float32
+    want = ray_distances(o, d, w, p, other=(o, d[:, flip], w[:, flip]))[ia, ib]
+    np.testing.assert_allclose(mirrored, want, atol=0.05, equal_nan=True)
+
+
+def test_screen_keeps_every_close_pair_and_unpruned_equals_dense():
+    o, d, w, views = _detections(np.random.default_rng(3), n_people=8, n_views=10)
+    p = AssociationParams()
+    dense = ray_distances(o, d, w, p)
+    dense[views[:, None] == views[None]] = np.nan
+    everything, _ = screened_distances(o, d, w, views, None, replace(p, prune_mm=np.inf))
+    np.testing.assert_allclose(everything, dense, atol=0.05, equal_nan=True)
+    screen = screen_distances(o, d, w, part_groups(None, 17), p.joint_clip_mm)
+    close = dense < p.max_distance_mm  # pairs that can merge
+    assert close.sum() > 50 and (screen[close] < p.prune_mm).all()  # none thrown away
+    pruned, _ = screened_distances(o, d, w, views, None, p)
+    far = np.isfinite(dense) & (screen >= p.prune_mm)
+    assert far.mean() > 0.3  # the screen does throw pairs away
+    np.testing.assert_allclose(pruned[far], screen[far], rtol=1e-6)
+    np.testing.assert_allclose(pruned[~far], dense[~far], atol=0.05, equal_nan=True)
+
+
+def test_part_groups_hold_both_joints_of_a_pair_and_shared_joints_count():
+    flip = np.array([0, 2, 1, 4, 3, 5, 7, 6])
+    groups = part_groups(flip, 8, parts=3)
+    assert sorted(np.concatenate(groups).tolist()) == list(range(8))
+    for g in groups:
+        assert set(flip[g].tolist()) == set(g.tolist())
+    seen = np.random.default_rng(0).uniform(size=(30, 40)) < 0.6
+    want = seen.astype(int) @ seen.T.astype(int)
+    np.testing.assert_array_equal(shared_joints(seen), want)
+    np.testing.assert_array_equal(shared_joints(np.tile(seen, (1, 2))), 2 * want)  # > 64
