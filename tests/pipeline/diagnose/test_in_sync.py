@@ -102,6 +102,24 @@ def test_a_rotated_camera_hiding_a_late_one():
     _assert_back_to_truth(r.findings["2"].refined, truth.rig[2])
 
 
+@pytest.mark.parametrize(
+    "fault", [dict(rotation_deg=1.0, axis=(0.3, 1.0, 0.2)), dict(translation_mm=(50.0, 0, 0))]
+)
+def test_a_wrong_camera_alone_is_named_and_nothing_re_timed(fault):
+    """The faults of test_calibration judged in sync: the suspect left out of the sync
+    references finds no offset (|offset| < 0.15 frame for every camera), nothing is
+    re-timed, camera 2 alone is named and refined back."""
+    truth = _scene()
+    scene = perturb_camera_pose(truth, "2", **fault)
+    results = _run(scene)
+    r = check_calibration_in_sync(scene, results, estimate_offsets(scene, results))
+    assert r.run is results and r.sync_without == ()
+    again = estimate_offsets(scene, results, reference_exclude=frozenset({2}))
+    assert all(abs(e.offset_frames) < 0.15 for e in again.values()), again
+    assert _suspects(r.findings) == ["2"] and not any(f.out_of_sync for f in r.findings.values())
+    _assert_back_to_truth(r.findings["2"].refined, truth.rig[2])
+
+
 def _assert_back_to_truth(new, true_cam):
     assert np.degrees(Rotation.from_matrix(new.R @ true_cam.R.T).magnitude()) < 0.1
     assert np.linalg.norm(new.center - true_cam.center) < 5.0
