@@ -75,18 +75,24 @@ def forward_kinematics(
         global rotations (B, J, 3, 3) of the joint frames and posed joints (B, J, 3),
         no translation (the root stays at its rest position).
     """
+    # Joint-major (J, B, ...) inside: a level's joints are then whole contiguous blocks,
+    # so gathering them is a block copy, not a strided one per batch row. Measured on the
+    # restoration's 4,108 rows (one thread): 28 -> 13 ms, 59 -> 40 ms with the backward
+    # pass; equal or faster down to B = 1; outputs identical.
+    rot_j, rest_j = rot_mats.transpose(0, 1).contiguous(), rest_joints.transpose(0, 1).contiguous()
     rots, poss = [], []
     for d, (lv, par) in enumerate(zip(tree.level_joints, tree.level_parents, strict=True)):
-        R = rot_mats[:, lv]
+        R = rot_j[lv]
         if d == 0:
             rots.append(R)
-            poss.append(rest_joints[:, lv])
+            poss.append(rest_j[lv])
             continue
-        Rp = rots[-1][:, par]
-        offset = rest_joints[:, lv] - rest_joints[:, tree.level_joints[d - 1][par]]
+        Rp = rots[-1][par]
+        offset = rest_j[lv] - rest_j[tree.level_joints[d - 1][par]]
         rots.append(Rp @ R)
-        poss.append(poss[-1][:, par] + (Rp @ offset[..., None])[..., 0])
-    return torch.cat(rots, 1)[:, tree.level_order], torch.cat(poss, 1)[:, tree.level_order]
+        poss.append(poss[-1][par] + (Rp @ offset[..., None])[..., 0])
+    order = tree.level_order
+    return torch.cat(rots, 0)[order].transpose(0, 1), torch.cat(poss, 0)[order].transpose(0, 1)
 
 
 def rigid_chain(
@@ -190,7 +196,8 @@ class BodyModel(torch.nn.Module):
             (B, 24, 3) posed joints, metres.
         """
         pose, betas, transl = self._prepare(pose, betas, transl)
-        posed, _ = rigid_chain(axis_angle_to_matrix(pose), self.rest_joints(betas), self.tree)
+        rot_mats, rest = axis_angle_to_matrix(pose), self.rest_joints(betas)
+        _, posed = forward_kinematics(rot_mats, rest, self.tree)  # no 4x4 frames needed
         return posed if transl is None else posed + transl[:, None]
 
     def forward(self, pose, betas=None, transl=None) -> BodyOutput:
