@@ -5,14 +5,27 @@ people, 100 frames, no videos, seeds 101..108) under --scenes, then alternates, 
 times:
 
 - serial: one ``python`` process running ``mvviz run SCENE --force`` for every scene,
-  one after another (what a user does today, imports paid once);
+  one after another (what a user does today: the same code path, imports paid once,
+  torch's default threads);
 - batch: ``mvviz batch SCENE... --force`` (embedded Ray on every core: its start, the
-  workers' imports and its shutdown are counted).
+  workers' imports, the report and its shutdown are counted).
 
-Both are timed from the command to its exit. Prints the medians, the ratio, the load
-average at each run (the machine is shared) and Ray's own start-up cost (``ray.init``, a
-trivial task, ``ray.shutdown`` in a fresh process); checks the last repeat's results of
-the two ways are equal array for array.
+Both are timed from the command to its exit. Prints, each repeat with the 1-minute load
+average before it (the machine may be shared: with a load above the core count a
+speed-up cannot show), then the medians and their ratio, and the parts:
+
+- Ray's own start-up in a fresh process: import, ``ray.init``, the first task on every
+  worker that imports the pipeline (worker start + torch), ``ray.shutdown``, and the CPU
+  seconds of Ray's processes (GCS, raylet, agents, idle workers) by then;
+- per scene, medians over scenes and repeats: ``mvviz run``'s wall and CPU seconds in
+  the serial process, and the batch task's per stage (load, frames = restoration +
+  association + triangulation, sequence_fit = tracking + filters + SMPL fit,
+  summary_save = the report's figures + writing the results), wall and CPU;
+- the SMPL fit of one scene with 1 and with 2 torch threads (``smpl_fit.num_threads``,
+  alternated), and whether the two give the same numbers.
+
+Checks that the last repeat's results of the two ways are equal array for array (and names
+the entries that differ, if any).
 
 Usage:
     python bench/bench_batch.py [--scenes DIR] [--repeats N] [--json FILE]
@@ -21,6 +34,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -38,27 +52,73 @@ from bench.common import write_json  # noqa: E402
 
 NUM_SCENES = 8
 SERIAL = """
-import sys
+import sys, time
 from pathlib import Path
 from mvviz.cli import main
 out = Path(sys.argv[1])
 for scene in sys.argv[2:]:
+    t, c = time.perf_counter(), time.process_time()
     code = main(["run", scene, "--force", "--out", str(out / Path(scene).name / "results.npz")])
     assert code == 0, scene
+    print("SCENE", time.perf_counter() - t, time.process_time() - c, file=sys.stderr)
 """
 RAY_START = """
-import time, tempfile, os
+import json, os, time
 t0 = time.perf_counter()
 from pipeline.batch.ray_run import start_ray, stop_ray
 import ray
 t1 = time.perf_counter()
-start_ray()
+cpus = int(start_ray()["CPU"])
 t2 = time.perf_counter()
-ray.get([ray.remote(lambda: 1).remote() for _ in range(2)])
+
+def warm():
+    import pipeline.batch.jobs, torch  # what a scene task imports first
+    time.sleep(0.5)  # every worker gets one
+    return os.getpid()
+
+pids = set(ray.get([ray.remote(warm).remote() for _ in range(cpus)]))
 t3 = time.perf_counter()
+
+def tree_cpu(pid):
+    tick, total = os.sysconf("SC_CLK_TCK"), 0.0
+    for p in os.listdir("/proc"):
+        try:
+            f = open(f"/proc/{p}/stat").read().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if p.isdigit() and int(f[1]) == pid:
+            total += (int(f[11]) + int(f[12])) / tick + tree_cpu(int(p))
+    return total
+
+ray_cpu = tree_cpu(os.getpid())
 stop_ray()
 t4 = time.perf_counter()
-print(f"{t1 - t0:.3f} {t2 - t1:.3f} {t3 - t2:.3f} {t4 - t3:.3f}")
+print(json.dumps(dict(import_s=t1 - t0, init_s=t2 - t1, warm_workers_s=t3 - t2,
+      shutdown_s=t4 - t3, workers=len(pids), ray_processes_cpu_s=ray_cpu)))
+"""
+FIT_THREADS = """
+import json, statistics, sys, time
+import numpy as np
+from pipeline.body_model import load_body_model
+from pipeline.config import PipelineConfig
+from pipeline.results import fit_bodies, run_stages
+from pipeline.run import restored_joints, select_2d
+from pipeline.scene import load_scene
+scene, model = load_scene(sys.argv[1]), load_body_model()
+base = PipelineConfig()
+j2d = select_2d(scene, base, restored := restored_joints(scene, model))
+packed = run_stages(scene, base, j2d, restored=restored, progress=False)
+wall, fits = {1: [], 2: []}, {}
+for _ in range(int(sys.argv[2])):
+    for n in (1, 2):
+        cfg = base.with_overrides([f"smpl_fit.num_threads={n}"])
+        t = time.perf_counter()
+        fits[n] = fit_bodies(packed, cfg, model, progress=False)
+        wall[n].append(time.perf_counter() - t)
+same = all(np.array_equal(a, fits[2].smpl.arrays("")[k], equal_nan=True)
+           for k, a in fits[1].smpl.arrays("").items())
+print(json.dumps(dict(fit_1_thread_s=statistics.median(wall[1]),
+      fit_2_threads_s=statistics.median(wall[2]), same_numbers=same)))
 """
 
 
@@ -73,17 +133,61 @@ def make_scenes(root: Path) -> list[Path]:
     return scenes
 
 
-def timed(cmd: list[str]) -> float:
+def timed(cmd: list[str]) -> tuple[float, str]:
+    """(wall seconds, stderr) of ``cmd``."""
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return time.perf_counter() - t0
+    done = subprocess.run(
+        cmd, check=True, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    return time.perf_counter() - t0, done.stderr
 
 
-def same_results(a: Path, b: Path) -> bool:
+def python_json(code: str, *argv: str) -> dict:
+    done = subprocess.run([sys.executable, "-c", code, *argv], check=True, cwd=REPO,
+                          capture_output=True, text=True)  # fmt: skip
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def differing(a: Path, b: Path) -> list[str]:
+    """The entries of two results files that differ (``meta.cache_key`` alone: the
+    pipeline's source changed between the two runs, e.g. someone editing the checkout)."""
     with np.load(a) as x, np.load(b) as y:
-        if sorted(x.files) != sorted(y.files):
-            return False
-        return all(np.array_equal(x[k], y[k], equal_nan=x[k].dtype.kind == "f") for k in x.files)
+        out = sorted(set(x.files) ^ set(y.files))
+        for k in sorted(set(x.files) & set(y.files)):
+            if k == "meta":
+                mx, my = json.loads(str(x[k])), json.loads(str(y[k]))
+                out += [f"meta.{m}" for m in sorted(set(mx) | set(my)) if mx.get(m) != my.get(m)]
+            elif not np.array_equal(x[k], y[k], equal_nan=x[k].dtype.kind == "f"):
+                out.append(k)
+        return out
+
+
+def medians(rows: list[dict]) -> dict:
+    return {k: round(statistics.median(r[k] for r in rows), 3) for k in rows[0]} if rows else {}
+
+
+def alternate(names: list[str], tmp: str, repeats: int) -> dict:
+    """Serial and batch runs, alternated; their times, loads and per-scene parts."""
+    serial, batch, loads, serial_scenes, task_parts = [], [], [], [], []
+    for r in range(repeats):
+        loads.append(os.getloadavg()[0])
+        took, err = timed([sys.executable, "-c", SERIAL, f"{tmp}/serial", *names])
+        serial.append(took)
+        for line in err.splitlines():
+            if line.startswith("SCENE "):
+                wall, cpu = map(float, line.split()[1:])
+                serial_scenes.append({"wall_s": wall, "cpu_s": cpu})
+        loads.append(os.getloadavg()[0])
+        cmd = [sys.executable, "-m", "mvviz.cli", "batch", *names, "--force",
+               "--out", f"{tmp}/batch", "--report", f"{tmp}/report"]  # fmt: skip
+        batch.append(timed(cmd)[0])
+        rows = json.loads(Path(tmp, "report", "batch_report.json").read_text())["rows"]
+        task_parts += [row["task_seconds"] for row in rows if row.get("task_seconds")]
+        print(f"repeat {r + 1}: serial {serial[-1]:.1f} s (load {loads[-2]:.1f}), "
+              f"batch {batch[-1]:.1f} s (load {loads[-1]:.1f}): "
+              f"{serial[-1] / batch[-1]:.2f}x", flush=True)  # fmt: skip
+    return dict(serial=serial, batch=batch, loads=loads, serial_scene=medians(serial_scenes),
+                task=medians(task_parts))  # fmt: skip
 
 
 def main() -> int:
@@ -92,50 +196,48 @@ def main() -> int:
     )
     p.add_argument("--scenes", type=Path, default=Path(tempfile.gettempdir()) / "mvviz_bench_batch")
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument(
+        "--fit-repeats", type=int, default=1,
+        help="fits of one scene per thread count (2 threads on a busy machine can take 20x)",
+    )  # fmt: skip
     p.add_argument("--json", type=Path, default=None)
     args = p.parse_args()
     scenes = make_scenes(args.scenes)
     names = [str(s) for s in scenes]
-    ray_start = [float(x) for x in subprocess.run(
-        [sys.executable, "-c", RAY_START], check=True, cwd=REPO, capture_output=True, text=True
-    ).stdout.split()]  # fmt: skip
-    print(f"ray: import {ray_start[0]:.2f} s, init {ray_start[1]:.2f} s, "
-          f"first tasks {ray_start[2]:.2f} s, shutdown {ray_start[3]:.2f} s")  # fmt: skip
-    serial, batch, loads = [], [], []
+    print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the start")
     with tempfile.TemporaryDirectory() as tmp:
-        for r in range(args.repeats):
-            loads.append(os.getloadavg()[0])
-            serial.append(timed([sys.executable, "-c", SERIAL, f"{tmp}/serial", *names]))
-            loads.append(os.getloadavg()[0])
-            cmd = [sys.executable, "-m", "mvviz.cli", "batch", *names, "--force",
-                   "--out", f"{tmp}/batch", "--report", f"{tmp}/report"]  # fmt: skip
-            batch.append(timed(cmd))
-            print(f"repeat {r + 1}: serial {serial[-1]:.1f} s, batch {batch[-1]:.1f} s "
-                  f"(load {loads[-2]:.1f} / {loads[-1]:.1f})", flush=True)  # fmt: skip
-        equal = all(
-            same_results(
-                Path(tmp, "serial", s.name, "results.npz"),
-                Path(tmp, "batch", s.name, "results.npz"),
-            )
+        runs = alternate(names, tmp, args.repeats)
+        diffs = {
+            s.name: d
             for s in scenes
-        )
+            if (d := differing(Path(tmp, "serial", s.name, "results.npz"),
+                               Path(tmp, "batch", s.name, "results.npz")))
+        }  # fmt: skip
+        equal = not diffs
+    load = os.getloadavg()[0]
+    ray_start = python_json(RAY_START)
+    fit = python_json(FIT_THREADS, names[0], str(args.fit_repeats))
     figures = {
-        "scenes": NUM_SCENES,
-        "cpus": os.cpu_count(),
-        "serial_s": serial,
-        "batch_s": batch,
-        "serial_median_s": statistics.median(serial),
-        "batch_median_s": statistics.median(batch),
-        "speedup": statistics.median(serial) / statistics.median(batch),
-        "load_1min": loads,
-        "ray_start_s": dict(
-            zip(("import", "init", "first_tasks", "shutdown"), ray_start, strict=True)
-        ),
-        "results_equal": equal,
-    }
+        "scenes": NUM_SCENES, "cpus": os.cpu_count(), "serial_s": runs["serial"],
+        "batch_s": runs["batch"], "serial_median_s": statistics.median(runs["serial"]),
+        "batch_median_s": statistics.median(runs["batch"]),
+        "speedup": statistics.median(runs["serial"]) / statistics.median(runs["batch"]),
+        "load_1min": runs["loads"], "load_at_parts": load, "ray_start": ray_start,
+        "serial_per_scene": runs["serial_scene"], "batch_task_per_scene": runs["task"],
+        "fit_threads": fit, "results_equal": equal, "results_differ": diffs,
+    }  # fmt: skip
+    print(f"parts (load {load:.1f}): Ray import {ray_start['import_s']:.2f} s, ray.init "
+          f"{ray_start['init_s']:.2f} s, {ray_start['workers']} workers started + pipeline "
+          f"imported {ray_start['warm_workers_s']:.2f} s, shutdown {ray_start['shutdown_s']:.2f} "
+          f"s; Ray's processes used {ray_start['ray_processes_cpu_s']:.2f} CPU s by then")
+    print(f"per scene, serial mvviz run: {json.dumps(runs['serial_scene'])}")
+    print(f"per scene, batch task: {json.dumps(runs['task'])}")
+    print(f"SMPL fit of one scene: 1 thread {fit['fit_1_thread_s']:.2f} s, 2 threads "
+          f"{fit['fit_2_threads_s']:.2f} s (same numbers: {fit['same_numbers']})")
     print(f"serial median {figures['serial_median_s']:.1f} s, batch median "
-          f"{figures['batch_median_s']:.1f} s: {figures['speedup']:.2f}x "
-          f"(target 1.7x); results equal: {equal}")  # fmt: skip
+          f"{figures['batch_median_s']:.1f} s: {figures['speedup']:.2f}x (target 1.7x, "
+          f"loads {min(runs['loads']):.1f}-{max(runs['loads']):.1f}); "
+          f"results equal: {equal}{'' if equal else f' (differ: {diffs})'}")  # fmt: skip
     if args.json:
         write_json(args.json, figures)
     return 0

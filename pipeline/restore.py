@@ -13,6 +13,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+RESTORE_THREADS = 1
+"""torch intra-op threads of :func:`restore_joints_2d` (restored after). Its ops are
+small (a few thousand rows of 24 joints): one thread is as fast, and two beside a busy
+core spin instead of working (0.02 vs 0.14-0.70 CPU s per sample-sized scene, measured
+at a load of 8 on 2 cores, e.g. two ``mvviz batch`` workers). A fixed count also keeps
+the numbers the same in every process whatever its torch setting."""
+
 
 def weak_perspective_matrix(cam_weak: np.ndarray) -> np.ndarray:
     """(N, 3) (s, tx, ty) -> (N, 2, 4) camera matrices acting on homogeneous joints."""
@@ -109,6 +116,16 @@ def restore_joints_2d(
     out[..., 2] = 0.0
     valid = np.isfinite(smpl_pose).all(1) & np.isfinite(cam_weak).all(1)
     rows = np.flatnonzero(valid)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(RESTORE_THREADS)
+    try:
+        _restore_rows(smpl_pose, smpl_betas, cam_weak, bbox, model, score, rows, batch, out)
+    finally:
+        torch.set_num_threads(threads)
+    return out
+
+
+def _restore_rows(smpl_pose, smpl_betas, cam_weak, bbox, model, score, rows, batch, out) -> None:
     for s in range(0, rows.size, batch):
         r = rows[s : s + batch]
         with torch.no_grad():
@@ -122,7 +139,6 @@ def restore_joints_2d(
             )
         out[r, :, :2] = weak_perspective_project(joints, cam_weak[r], bbox[r])
         out[r, :, 2] = 1.0 if score is None else np.clip(score[r], 0, 1)[:, None]
-    return out
 
 
 def restore_mono_joints_2d(

@@ -43,6 +43,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="join this Ray cluster (default: start an embedded local Ray)",
     )  # fmt: skip
     p.add_argument(
+        "--shared-storage", action="store_true",
+        help="with --address: every node sees the scenes, the body model and the results at "
+        "the driver's paths (e.g. NFS), so the workers read and write them themselves "
+        "instead of the driver shipping them through Ray's object store (always so for "
+        "the embedded Ray)",
+    )  # fmt: skip
+    p.add_argument(
         "--num-cpus", type=int, default=None, help="embedded Ray's CPUs (default: all cores)"
     )
     p.add_argument("--out", type=Path, default=None, help="results under DIR/<scene>/")
@@ -127,6 +134,7 @@ def _row(outcome) -> dict:
         "config_file": str(job.config_file) if job.config_file else None,
         "status": outcome.status, "error": outcome.error, "results": str(job.results_path),
         "key": job.key, "summary": outcome.summary, "seconds": round(outcome.seconds, 2),
+        "task_seconds": outcome.parts,
     }  # fmt: skip
 
 
@@ -154,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             outcomes = run_jobs(
                 jobs, scenes, model, chunk_frames=args.chunk_frames, retries=args.retries,
-                force=args.force,
+                force=args.force, shared_files=args.address is None or args.shared_storage,
             )  # fmt: skip
         finally:
             stop_ray()

@@ -1,20 +1,28 @@
 """The jobs of :mod:`pipeline.batch.jobs` as Ray tasks: embedded local Ray or a cluster.
 
-What travels: the driver loads each scene once and puts it in Ray's object store
-(``ray.put``), with the body model; the tasks take them from there, so a worker needs
-the same mvviz installed, not the scene files (no shared storage needed). Per scene:
-one inputs task, one task per frame chunk, one join task (sequence stages, SMPL fit,
-the report's summary) whose results come back to the driver, which writes them
-atomically (:func:`pipeline.results.save_results`) beside the scene or under ``--out``.
+The unit of work is a scene: a scene of at most ``chunk_frames`` frames (every
+sample-sized one) is one task that runs all its stages, on a warm worker (Ray keeps its
+worker processes, so torch and the pipeline are imported once per worker, not per
+scene). A longer scene is one inputs task, one task per frame chunk (association,
+triangulation) and one join task (sequence stages, SMPL fit, the report's summary).
+
+What travels: with ``shared_files`` (always for the embedded Ray: the workers are on
+this machine) a task gets the scene's directory, the body model's file and the results
+path, reads the scene and the model itself (the model once per worker) and writes the
+results atomically (:func:`pipeline.results.save_results`); only the summary comes
+back. Without it (a cluster without shared storage) the driver puts each scene and the
+body model into Ray's object store (``ray.put``) and writes the results that come back,
+so a worker needs the same mvviz installed, not the scene files.
 
 Failures: every task is retried ``retries`` times, after a Python exception
 (``retry_exceptions``) and after its worker or node died (``max_retries``; lost chunk
 results are rebuilt from their lineage); a scene that still fails is reported with its
 error while the others finish.
 
-Bit for bit: the SMPL fit's float sums depend on torch's thread count, and Ray starts
-its workers with ``OMP_NUM_THREADS=1``; the tasks use the driver's thread count, the
-one ``mvviz run`` uses on that machine, so the numbers are the same as ``mvviz run``'s.
+Bit for bit: the SMPL fit runs on a fixed torch thread count (``FitParams.num_threads``)
+whatever the process; Ray starts its workers with ``OMP_NUM_THREADS=1``, so the tasks
+set the driver's thread count, the one ``mvviz run`` uses on that machine, for the
+other torch work too (the restoration): the numbers are the same as ``mvviz run``'s.
 """
 
 from __future__ import annotations
@@ -40,11 +48,11 @@ from pipeline.batch.jobs import (
     stored_key,
     summarize,
 )
-from pipeline.body_model import BodyModel
+from pipeline.body_model import BodyModel, load_body_model
 from pipeline.files import SceneFormatError, atomic_write
 from pipeline.progress import Progress, StageBar
 from pipeline.results import load_results, save_results
-from pipeline.scene import Scene
+from pipeline.scene import Scene, load_scene
 
 RAY_TEMP_DIR = Path(tempfile.gettempdir()) / "mvviz-ray"  # embedded Ray's sessions and logs
 SUMMARY_SUFFIX = ".summary.json"  # beside a results file: its report figures and key
@@ -82,25 +90,88 @@ def stop_ray() -> None:
 # ------------------------------------------------------------------------- the tasks
 
 
+@dataclass(frozen=True)
+class ModelFile:
+    """The body model as a file every worker reads (``shared_files``): its path and the
+    driver's fingerprint of it, checked after loading."""
+
+    path: str
+    fingerprint: str
+
+
+def _model(model):
+    """The body model of a task: the one shipped, or the file's (read once per worker)."""
+    if not isinstance(model, ModelFile):
+        return model
+    loaded = load_body_model(model.path)  # once per worker process
+    if loaded.fingerprint != model.fingerprint:
+        raise SceneFormatError(model.path, None, "body model differs from the driver's")
+    return loaded
+
+
+def _scene(scene: Scene | Path) -> Scene:
+    return load_scene(scene) if isinstance(scene, Path) else scene
+
+
+class _Clock:
+    """Wall and CPU seconds (this process, all threads) of the stages of a task."""
+
+    def __init__(self) -> None:
+        self.parts: dict[str, float] = {}
+        self._wall, self._cpu = time.perf_counter(), time.process_time()
+
+    def lap(self, name: str) -> None:
+        wall, cpu = time.perf_counter(), time.process_time()
+        self.parts[f"{name}_s"] = round(wall - self._wall, 3)
+        self.parts[f"{name}_cpu_s"] = round(cpu - self._cpu, 3)
+        self._wall, self._cpu = wall, cpu
+
+
+def _scene_task(scene, config, model, key, results_path, threads):
+    """A scene of one chunk, every stage in this task; with ``results_path`` (shared
+    files) the results are written here and only the summary returns. Returns
+    (results or None, summary, wall and CPU seconds per stage)."""
+    clock = _Clock()
+    torch.set_num_threads(threads)
+    scene, model = _scene(scene), _model(model)
+    clock.lap("load")
+    inputs = scene_inputs(scene, config, model)
+    frames = run_chunk(scene, config, inputs, 0, scene.num_frames)
+    clock.lap("frames")
+    results = join_chunks(scene, config, model, inputs, [frames], key)
+    clock.lap("sequence_fit")
+    summary = summarize(scene, results)
+    if results_path is not None:
+        save_results(results, results_path)
+        results = None
+    clock.lap("summary_save")
+    return results, summary, clock.parts
+
+
 def _inputs_task(scene, config, model, threads):
     torch.set_num_threads(threads)
-    return scene_inputs(scene, config, model)
+    return scene_inputs(_scene(scene), config, _model(model))
 
 
 def _chunk_task(scene, config, inputs, start, stop, threads):
     torch.set_num_threads(threads)
-    return run_chunk(scene, config, inputs, start, stop)
+    return run_chunk(_scene(scene), config, inputs, start, stop)
 
 
-def _join_task(scene, config, model, inputs, key, threads, *chunks):
+def _join_task(scene, config, model, inputs, key, results_path, threads, *chunks):
     torch.set_num_threads(threads)
-    results = join_chunks(scene, config, model, inputs, chunks, key)
-    return results, summarize(scene, results)
+    scene = _scene(scene)
+    results = join_chunks(scene, config, _model(model), inputs, chunks, key)
+    summary = summarize(scene, results)
+    if results_path is not None:
+        save_results(results, results_path)
+        results = None
+    return results, summary, {}
 
 
 def _summary_task(scene, results, threads):
     torch.set_num_threads(threads)
-    return summarize(scene, results)
+    return summarize(_scene(scene), results)
 
 
 @dataclass
@@ -113,6 +184,7 @@ class Outcome:
     summary: dict | None = None
     error: str | None = None
     seconds: float = 0.0
+    parts: dict | None = None  # seconds per stage inside a one-task scene
 
 
 def summary_path(results_path: Path) -> Path:
@@ -142,7 +214,79 @@ def _error_text(exc: BaseException) -> str:
     return f"{type(cause).__name__}: {text[-1] if text else ''}"
 
 
-def run_jobs(  # long: one scheduling loop (submit, then collect as tasks end)
+class _Submitter:
+    """Submits a job's tasks. Without shared files, each scene and the body model go into
+    the object store once, however many jobs (sweep settings) use them."""
+
+    def __init__(self, scenes: dict[Path, Scene], model: BodyModel, retries: int, shared: bool):
+        opts = dict(max_retries=retries, retry_exceptions=True)
+        tasks = dict(
+            scene=_scene_task, inputs=_inputs_task, chunk=_chunk_task, join=_join_task,
+            summary=_summary_task,
+        )  # fmt: skip
+        self.fn = {k: ray.remote(f).options(**opts) for k, f in tasks.items()}
+        self.threads = torch.get_num_threads()
+        self.scenes, self.model, self.shared = scenes, model, shared
+        self.num_chunks = 0
+        self._scene_refs: dict[Path, ray.ObjectRef] = {}
+        self._model_arg = None
+
+    def _scene_arg(self, scene_dir: Path):
+        if self.shared:
+            return scene_dir
+        if scene_dir not in self._scene_refs:
+            self._scene_refs[scene_dir] = ray.put(self.scenes[scene_dir])
+        return self._scene_refs[scene_dir]
+
+    def _model(self):
+        if self._model_arg is None:
+            src = Path(str(self.model.source))
+            if self.shared and src.is_file():
+                self._model_arg = ModelFile(str(src), self.model.fingerprint)
+            else:  # a model built in memory, or no shared files: ship it
+                self._model_arg = ray.put(self.model)
+        return self._model_arg
+
+    def submit(self, i: int, job: SceneJob, current: bool, chunk_frames: int) -> dict:
+        """{object ref: (kind, i)} of job ``i``'s tasks; ``current``: its results are
+        current and only the report's figures are missing."""
+        scene, fn, n = self._scene_arg(job.scene_dir), self.fn, self.threads
+        if current:
+            results = load_results(job.results_path, model=self.model)
+            return {fn["summary"].remote(scene, results, n): ("summary", i)}
+        out = job.results_path if self.shared else None
+        bounds = chunk_bounds(self.scenes[job.scene_dir].num_frames, chunk_frames)
+        if len(bounds) == 1:  # a sample-sized scene: one task, no intermediate objects
+            ref = fn["scene"].remote(scene, job.config, self._model(), job.key, out, n)
+            return {ref: ("scene", i)}
+        inputs = fn["inputs"].remote(scene, job.config, self._model(), n)
+        chunks = [fn["chunk"].remote(scene, job.config, inputs, a, b, n) for a, b in bounds]
+        self.num_chunks += len(chunks)
+        refs = {c: ("chunk", i) for c in chunks}
+        join = fn["join"].remote(scene, job.config, self._model(), inputs, job.key, out, n, *chunks)
+        refs[join] = ("join", i)
+        return refs
+
+
+def _finish(job: SceneJob, kind: str, ref: ray.ObjectRef, took: float) -> Outcome:
+    """The outcome of a job's last task: its results written (unless the task wrote
+    them), its summary stored beside them."""
+    try:
+        value = ray.get(ref)
+    except (ray.exceptions.RayError, SceneFormatError, ValueError) as exc:
+        return Outcome(job, "failed", error=_error_text(exc), seconds=took)
+    if kind == "summary":
+        summary, status, parts = value, "cached", None
+    else:
+        results, summary, parts = value
+        if results is not None:
+            save_results(results, job.results_path)
+        status = "computed"
+    _write_summary(job, summary)
+    return Outcome(job, status, summary, seconds=took, parts=parts or None)
+
+
+def run_jobs(
     jobs: Sequence[SceneJob],
     scenes: dict[Path, Scene],
     model: BodyModel,
@@ -151,54 +295,35 @@ def run_jobs(  # long: one scheduling loop (submit, then collect as tasks end)
     retries: int = 2,
     force: bool = False,
     progress: Progress = True,
+    shared_files: bool = False,
 ) -> list[Outcome]:
     """Run every job whose results are not current (``force``: all) on the connected
-    Ray; ``scenes`` maps each job's ``scene_dir`` to its loaded scene. Outcomes in the
-    order of ``jobs``. Progress: stage "scenes" (jobs done, cached ones counted at
-    once) and stage "chunks" (frame chunks done)."""
-    threads = torch.get_num_threads()
-    opts = dict(max_retries=retries, retry_exceptions=True)
-    inputs_fn = ray.remote(_inputs_task).options(**opts)
-    chunk_fn = ray.remote(_chunk_task).options(**opts)
-    join_fn = ray.remote(_join_task).options(**opts)
-    summary_fn = ray.remote(_summary_task).options(**opts)
-
+    Ray; ``scenes`` maps each job's ``scene_dir`` to its loaded scene; ``shared_files``:
+    the workers read the scenes and write the results at the driver's paths (see the
+    module docstring). Outcomes in the order of ``jobs``. Progress: stage "scenes" (jobs
+    done, cached ones counted at once) and stage "chunks" (frame chunks done)."""
     outcomes: list[Outcome | None] = [None] * len(jobs)
-    pending: dict[ray.ObjectRef, tuple[str, int]] = {}
-    started: dict[int, float] = {}
-    scene_refs: dict[Path, ray.ObjectRef] = {}
-    model_ref = None
-    num_chunks = 0
+    todo: list[tuple[int, bool]] = []
     for i, job in enumerate(jobs):
         current, summary = cached_summary(job) if not force else (False, None)
         if current and summary is not None:
             outcomes[i] = Outcome(job, "cached", summary)
-            continue
-        scene = scenes[job.scene_dir]
-        if job.scene_dir not in scene_refs:
-            scene_refs[job.scene_dir] = ray.put(scene)
-        sref = scene_refs[job.scene_dir]
+        else:
+            todo.append((i, current))
+    # The biggest scenes first, so that the last tasks to start are short ones and no
+    # worker idles long while another finishes a big scene.
+    todo.sort(key=lambda t: -_scene_size(scenes[jobs[t[0]].scene_dir]))
+    submitter = _Submitter(scenes, model, retries, shared_files)
+    pending: dict[ray.ObjectRef, tuple[str, int]] = {}
+    started: dict[int, float] = {}
+    for i, current in todo:
         started[i] = time.perf_counter()
-        if current:  # results of mvviz run: only the report's figures are missing
-            results = load_results(job.results_path, model=model)
-            pending[summary_fn.remote(sref, results, threads)] = ("summary", i)
-            continue
-        if model_ref is None:
-            model_ref = ray.put(model)
-        inputs = inputs_fn.remote(sref, job.config, model_ref, threads)
-        chunks = [
-            chunk_fn.remote(sref, job.config, inputs, a, b, threads)
-            for a, b in chunk_bounds(scene.num_frames, chunk_frames)
-        ]
-        num_chunks += len(chunks)
-        pending.update({c: ("chunk", i) for c in chunks})
-        join = join_fn.remote(sref, job.config, model_ref, inputs, job.key, threads, *chunks)
-        pending[join] = ("join", i)
+        pending.update(submitter.submit(i, jobs[i], current, chunk_frames))
 
-    done_jobs = sum(o is not None for o in outcomes)
+    done_jobs = len(jobs) - len(todo)
     with (
         StageBar("scenes", len(jobs), progress, unit="scene", initial=done_jobs) as scene_bar,
-        StageBar("chunks", num_chunks, progress, unit="chunk") as chunk_bar,
+        StageBar("chunks", submitter.num_chunks, progress, unit="chunk") as chunk_bar,
     ):
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
@@ -206,20 +331,11 @@ def run_jobs(  # long: one scheduling loop (submit, then collect as tasks end)
             if kind == "chunk":
                 chunk_bar.update()
                 continue
-            job = jobs[i]
-            took = time.perf_counter() - started[i]
-            try:
-                value = ray.get(ready[0])
-            except (ray.exceptions.RayError, SceneFormatError, ValueError) as exc:
-                outcomes[i] = Outcome(job, "failed", error=_error_text(exc), seconds=took)
-            else:
-                if kind == "join":
-                    results, summary = value
-                    save_results(results, job.results_path)
-                    status = "computed"
-                else:
-                    summary, status = value, "cached"
-                _write_summary(job, summary)
-                outcomes[i] = Outcome(job, status, summary, seconds=took)
+            outcomes[i] = _finish(jobs[i], kind, ready[0], time.perf_counter() - started[i])
             scene_bar.update()
     return [o for o in outcomes if o is not None]
+
+
+def _scene_size(scene: Scene) -> int:
+    """Work of a scene, roughly: its detections (each frame's people in every view)."""
+    return len(scene.detections)

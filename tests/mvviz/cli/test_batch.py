@@ -4,14 +4,15 @@ a sweep, and the report as a person sees it in headless chromium."""
 from __future__ import annotations
 
 import html
-from concurrent.futures import ThreadPoolExecutor
 import json
 import shutil
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
 
 from mvviz.cli import main
+from pipeline.batch.ray_run import start_ray, stop_ray
 from pipeline.batch.report import load_report
 from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
@@ -55,23 +56,53 @@ def first_batch(dataset):
     return code, load_report(report)
 
 
-def test_results_equal_mvviz_run_bit_for_bit(dataset, first_batch):
-    code, report = first_batch
-    assert code == 1  # one scene failed
-    ok = next(r for r in report["rows"] if r["label"] == "a")
-    assert ok["status"] == "computed"
+@pytest.fixture(scope="module")
+def reference(dataset):
+    """``mvviz run`` on the copy of scene a: its results file."""
     assert main(["run", str(dataset / "ref" / "a"), *SMPL]) == 0
-    with (
-        np.load(dataset / "root" / "a" / ".mvviz" / "results.npz") as batch,
-        np.load(dataset / "ref" / "a" / ".mvviz" / "results.npz") as run,
-    ):
+    return dataset / "ref" / "a" / ".mvviz" / "results.npz"
+
+
+def assert_same_files(batch_file, run_file) -> None:
+    """Every array of the two results files bit for bit (NaN where NaN), and the meta."""
+    with np.load(batch_file) as batch, np.load(run_file) as run:
         assert sorted(batch.files) == sorted(run.files)
         assert any(k.startswith("smplvae_") for k in run.files)  # the fit is compared too
         for k in run.files:
             assert batch[k].dtype == run[k].dtype, k
             assert np.array_equal(batch[k], run[k], equal_nan=batch[k].dtype.kind == "f"), k
         assert json.loads(str(batch["meta"])) == json.loads(str(run["meta"]))
+
+
+def test_results_equal_mvviz_run_bit_for_bit(dataset, first_batch, reference):
+    """Scene a in 5-frame chunks (inputs, chunk and join tasks)."""
+    code, report = first_batch
+    assert code == 1  # one scene failed
+    ok = next(r for r in report["rows"] if r["label"] == "a")
+    assert ok["status"] == "computed"
+    assert_same_files(dataset / "root" / "a" / ".mvviz" / "results.npz", reference)
+    with np.load(reference) as run:
         assert ok["key"] == json.loads(str(run["meta"]))["cache_key"]
+
+
+@pytest.mark.parametrize("ship", [False, True], ids=["files", "objects"])
+def test_one_task_scene_equals_mvviz_run(dataset, reference, tmp_path, ship):
+    """Scene a in one task (12 frames <= --chunk-frames): on the embedded Ray the worker
+    reads the scene and writes the results itself; joining a running Ray with --address
+    (no --shared-storage) the scene and the model travel as objects and the driver
+    writes the results."""
+    out = tmp_path / "out"
+    args = ["batch", str(dataset / "ref" / "a"), *SMPL, "--out", str(out), "--force"]
+    if ship:
+        start_ray()  # the command joins it (and shuts it down when done)
+        args += ["--address", "auto"]
+    try:
+        assert main(args) == 0
+    finally:
+        stop_ray()
+    row = load_report(out)["rows"][0]
+    assert row["status"] == "computed" and row["task_seconds"]["sequence_fit_s"] > 0
+    assert_same_files(out / "a" / "results.npz", reference)
 
 
 def test_failing_scene_is_reported_while_the_others_finish(first_batch):
