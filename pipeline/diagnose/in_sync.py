@@ -81,9 +81,10 @@ def check_calibration_in_sync(
 
     A miscalibrated camera spoils the other cameras' sync references too (a late camera
     beside it can be missed): when the check names suspects, the offsets are estimated
-    again with them left out of the references, and if that finds a confident offset the
-    first estimate did not, the check is run again on that re-timing. The bundle
-    adjustment runs once, on the final run. None if ``cancelled()``."""
+    again with them left out of the references; if that finds a confident offset of a
+    suspect the first estimate did not, and re-timed by it that camera is no longer a
+    suspect, that estimate and its judgement are kept. The bundle adjustment runs once,
+    on the final run. None if ``cancelled()``."""
     stop = lambda: cancelled is not None and cancelled()  # noqa: E731
     judged = _judge(scene, results, sync, cancelled)
     if judged is None:
@@ -95,12 +96,17 @@ def check_calibration_in_sync(
     if suspects and not stop():
         left_out = frozenset(scene.rig.index_of(k) for k in suspects)
         again = estimate_offsets(scene, results, max_shift=max_shift, reference_exclude=left_out)
-        if set(confident_offsets(again)) - set(confident_offsets(sync)):
-            sync, without = again, suspects
-            judged = _judge(scene, results, sync, cancelled)
-            if judged is None:
+        new = set(confident_offsets(again)) - set(confident_offsets(sync))
+        if new:
+            retry = _judge(scene, results, again, cancelled)
+            if retry is None:
                 return None
-            found, run = judged
+            # Adopted only if it explains a suspect by time (a newly re-timed suspect is
+            # one no longer): a small offset the thinner references find on their own
+            # would otherwise re-time a camera that nothing was wrong with.
+            if any(not retry[0][k].suspect for k in new & set(suspects)):
+                sync, without = again, suspects
+                found, run = retry
     if stop():
         return None
     if refine and any(f.suspect for f in found.values()):
