@@ -27,8 +27,7 @@ def main() -> None:
     )
     add_view_options(ap)
     ap.add_argument("out", type=Path)
-    ap.add_argument("--frame", type=int, default=60)
-    ap.add_argument("--track", type=int, default=0)
+    ap.set_defaults(frame=60, track=0)  # the view options' --frame / --track, other defaults
     ap.add_argument("--fit-meshes", action="store_true")
     ap.add_argument("--no-rays", action="store_true")
     ap.add_argument("--camera", default=None)
