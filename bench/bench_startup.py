@@ -21,8 +21,11 @@ With --compare-with DIR (another checkout of the project, e.g. ``git worktree ad
 DIR's (its own package first on PYTHONPATH, its own cache under DIR/sample_data), in the
 same browser: medians of both and the ratios, measured under the same load.
 
+--via-cli starts ``mvviz view`` (as ``python -m mvviz.cli view``) instead of app.py.
+
 Usage:
     python bench/bench_startup.py [--scene DIR] [--runs N] [--json FILE] [--compare-with DIR]
+                                  [--via-cli]
 """
 
 from __future__ import annotations
@@ -45,6 +48,8 @@ sys.path.insert(0, str(REPO))
 
 from bench.common import free_port, write_json  # noqa: E402
 from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium  # noqa: E402
+
+START_COMMAND = [sys.executable, "app.py"]  # --via-cli: python -m mvviz.cli view
 
 
 def repo_env(repo: Path) -> dict[str, str]:
@@ -100,7 +105,7 @@ def time_start(scene: Path | None, browser, repo: Path = REPO) -> dict[str, floa
         target=poll_http, args=(f"http://127.0.0.1:{port}", t0, out, stop), daemon=True
     )
     poller.start()
-    cmd = [sys.executable, "app.py", str(scene), "--port", str(port)]
+    cmd = [*START_COMMAND, str(scene), "--port", str(port)]
     if scene is None:
         cmd = [sys.executable, "-c", BARE_VISER, str(port)]
     proc = subprocess.Popen(
@@ -146,7 +151,13 @@ def main(argv: list[str] | None = None) -> dict:
         "--compare-with", type=Path, default=None, metavar="DIR",
         help="another checkout: its app.py started after each of this one's",
     )  # fmt: skip
+    ap.add_argument(
+        "--via-cli", action="store_true",
+        help="start `python -m mvviz.cli view SCENE` (mvviz view) instead of app.py",
+    )  # fmt: skip
     args = ap.parse_args(argv)
+    if args.via_cli:
+        START_COMMAND[1:] = ["-m", "mvviz.cli", "view"]
     if args.compare_with is not None:
         return compare(args)
 
