@@ -1,7 +1,6 @@
 """What the pose prior learns from: its training sources, the mixes held-out splits train
-on, and the broadest mix (issue 19). The shipped ``sample_data/priors/pose_vae.pt`` is the
-mix of library, CMU and balancing; it predates the ``demo`` source (README, "What the prior
-learns from").
+on, and the broadest mix, which is shipped (``sample_data/priors/pose_vae.pt``:
+``train_on(sources_for())``, issue 19).
 
 Sources (:data:`SOURCE_NAMES`), each a :class:`PoseSource`: poses (N, 72) axis-angle and
 the record that goes into a checkpoint's ``info["sources"]`` (file, frames, activities,
