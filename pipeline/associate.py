@@ -49,7 +49,12 @@ import numpy as np
 
 from pipeline.cameras import CameraRig
 from pipeline.joint_sets import JointSet
-from pipeline.ray_affinity import average_linkage, ray_distances, screened_distances
+from pipeline.ray_affinity import (
+    average_linkage,
+    pinhole_rays,
+    ray_distances,
+    screened_distances,
+)
 from pipeline.triangulate import triangulate_people
 
 
@@ -133,10 +138,10 @@ def detection_rays(
         missing), weights (n, J) confidence (0 if missing).
     """
     n, J = joints2d.shape[:2]
-    dirs = np.full((n, J, 3), np.nan)
+    dirs, plain = pinhole_rays(rig, views, joints2d[..., :2])  # undistorted views at once
     conf = np.nan_to_num(joints2d[..., 2])
     ok = (conf >= min_confidence) & np.isfinite(joints2d[..., :2]).all(-1)
-    for v in np.unique(views):
+    for v in np.unique(views[~plain]):
         rows = np.flatnonzero(views == v)
         dirs[rows] = rig[int(v)].pixels_to_rays(joints2d[rows, :, :2])
     weights = np.where(ok, conf, 0.0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,15 +13,20 @@ from pipeline.associate import (
     average_linkage_reference,
     ray_distances_reference,
 )
+from pipeline.cameras import CameraRig
 from pipeline.ray_affinity import (
     average_linkage,
     pair_ray_distances,
     part_groups,
+    pinhole_rays,
     ray_distances,
     screen_distances,
     screened_distances,
     shared_joints,
 )
+from pipeline.scene import load_scene
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _detections(rng, n_people=6, n_views=8, J=17):
@@ -114,3 +120,17 @@ def test_part_groups_hold_both_joints_of_a_pair_and_shared_joints_count():
     want = seen.astype(int) @ seen.T.astype(int)
     np.testing.assert_array_equal(shared_joints(seen), want)
     np.testing.assert_array_equal(shared_joints(np.tile(seen, (1, 2))), 2 * want)  # > 64
+
+
+def test_pinhole_rays_equal_the_cameras_own_and_leave_distorted_views_to_them():
+    rig = load_scene(REPO / "sample_data" / "shelf_synth").rig
+    rig = CameraRig(cameras=(replace(rig[0], dist=np.array([0.1, 0, 0, 0, 0])), *rig.cameras[1:]))
+    rng = np.random.default_rng(0)
+    views = rng.integers(0, len(rig), 40)
+    px = rng.uniform(100, 700, (40, 17, 2))
+    px[3, 2] = np.nan
+    rays, plain = pinhole_rays(rig, views, px)
+    np.testing.assert_array_equal(plain, views != 0)
+    assert np.isnan(rays[~plain]).all() and np.isnan(rays[3, 2]).all()
+    for i in np.flatnonzero(plain):
+        np.testing.assert_allclose(rays[i], rig[int(views[i])].pixels_to_rays(px[i]), atol=1e-12)
