@@ -11,8 +11,12 @@ times:
   workers' imports, the report and its shutdown are counted).
 
 Both are timed from the command to its exit. Prints, each repeat with the 1-minute load
-average before it (the machine may be shared: with a load above the core count a
-speed-up cannot show), then the medians and their ratio, and the parts:
+average before it, then the medians and their ratio, and the parts. On a shared machine
+the ratio means nothing while other work runs: with a load above the core count the
+cores are taken, and with the kernel's autogroup scheduling on
+(``/proc/sys/kernel/sched_autogroup_enabled``, printed) CPU time is shared per session,
+and Ray's workers are in the session of ``mvviz batch``, so beside other busy sessions
+the two workers together get the share the serial process gets alone. The parts:
 
 - Ray's own start-up in a fresh process: import, ``ray.init``, the first task on every
   worker that imports the pipeline (worker start + torch), ``ray.shutdown``, and the CPU
@@ -122,6 +126,14 @@ print(json.dumps(dict(fit_1_thread_s=statistics.median(wall[1]),
 """
 
 
+def autogroup() -> str:
+    try:
+        return {"0": "off", "1": "on"}[Path("/proc/sys/kernel/sched_autogroup_enabled")
+                                       .read_text().strip()]  # fmt: skip
+    except (OSError, KeyError):
+        return "unknown"
+
+
 def make_scenes(root: Path) -> list[Path]:
     scenes = [root / f"s{i}" for i in range(1, NUM_SCENES + 1)]
     for i, s in enumerate(scenes, 1):
@@ -204,7 +216,8 @@ def main() -> int:
     args = p.parse_args()
     scenes = make_scenes(args.scenes)
     names = [str(s) for s in scenes]
-    print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the start")
+    print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the start, "
+          f"autogroup scheduling {autogroup()} (see --help)")  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         runs = alternate(names, tmp, args.repeats)
         diffs = {
@@ -225,6 +238,7 @@ def main() -> int:
         "load_1min": runs["loads"], "load_at_parts": load, "ray_start": ray_start,
         "serial_per_scene": runs["serial_scene"], "batch_task_per_scene": runs["task"],
         "fit_threads": fit, "results_equal": equal, "results_differ": diffs,
+        "autogroup": autogroup(),
     }  # fmt: skip
     print(f"parts (load {load:.1f}): Ray import {ray_start['import_s']:.2f} s, ray.init "
           f"{ray_start['init_s']:.2f} s, {ray_start['workers']} workers started + pipeline "
