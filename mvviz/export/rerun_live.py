@@ -39,7 +39,7 @@ import torch
 
 from mvviz.analysis.filter_runs import FilterRun
 from mvviz.export.rerun import APP_ID, SceneLogger, make_blueprint
-from mvviz.scene.images import FrameStore
+from mvviz.scene.images import FrameStore, video_frame
 from mvviz.state import ViewerState
 from pipeline.body_arrays import BodyModelData
 from pipeline.body_model import BodyModel, torch_body_model
@@ -325,9 +325,10 @@ class LiveRerun:
         images = {}
         if frames is not None:
             for cam in data.scene.rig.names:
-                jpeg = frames.jpeg(cam, frame)
+                shown = video_frame(data, cam, frame)  # follows sync.offsets, as the viewer
+                jpeg = frames.jpeg(cam, shown)
                 if jpeg is None:
-                    rgb = frames.frame(cam, frame)
+                    rgb = frames.frame(cam, shown)
                     jpeg = None if rgb is None else np.ascontiguousarray(rgb[..., ::-1])
                 images[cam] = jpeg
         self._logger.log_frame(frame, images=images, filter_b=self._b_shown)

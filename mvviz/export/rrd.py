@@ -43,6 +43,7 @@ from mvviz.export.rerun import (  # noqa: F401  (re-exported: the names this mod
 )
 from pipeline.body_arrays import BodyModelData
 from pipeline.body_model import BodyModel, torch_body_model
+from pipeline.diagnose.retime import picture_frame
 from pipeline.progress import Progress, track
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
@@ -120,6 +121,8 @@ class FrameSource:
         return img if img is None or self._place is None else self._place(img)
 
     def _read(self, frame: int) -> np.ndarray | None:
+        if frame < 0:  # before the recording (a re-timed camera's first frames)
+            return None
         if self._cap is not None:
             if frame < self._next or frame - self._next > 50:
                 self._cap.set(cv2.CAP_PROP_POS_FRAMES, frame)
@@ -163,13 +166,19 @@ class _Prefetcher:
     """One thread per camera reading, resizing and JPEG-encoding ``frames`` in order,
     up to PREFETCH_FRAMES ahead (OpenCV releases the GIL: this overlaps the logging)."""
 
-    def __init__(self, sources: Mapping[str, FrameSource], frames, cam_size, quality) -> None:
+    def __init__(
+        self, sources: Mapping[str, FrameSource], frames, cam_size, quality, offsets=None
+    ) -> None:
         self._queues = {name: queue.Queue(PREFETCH_FRAMES) for name in sources}
         self._stop = threading.Event()
+        # A camera re-timed by sync.offsets shows the picture its used rows were recorded in.
+        picture = {
+            name: [picture_frame(offsets or {}, name, f) for f in frames] for name in sources
+        }
         self._threads = [
             threading.Thread(
                 target=self._read,
-                args=(src, list(frames), cam_size[name], quality, self._queues[name]),
+                args=(src, picture[name], cam_size[name], quality, self._queues[name]),
                 name=f"rrd-images-{name}", daemon=True,
             )
             for name, src in sources.items()
@@ -275,7 +284,10 @@ def export_rrd(
         logger.log_static()
         if images:
             sources = scene_frame_sources(scene)
-            prefetch = _Prefetcher(sources, frame_ids, logger.cam_size, jpeg_quality)
+            prefetch = _Prefetcher(
+                sources, frame_ids, logger.cam_size, jpeg_quality,
+                offsets=results.config.sync.by_camera(),
+            )  # fmt: skip
         _log_frames(logger, frame_ids, prefetch, progress)
         _complete(rec, tmp, path)
     except BaseException:

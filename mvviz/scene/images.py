@@ -37,7 +37,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from mvviz.scene.bodies import Bodies
 from mvviz.scene.geometry import FRUSTUM_WIDTHS, UNASSIGNED, LayerToggles, ViewerData, track_color
-from pipeline.diagnose.retime import split_offset
+from pipeline.diagnose.retime import picture_frame
 from pipeline.files import save_npz_atomic
 from pipeline.scene import Scene
 from pipeline.video_crop import CalibratedFrames
@@ -370,8 +370,7 @@ def video_frame(data: ViewerData, camera: str, frame: int) -> int:
     is never blended between frames; on a fast limb the 2D can then sit up to half a
     frame's motion off the picture. Outside the clip (the camera has no recording of that
     moment) the frame store gives no picture."""
-    d = data.results.config.sync.by_camera().get(camera, 0.0)
-    return int(frame) + split_offset(d)[0] if d else int(frame)
+    return picture_frame(data.results.config.sync.by_camera(), camera, frame)
 
 
 def image_overlay(data: ViewerData, view: int, frame: int, lay: LayerToggles) -> Overlay2D:

@@ -47,6 +47,17 @@ def split_offset(offset: float) -> tuple[int, float]:
     return n, float(offset - n)
 
 
+def picture_frame(offsets: dict[str, float], camera: str, frame: int) -> int:
+    """The frame of ``camera``'s recording (video or image folder) whose picture goes
+    with the pipeline's ``frame`` when ``offsets`` (camera name -> frames it lags, as
+    ``SyncConfig.by_camera()``) re-time it: ``frame`` + the whole part of its offset,
+    where the rows used at ``frame`` were recorded. The sub-frame part moves only the 2D
+    (a picture is never blended), so the viewer and every export show the same picture.
+    May fall outside the recording (the caller shows none there)."""
+    d = offsets.get(camera, 0.0)
+    return int(frame) + split_offset(float(d))[0] if d else int(frame)
+
+
 def retimed_frames(frame: np.ndarray, view: np.ndarray, offsets: dict[int, float]) -> np.ndarray:
     """(N,) the frame each row is used at (:func:`retimed_rows`' first output, alone)."""
     out = np.array(frame, int, copy=True)

@@ -88,6 +88,7 @@ from mvviz.export.rerun.layout import (
 from mvviz.export.rerun.logger import ImageLike, SceneLogger
 from mvviz.export.rerun.meshes import decimate_mesh, display_mesh, skin_subset
 from pipeline.body_model import BodyModel
+from pipeline.diagnose.retime import picture_frame
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
 
@@ -144,11 +145,11 @@ def log_scene(
     try:
         logger.log_static(blueprint=blueprint)
         loop = progress(frame_ids) if progress is not None else frame_ids
+        offsets = results.config.sync.by_camera()  # a re-timed camera's picture follows
         for f in loop:
             f = int(f)
-            logger.log_frame(
-                f, images={n: r(f) for n, r in readers.items()}, gt_meshes=False, bodies=False
-            )
+            pictures = {n: r(picture_frame(offsets, n, f)) for n, r in readers.items()}
+            logger.log_frame(f, images=pictures, gt_meshes=False, bodies=False)
         logger.send_gt_meshes(frame_ids)
         logger.send_bodies(frame_ids)
         logger.send_plots(frame_ids)

@@ -408,3 +408,61 @@ def test_cli_export_rrd(tiny, tmp_path, capsys):
     assert "reused cached results" in text and "MB" in text and "world/skeletons" in text
     np.testing.assert_array_equal(read_rrd_summary(out).frames, [1, 2, 3])
     assert main(["export-rrd", str(scene.root), "-o", str(out), "--plot-joints", "tail"]) == 2
+
+
+class _RecordingSource:
+    """A frame source that answers every frame with a grey picture and records which."""
+
+    def __init__(self, camera: str) -> None:
+        self.camera, self.asked = camera, []
+
+    def read(self, frame: int):
+        self.asked.append(frame)
+        return np.full((48, 64, 3), 128, np.uint8) if frame >= 0 else None
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_retimed_camera_logs_the_picture_its_rows_were_recorded_in(tiny, tmp_path, monkeypatch):
+    """sync.offsets: the camera lagging by d shows frame f + round(d) at f (as the viewer's
+    camera panel does, mvviz.scene.images.video_frame); the others stay on f."""
+    from pipeline.config import SyncParams
+
+    scene, results, model = tiny
+    late, early = scene.rig.names[0], scene.rig.names[1]
+    config = dataclasses.replace(
+        results.config, sync=SyncParams(offsets=((late, 1.6), (early, -2.4)))
+    )
+    results = dataclasses.replace(results, config=config)
+    sources = {name: _RecordingSource(name) for name in scene.rig.names}
+    monkeypatch.setattr(rerun_export, "scene_frame_sources", lambda _scene: sources)
+    export_rrd(
+        scene, results, model, tmp_path / "r.rrd", frames=range(3, 6), meshes=False,
+        bodies=False, image_width=64, progress=False,
+    )  # fmt: skip
+    assert sources[late].asked == [5, 6, 7]  # round(1.6) = 2
+    assert sources[early].asked == [1, 2, 3]  # round(-2.4) = -2
+    for other in scene.rig.names[2:]:
+        assert sources[other].asked == [3, 4, 5]
+
+
+def test_log_scene_reads_a_retimed_cameras_picture_at_its_offset(tiny):
+    import rerun as rr
+
+    from mvviz.export.rerun import log_scene
+    from pipeline.config import SyncParams
+
+    scene, results, model = tiny
+    late = scene.rig.names[2]
+    config = dataclasses.replace(results.config, sync=SyncParams(offsets=((late, 3.0),)))
+    results = dataclasses.replace(results, config=config)
+    sources = {name: _RecordingSource(name) for name in scene.rig.names}
+    rec = rr.RecordingStream("mvviz-test")
+    rec.memory_recording()
+    log_scene(
+        scene, results, recording=rec, body_model=model, frames=range(0, 2), meshes=False,
+        bodies=False, images={n: s.read for n, s in sources.items()}, image_width=64,
+    )  # fmt: skip
+    assert sources[late].asked == [3, 4]
+    assert sources[scene.rig.names[0]].asked == [0, 1]
