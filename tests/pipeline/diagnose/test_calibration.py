@@ -6,37 +6,30 @@ pipeline.diagnose.perturb; the pipeline re-run on it."""
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.diagnose.calibration import check_calibration, find_step, replace_camera
 from pipeline.diagnose.perturb import perturb_camera_pose
 from pipeline.evaluate import evaluate
-from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
+from tests.pipeline.diagnose.shipped import body_model, run_without_fit, shipped_scene
 from tests.pipeline.helpers import REPO
 
 CLEAN = REPO / "sample_data" / "shelf_synth"
 CONFIG = PipelineConfig(fit_smpl=False)
 
 
-@functools.cache
 def _scene():
-    return load_scene(CLEAN)
+    return shipped_scene(CLEAN)
 
 
-@functools.cache
-def _model():
-    return load_body_model()
+_model = body_model
 
 
-def _run(scene):
-    return run_pipeline(scene, CONFIG, _model(), progress=False)
+_run = run_without_fit
 
 
 def _raw_mpjpe(scene, results) -> float:

@@ -3,32 +3,26 @@ of a scene that is not z-up with its floor at 0 (cameras, ground truth incl. SMP
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.diagnose.floor import estimate_floor, level_rotation, transform_scene
 from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
+from tests.pipeline.diagnose.shipped import body_model, shipped_scene
 from tests.pipeline.helpers import REPO
 
 NOISY = REPO / "sample_data" / "shelf_synth_noisy"
 CONFIG = PipelineConfig(fit_smpl=False)
 
 
-@functools.cache
 def _scene():
-    return load_scene(NOISY)
+    return shipped_scene(NOISY)
 
 
-@functools.cache
-def _model():
-    return load_body_model()
+_model = body_model
 
 
 def _floor(scene):
@@ -84,9 +78,14 @@ def test_transformed_smpl_ground_truth_poses_the_transformed_body():
     moved = transform_scene(scene, T, _model()).gt
     rows = np.arange(0, len(moved.frame), 97)
     with torch.no_grad():
-        joints = 1000 * _model().joints(
-            torch.as_tensor(moved.smpl_pose[rows]), torch.as_tensor(moved.smpl_betas[rows])
-        ).double().numpy() + moved.transl[rows, None]
+        joints = (
+            1000
+            * _model()
+            .joints(torch.as_tensor(moved.smpl_pose[rows]), torch.as_tensor(moved.smpl_betas[rows]))
+            .double()
+            .numpy()
+            + moved.transl[rows, None]
+        )
     assert np.abs(joints - moved.joints3d[rows]).max() < 0.5  # mm: float32 body model
 
 

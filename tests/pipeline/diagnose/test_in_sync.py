@@ -5,13 +5,10 @@ pipeline.diagnose.perturb and the pipeline re-run on it."""
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.diagnose.calibration import check_calibration
 from pipeline.diagnose.in_sync import check_calibration_in_sync, retimed_run
@@ -19,25 +16,21 @@ from pipeline.diagnose.perturb import delay_camera, perturb_camera_pose
 from pipeline.diagnose.report import diagnose
 from pipeline.diagnose.sync import estimate_offsets
 from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
+from tests.pipeline.diagnose.shipped import body_model, run_without_fit, shipped_scene
 from tests.pipeline.helpers import REPO
 
 CLEAN = REPO / "sample_data" / "shelf_synth"
 CONFIG = PipelineConfig(fit_smpl=False)
 
 
-@functools.cache
 def _scene():
-    return load_scene(CLEAN)
+    return shipped_scene(CLEAN)
 
 
-@functools.cache
-def _model():
-    return load_body_model()
+_model = body_model
 
 
-def _run(scene):
-    return run_pipeline(scene, CONFIG, _model(), progress=False)
+_run = run_without_fit
 
 
 def _suspects(found) -> list[str]:

@@ -10,7 +10,6 @@ import functools
 import numpy as np
 import pytest
 
-from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.diagnose.perturb import delay_camera
 from pipeline.diagnose.retime import partners, retimed_rows, split_offset
@@ -19,7 +18,7 @@ from pipeline.evaluate import evaluate
 from pipeline.files import SceneFormatError
 from pipeline.results import run_pipeline
 from pipeline.run import frame_rows, row_frames
-from pipeline.scene import load_scene
+from tests.pipeline.diagnose.shipped import body_model, shipped_scene
 from tests.pipeline.helpers import REPO
 
 CLEAN = REPO / "sample_data" / "shelf_synth"
@@ -90,14 +89,11 @@ def test_sync_offsets_errors_name_the_field():
         CONFIG.with_overrides(["sync.offsets=cam9:1"]).check_cameras(["0", "1"])
 
 
-@functools.cache
 def _scene():
-    return load_scene(CLEAN)
+    return shipped_scene(CLEAN)
 
 
-@functools.cache
-def _model():
-    return load_body_model()
+_model = body_model
 
 
 @functools.cache
