@@ -118,26 +118,25 @@ def cmu_source(clip: str) -> PoseSource:
     return PoseSource("cmu", poses, rec)
 
 
-def balancing_source(path: str | os.PathLike = BALANCING_POSES) -> PoseSource:
-    """The balancing trial's fitted poses (:func:`make_balancing_poses`)."""
+def _fitted_pose_source(name: str, path: str | os.PathLike) -> PoseSource:
+    """A source of fitted poses stored as ``poses`` (N, 72) and a JSON ``meta``."""
     path = Path(path)
     with np.load(path, allow_pickle=False) as z:
         poses = np.asarray(z["poses"], float)
         meta = json.loads(str(z["meta"]))
-    rec = dict(meta, source="balancing", file=str(path.relative_to(REPO_ROOT)))
+    rec = dict(meta, source=name, file=str(path.relative_to(REPO_ROOT)))
     rec.update(frames=int(len(poses)), source_frames=int(len(poses)))
-    return PoseSource("balancing", poses, rec)
+    return PoseSource(name, poses, rec)
+
+
+def balancing_source(path: str | os.PathLike = BALANCING_POSES) -> PoseSource:
+    """The balancing trial's fitted poses (:func:`make_balancing_poses`)."""
+    return _fitted_pose_source("balancing", path)
 
 
 def demo_source(path: str | os.PathLike = DEMO_POSES) -> PoseSource:
     """Both people of the Pose2Sim demo, their fitted poses (:func:`make_demo_poses`)."""
-    path = Path(path)
-    with np.load(path, allow_pickle=False) as z:
-        poses = np.asarray(z["poses"], float)
-        meta = json.loads(str(z["meta"]))
-    rec = dict(meta, source="demo", file=str(path.relative_to(REPO_ROOT)))
-    rec.update(frames=int(len(poses)), source_frames=int(len(poses)))
-    return PoseSource("demo", poses, rec)
+    return _fitted_pose_source("demo", path)
 
 
 def _step_one_fit(scene_dir: Path):
