@@ -284,10 +284,8 @@ def export_rrd(
         logger.log_static()
         if images:
             sources = scene_frame_sources(scene)
-            prefetch = _Prefetcher(
-                sources, frame_ids, logger.cam_size, jpeg_quality,
-                offsets=results.config.sync.by_camera(),
-            )  # fmt: skip
+            offsets = results.config.sync.by_camera()  # re-timed cameras' pictures
+            prefetch = _Prefetcher(sources, frame_ids, logger.cam_size, jpeg_quality, offsets)
         _log_frames(logger, frame_ids, prefetch, progress)
         _complete(rec, tmp, path)
     except BaseException:

@@ -116,7 +116,8 @@ def test_filter_b_overlay_only_while_b_differs(browser, running_app, tmp_path):
         a_only = canvas_image(page).astype(int)
         fp.gui.q.value = q0 / 50  # a stiff B: clearly not A
         idle(app)
-        assert fp._nodes[B_ROOT].visible
+        # drawn by the next render for the page (which may wait for the page's ack)
+        wait_until(lambda: fp._nodes[B_ROOT].visible, what="B's overlay")
         wait_rendered(app, page)
         with_b = canvas_image(page).astype(int)
         page.screenshot(path=str(tmp_path / "b_differs.png"))
@@ -127,7 +128,7 @@ def test_filter_b_overlay_only_while_b_differs(browser, running_app, tmp_path):
         page.get_by_role("button", name="Reset B to A").click()
         wait_until(lambda: float(fp.gui.q.value) == q0, what="the reset")
         idle(app)
-        assert not fp._nodes[B_ROOT].visible
+        wait_until(lambda: not fp._nodes[B_ROOT].visible, what="B's overlay removed")
         wait_rendered(app, page)
         reset = canvas_image(page).astype(int)
         page.screenshot(path=str(tmp_path / "b_reset.png"))
@@ -153,8 +154,18 @@ def test_selected_camera_is_highlighted_in_the_page(browser, running_app, tmp_pa
     try:
         client = next(iter(app.server.get_clients().values()))
         centre = app.state.scene.rig.centers.mean(0) / 1000  # metres
-        client.camera.position = centre + np.array([0.0, -4.0, 30.0])  # the whole rig
-        client.camera.look_at = centre
+        above = centre + np.array([0.0, -4.0, 30.0])  # the whole rig in view
+
+        def camera_above() -> bool:
+            # a fresh page reports its own camera once it is up, which can undo a camera
+            # set before that: set it until the page reports it back
+            if np.linalg.norm(np.asarray(client.camera.position) - above) < 0.05:
+                return True
+            client.camera.position, client.camera.look_at = above, centre
+            time.sleep(0.2)
+            return False
+
+        wait_until(camera_above, seconds=20, what="the page's camera above the rig")
         masks = []
         for v in (0, 1):
             app.jump_to(view=v)
