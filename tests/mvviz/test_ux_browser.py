@@ -11,9 +11,26 @@ import time
 import numpy as np
 import pytest
 
+from mvviz.app import ViewerApp
 from mvviz.panels.filter_panel import B_ROOT
 from mvviz.scene.geometry import SELECTED_CAMERA
-from tests.mvviz.conftest import canvas_image, open_tab, open_viewer, wait_rendered
+from mvviz.state import ViewerState
+from tests.mvviz.conftest import canvas_image, free_port, open_tab, open_viewer, wait_rendered
+
+
+@pytest.fixture(scope="module")
+def own_app(viewer_scene, frame_store):
+    """A viewer of the tiny scene for this module alone: the session's ``running_app``
+    carries what earlier tests left (their pages, filter B, the 3D camera), which in a
+    full run kept these checks from seeing their own changes drawn."""
+    scene, results, model = viewer_scene
+    app = ViewerApp(
+        ViewerState.create(scene, results, model), host="127.0.0.1", port=free_port(),
+        frames=frame_store,
+    )  # fmt: skip
+    assert app.wait_idle(30)
+    yield app
+    app.stop()
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -104,8 +121,8 @@ def test_failures_list_shows_spans_whole_texts_and_jumps_to_a_seeing_camera(
         page.close()
 
 
-def test_filter_b_overlay_only_while_b_differs(browser, running_app, tmp_path):
-    app, fp = running_app, running_app.filter_panel
+def test_filter_b_overlay_only_while_b_differs(browser, own_app, tmp_path):
+    app, fp = own_app, own_app.filter_panel
     page = open_viewer(browser, app.url)
     q0 = float(fp.gui.q.value)
     try:
@@ -148,8 +165,8 @@ def yellow_mask(img: np.ndarray) -> np.ndarray:
     return (r > 180) & (g > 170) & (b < 150) & (r - b > 80)
 
 
-def test_selected_camera_is_highlighted_in_the_page(browser, running_app, tmp_path):
-    app = running_app
+def test_selected_camera_is_highlighted_in_the_page(browser, own_app, tmp_path):
+    app = own_app
     page = open_viewer(browser, app.url)
     try:
         client = next(iter(app.server.get_clients().values()))
