@@ -15,21 +15,9 @@ from pipeline.config import PipelineConfig
 from pipeline.diagnose.calibration import check_calibration, find_step, replace_camera
 from pipeline.diagnose.perturb import perturb_camera_pose
 from pipeline.evaluate import evaluate
-from tests.pipeline.diagnose.shipped import body_model, run_without_fit, shipped_scene
-from tests.pipeline.helpers import REPO
+from tests.pipeline.diagnose.shipped import run_without_fit, shipped_scene
 
-CLEAN = REPO / "sample_data" / "shelf_synth"
 CONFIG = PipelineConfig(fit_smpl=False)
-
-
-def _scene():
-    return shipped_scene(CLEAN)
-
-
-_model = body_model
-
-
-_run = run_without_fit
 
 
 def _raw_mpjpe(scene, results) -> float:
@@ -37,8 +25,8 @@ def _raw_mpjpe(scene, results) -> float:
 
 
 def test_good_calibration_has_no_suspect():
-    scene = _scene()
-    found = check_calibration(scene, _run(scene))
+    scene = shipped_scene()
+    found = check_calibration(scene, run_without_fit(scene))
     assert not any(f.suspect for f in found.values()), {k: f.to_dict() for k, f in found.items()}
     assert all(f.systematic_px < 2.0 for f in found.values())
     assert all(f.step is None for f in found.values())
@@ -48,9 +36,9 @@ def test_good_calibration_has_no_suspect():
     "fault", [dict(rotation_deg=1.0, axis=(0.3, 1.0, 0.2)), dict(translation_mm=(50.0, 0, 0))]
 )
 def test_wrong_camera_is_named_and_refined_back(fault):
-    truth = _scene()
+    truth = shipped_scene()
     scene = perturb_camera_pose(truth, "2", **fault)
-    results = _run(scene)
+    results = run_without_fit(scene)
     found = check_calibration(scene, results)
     assert [k for k, f in found.items() if f.suspect] == ["2"]
     f = found["2"]
@@ -65,8 +53,8 @@ def test_wrong_camera_is_named_and_refined_back(fault):
     assert f.residual_after_px < 0.5 * f.residual_px
     # The scene's MPJPE with the refined camera is within 1 mm of the true calibration's.
     fixed = dataclasses.replace(scene, rig=replace_camera(scene.rig, 2, new))
-    mpjpe_true = _raw_mpjpe(truth, _run(truth))
-    mpjpe_fixed = _raw_mpjpe(fixed, _run(fixed))
+    mpjpe_true = _raw_mpjpe(truth, run_without_fit(truth))
+    mpjpe_fixed = _raw_mpjpe(fixed, run_without_fit(fixed))
     assert mpjpe_fixed <= mpjpe_true + 1.0, (mpjpe_fixed, mpjpe_true)
     assert _raw_mpjpe(scene, results) > mpjpe_true + 1.0  # the fault did cost something
 
@@ -75,7 +63,7 @@ def test_camera_knocked_mid_capture_shows_a_step():
     """Camera 3's 2D from frame 125 on as seen by a camera turned 1.5 degrees (the GT
     keypoints projected through it, with the same noise the detector had), its
     calibration unchanged: its residual steps up at frame 125."""
-    scene = _scene()
+    scene = shipped_scene()
     det = scene.detections
     knocked = perturb_camera_pose(scene, "3", rotation_deg=1.5, axis=(0, 0, 1)).rig[3]
     cam = scene.rig[3]
@@ -90,7 +78,7 @@ def test_camera_knocked_mid_capture_shows_a_step():
         noise = kp[r, :, :2] - truth_px  # the detector's own error, kept
         kp[r, :, :2] = knocked.project(gt.keypoints3d[g]) + noise
     moved = dataclasses.replace(scene, detections=dataclasses.replace(det, keypoints=kp))
-    found = check_calibration(moved, _run(moved), refine=False)
+    found = check_calibration(moved, run_without_fit(moved), refine=False)
     step = found["3"].step
     assert step is not None and abs(step.frame - 125) <= 3, step
     assert step.after_px > 2 * step.before_px

@@ -17,20 +17,8 @@ from pipeline.diagnose.report import diagnose
 from pipeline.diagnose.sync import estimate_offsets
 from pipeline.results import run_pipeline
 from tests.pipeline.diagnose.shipped import body_model, run_without_fit, shipped_scene
-from tests.pipeline.helpers import REPO
 
-CLEAN = REPO / "sample_data" / "shelf_synth"
 CONFIG = PipelineConfig(fit_smpl=False)
-
-
-def _scene():
-    return shipped_scene(CLEAN)
-
-
-_model = body_model
-
-
-_run = run_without_fit
 
 
 def _suspects(found) -> list[str]:
@@ -39,8 +27,8 @@ def _suspects(found) -> list[str]:
 
 @pytest.mark.parametrize(("camera", "delay"), [("3", 4), ("0", -7), ("4", 10)])
 def test_late_camera_is_out_of_sync_not_a_calibration_suspect(camera, delay):
-    scene = delay_camera(_scene(), camera, delay)
-    results = _run(scene)
+    scene = delay_camera(shipped_scene(), camera, delay)
+    results = run_without_fit(scene)
     # The cause: judged as recorded, the late camera looks miscalibrated.
     as_recorded = check_calibration(scene, results, refine=False)
     assert _suspects(as_recorded) == [camera]
@@ -63,11 +51,11 @@ def test_late_camera_is_out_of_sync_not_a_calibration_suspect(camera, delay):
 def test_late_and_rotated_cameras_told_apart():
     """Camera 4 ten frames late and camera 2 rotated 1 degree: 2 is the suspect, refined
     back to the truth on 2D that is in time; 4 is out of sync."""
-    truth = _scene()
+    truth = shipped_scene()
     scene = perturb_camera_pose(
         delay_camera(truth, "4", 10), "2", rotation_deg=1.0, axis=(0.3, 1.0, 0.2)
     )
-    results = _run(scene)
+    results = run_without_fit(scene)
     found = check_calibration_in_sync(scene, results, estimate_offsets(scene, results)).findings
     assert _suspects(found) == ["2"]
     assert found["4"].out_of_sync and not found["2"].out_of_sync
@@ -79,11 +67,11 @@ def test_a_rotated_camera_hiding_a_late_one():
     reference camera 3's offset is not trusted (confidence < 0.5), so as recorded both
     are suspects; with the suspects left out of each other's references camera 3's offset
     is found, and judged in sync only camera 2 is a suspect."""
-    truth = _scene()
+    truth = shipped_scene()
     scene = perturb_camera_pose(
         delay_camera(truth, "3", 4), "2", rotation_deg=1.0, axis=(0.3, 1.0, 0.2)
     )
-    results = _run(scene)
+    results = run_without_fit(scene)
     first = estimate_offsets(scene, results)
     assert not first["3"].trusted
     assert _suspects(check_calibration(scene, results, refine=False)) == ["2", "3"]
@@ -102,9 +90,9 @@ def test_a_wrong_camera_alone_is_named_and_nothing_re_timed(fault):
     """The faults of test_calibration judged in sync: the suspect left out of the sync
     references finds no offset (|offset| < 0.15 frame for every camera), nothing is
     re-timed, camera 2 alone is named and refined back."""
-    truth = _scene()
+    truth = shipped_scene()
     scene = perturb_camera_pose(truth, "2", **fault)
-    results = _run(scene)
+    results = run_without_fit(scene)
     r = check_calibration_in_sync(scene, results, estimate_offsets(scene, results))
     assert r.run is results and r.sync_without == ()
     again = estimate_offsets(scene, results, reference_exclude=frozenset({2}))
@@ -119,8 +107,8 @@ def _assert_back_to_truth(new, true_cam):
 
 
 def test_in_sync_scene_is_judged_as_recorded():
-    scene = _scene()
-    results = _run(scene)
+    scene = shipped_scene()
+    results = run_without_fit(scene)
     r = check_calibration_in_sync(scene, results, estimate_offsets(scene, results))
     found = r.findings
     assert r.run is results and r.sync_without == ()  # no confident offset: nothing re-run
@@ -131,11 +119,11 @@ def test_in_sync_scene_is_judged_as_recorded():
 def test_retimed_run_adds_to_the_applied_offsets():
     """A run that re-times camera 3 by 1 frame already, re-timed by 3 more, is the run
     with 4: the same rows at the same frames, the same 2D."""
-    scene = delay_camera(_scene(), "3", 4)
+    scene = delay_camera(shipped_scene(), "3", 4)
     applied = CONFIG.with_overrides(["sync.offsets=3:+1"])
-    partly = run_pipeline(scene, applied, _model(), progress=False)
+    partly = run_pipeline(scene, applied, body_model(), progress=False)
     more = retimed_run(scene, partly, {"3": 3.0})
-    whole = run_pipeline(scene, CONFIG.with_overrides(["sync.offsets=3:+4"]), _model(),
+    whole = run_pipeline(scene, CONFIG.with_overrides(["sync.offsets=3:+4"]), body_model(),
                          progress=False)  # fmt: skip
     assert more.config.sync.by_camera() == {"3": 4.0}
     np.testing.assert_array_equal(more.person_frame, whole.person_frame)
@@ -143,8 +131,8 @@ def test_retimed_run_adds_to_the_applied_offsets():
 
 
 def test_diagnose_reports_the_late_camera_as_out_of_sync():
-    scene = delay_camera(_scene(), "3", 4)
-    d = diagnose(scene, _run(scene), refine=False)
+    scene = delay_camera(shipped_scene(), "3", 4)
+    d = diagnose(scene, run_without_fit(scene), refine=False)
     out = d.to_json()
     assert out["calibration"]["3"]["out_of_sync"] is True
     assert out["calibration"]["3"]["suspect"] is False
