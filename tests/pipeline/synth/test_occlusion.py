@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -72,6 +74,30 @@ def test_proxy_occlusion_agrees_with_the_full_mesh(crowd):
     assert (a != b).mean() < 0.04
     assert abs(a.mean() - b.mean()) < 0.03
     assert abs(full.hidden_by_other(ids).mean() - fast.hidden_by_other(ids).mean()) < 0.03
+
+
+@pytest.mark.parametrize("distorted", [False, True])
+def test_the_cell_prefilter_changes_no_answer(crowd, distorted):
+    """The integer pre-filter only drops triangles that cannot cover a query: the same
+    depths and owners as the float work on every triangle, with and without distortion
+    (the undistorted branch of the projection skips the polynomial)."""
+    model, rig, people, _ = crowd
+    cams = list(rig)
+    if distorted:
+        cams = [dataclasses.replace(c, dist=np.array([-0.2, 0.05, 1e-3, -1e-3, 0.0])) for c in cams]
+    proxy = proxy_for(model)
+    posed = pose_proxy(proxy_bodies(model, proxy, people.betas), people.pose[:, 0]) * 1000
+    posed += people.transl[:, 0, None]
+    pts = people.keypoints[:, 0].reshape(-1, 3)
+    on, off = (
+        point_occlusion(cams, posed, proxy.faces, pts, cull_back_faces=True, cell_prefilter=pf)
+        for pf in (True, False)
+    )
+    assert np.isfinite(on.depth).sum() > pts.shape[0]  # surfaces were found: not vacuous
+    for name in ("inside", "z", "depth", "owner"):
+        np.testing.assert_array_equal(getattr(on, name), getattr(off, name), err_msg=name)
+    ids = np.repeat(np.arange(len(posed)), people.keypoints.shape[2])
+    assert on.hidden_by_other(ids).any()
 
 
 def test_no_points_and_points_behind_every_camera():
