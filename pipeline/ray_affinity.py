@@ -21,6 +21,8 @@ import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
 
+from pipeline.ray_pairs import PARALLEL_SIN2, pair_ray_distances
+
 if TYPE_CHECKING:
     from pipeline.associate import AssociationParams
     from pipeline.cameras import CameraRig
@@ -28,6 +30,7 @@ if TYPE_CHECKING:
 __all__ = [
     "average_linkage",
     "pair_ray_distances",
+    "pair_ray_distances_unchunked",
     "pinhole_rays",
     "part_groups",
     "ray_distances",
@@ -158,12 +161,7 @@ def screen_distances(
         return num / pw.sum(0)
 
 
-PARALLEL_SIN2 = 1e-6
-"""Rays closer to parallel than this (sin^2 of their angle; 0.06 degrees) say nothing: in
-float32 a cosine near 1 is known to about 1e-7."""
-
-
-def pair_ray_distances(
+def pair_ray_distances_unchunked(
     origins: np.ndarray,
     dirs: np.ndarray,
     weights: np.ndarray,
@@ -174,7 +172,9 @@ def pair_ray_distances(
     flip: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """(P,) :func:`ray_distances` of the pairs ``(ia[k], ib[k])`` only, and (P,) the same
-    with ``ib``'s detection left/right mirrored (``flip``; None without it), mm.
+    with ``ib``'s detection left/right mirrored (``flip``; None without it), mm: the pair
+    kernel before :func:`pipeline.ray_pairs.pair_ray_distances` (which gives the same
+    numbers in cache-sized blocks), kept for its test and bench/bench_scale.py's ratio.
 
     The Plucker form of :func:`ray_distances` in float32 over (3, J, P) arrays, pairs
     last: a dot product is 3 whole-array products and the mean over joints adds J rows
@@ -249,6 +249,9 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+_pair_kernel = pair_ray_distances  # bench/bench_scale.py swaps in the unchunked one
+
+
 def screened_distances(
     origins: np.ndarray,
     dirs: np.ndarray,
@@ -277,7 +280,7 @@ def screened_distances(
     mirrored = np.full((n, n), np.nan)
     ia, ib = np.nonzero(near)
     if len(ia):
-        straight, mirror = pair_ray_distances(origins, dirs, weights, ia, ib, params, flip=flip)
+        straight, mirror = _pair_kernel(origins, dirs, weights, ia, ib, params, flip=flip)
         dist[ia, ib] = dist[ib, ia] = straight
         if mirror is not None:
             mirrored[ia, ib] = mirrored[ib, ia] = mirror

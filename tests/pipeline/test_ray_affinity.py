@@ -17,6 +17,7 @@ from pipeline.cameras import CameraRig
 from pipeline.ray_affinity import (
     average_linkage,
     pair_ray_distances,
+    pair_ray_distances_unchunked,
     part_groups,
     pinhole_rays,
     ray_distances,
@@ -91,6 +92,29 @@ def test_pair_kernel_equals_the_dense_one(seed):
     np.testing.assert_allclose(straight, dense[ia, ib], atol=0.05, equal_nan=True)  # float32
     want = ray_distances(o, d, w, p, other=(o, d[:, flip], w[:, flip]))[ia, ib]
     np.testing.assert_allclose(mirrored, want, atol=0.05, equal_nan=True)
+
+
+def test_blocked_pair_kernel_equals_the_unchunked_one(monkeypatch):
+    import pipeline.ray_pairs as ray_pairs
+
+    o, d, w, views = _detections(np.random.default_rng(4), n_people=8, n_views=10)
+    o[views == 3] = o[views == 2][0]  # two views from one camera centre: the clip
+    d[5, 2:], w[5, 2:] = np.nan, 0.0  # too few joints: NaN
+    p = AssociationParams()
+    ia, ib = np.triu_indices(len(o), 1)
+    flip = np.arange(17)[::-1]
+    monkeypatch.setattr(ray_pairs, "BLOCK_PAIRS", 700)  # several blocks, a short last one
+    for f in (None, flip):
+        new, new_m = pair_ray_distances(o, d, w, ia, ib, p, flip=f)
+        old, old_m = pair_ray_distances_unchunked(o, d, w, ia, ib, p, flip=f)
+        assert len(ia) > 3 * 700 and np.isnan(old).any()
+        assert np.isclose(old, p.joint_clip_mm).any() and (old < 100).sum() > 50
+        np.testing.assert_array_equal(np.isnan(new), np.isnan(old))
+        np.testing.assert_allclose(new, old, atol=1e-3, equal_nan=True)
+        if f is None:
+            assert new_m is None and old_m is None
+        else:
+            np.testing.assert_allclose(new_m, old_m, atol=1e-3, equal_nan=True)
 
 
 def test_screen_keeps_every_close_pair_and_unpruned_equals_dense():
