@@ -29,3 +29,23 @@ def test_penalty_is_zero_inside_and_has_finite_gradients():
     R = torch.as_tensor(rotvec_to_matrix(r), dtype=torch.float32).requires_grad_(True)
     limit_penalty.limit_penalty(R).sum().backward()
     assert torch.isfinite(R.grad).all() and float(R.grad.abs().sum()) > 0
+
+
+def test_small_angle_quaternion_equals_shepperd_at_every_angle():
+    # angles 0..pi on random axes: both branches of small_angle_quaternion (<= 120 deg by
+    # the w branch, beyond by Shepperd's method) against Shepperd's method everywhere
+    rng = np.random.default_rng(1)
+    axis = rng.normal(size=(2000, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    r = axis * np.linspace(0.0, np.pi, 2000)[:, None]
+    R = torch.as_tensor(rotvec_to_matrix(r), dtype=torch.float32)
+    want = limit_penalty.matrix_to_quaternion(R)
+    got = limit_penalty.small_angle_quaternion(R)
+    far = np.linalg.norm(r, axis=1) > 2 * np.pi / 3
+    assert 0 < far.sum() < len(r)
+    # antipodal quaternions at exactly pi (w = 0) are the same rotation
+    sign = torch.where((got * want).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+    np.testing.assert_allclose((got * sign).numpy(), want.numpy(), atol=2e-6)
+    Rg = R.clone().requires_grad_(True)
+    limit_penalty.small_angle_quaternion(Rg).sum().backward()
+    assert torch.isfinite(Rg.grad).all()
