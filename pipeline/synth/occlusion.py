@@ -221,7 +221,9 @@ def point_occlusion(  # long: one vectorised pass in numbered steps; splitting h
     )
     live = np.flatnonzero(qcell >= 0)
     order = live[np.argsort(qcell[live], kind="stable")]
-    sorted_cells = qcell[order]
+    # the queries of cell c: order[first_query[c] : first_query[c] + per_cell[c]]
+    per_cell = np.bincount(qcell[live], minlength=int(n_cells.sum()))
+    first_query = np.cumsum(per_cell) - per_cell
     if order.size and face.size:
         cx0, cx1, cy0, cy1 = box
         base, ncx_t = cell_base[view, 0], ncx[view, 0]
@@ -232,10 +234,9 @@ def point_occlusion(  # long: one vectorised pass in numbered steps; splitting h
         local = np.arange(tri.size) - np.repeat(np.cumsum(n_cells) - n_cells, n_cells)
         dy, dx = np.divmod(local, nx[tri])
         cell = base[tri] + (cy0[tri] + dy) * ncx_t[tri] + cx0[tri] + dx
-        lo = np.searchsorted(sorted_cells, cell, "left")
-        hi = np.searchsorted(sorted_cells, cell, "right")
-        has = hi > lo
-        tri, lo, cnt = tri[has], lo[has], (hi - lo)[has]
+        cnt = per_cell[cell]
+        has = cnt > 0
+        tri, lo, cnt = tri[has], first_query[cell[has]], cnt[has]
         # 4. (triangle, query) pairs
         t = np.repeat(tri, cnt)
         q = order[np.repeat(lo, cnt) + np.arange(t.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)]

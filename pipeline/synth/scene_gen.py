@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -77,6 +78,11 @@ class SynthConfig:
     about a percent, see bench/bench_synth.py); ``"auto"``: render when videos are
     written (the render is made anyway), proxy otherwise (``mvviz synth``'s default).
     The library default stays ``"render"``: scenes made by code keep their numbers."""
+    torch_threads: int = 1
+    """Torch intra-op threads while synthesising (restored after); 0 keeps torch's own
+    setting. The tensors are small (a frame's people, a few hundred detections): extra
+    threads only wait on each other, and on a loaded 2-core machine torch's default made
+    a dome:16 x 10 frame 3.5 times slower (bench/bench_synth.py); outputs are the same."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -332,6 +338,29 @@ def synthesize(
     progress: bool = True,
 ) -> tuple[SynthPeople, Detections]:
     """Plan, pose, render and detect. Writes ``video_dir/<camera>.mp4`` when given."""
+    with _torch_threads(config.torch_threads):
+        return _synthesize(rig, model, config, video_dir, progress)
+
+
+@contextmanager
+def _torch_threads(n: int):
+    """Torch's intra-op threads set to ``n`` (0: left alone) inside, restored after."""
+    old = torch.get_num_threads()
+    if n > 0:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def _synthesize(
+    rig: CameraRig,
+    model: BodyModel,
+    config: SynthConfig,
+    video_dir: Path | None,
+    progress: bool,
+) -> tuple[SynthPeople, Detections]:
     rng = np.random.default_rng(config.seed)
     area = visible_floor_area(rig, min_views=config.min_views, within_mm=config.area_radius_mm)
     motions = plan_people(rng, area, config.num_people, config.num_frames, config.fps)
