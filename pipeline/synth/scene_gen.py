@@ -83,6 +83,11 @@ class SynthConfig:
     setting. The tensors are small (a frame's people, a few hundred detections): extra
     threads only wait on each other, and on a loaded 2-core machine torch's default made
     a dome:16 x 10 frame 3.5 times slower (bench/bench_synth.py); outputs are the same."""
+    batch_frames: int = 16
+    """Proxy occlusion only: the monocular regressor runs once per this many frames (the
+    people and ghosts of all their views in one call; a call costs ~15 ms besides its
+    rows). 1: frame by frame, the random draws, and so the detections, of the path
+    before batching (the statistics are the same, tests/pipeline/synth)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -286,6 +291,20 @@ def _detect_ghosts(
 ) -> None:
     """``n_ghost`` false detections (person -1) in the view, those at least 8 of whose
     keypoints land in the image, appended to ``rows``."""
+    ghosts = _ghost_keypoints(rng, sim, cam, n_ghost)
+    if ghosts is None:
+        return
+    g_kp, g_pose, g_betas, g_smpl = ghosts
+    reg = simulate_regressor(rng, cam, g_pose, g_betas, g_smpl, sim.model, sim.noise)
+    _append(rows, f, v, g_kp, np.full(len(g_kp), -1), reg)
+
+
+def _ghost_keypoints(
+    rng: np.random.Generator, sim: _Simulation, cam: Camera, n_ghost: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The 2D detections of ``n_ghost`` phantom people in the view, those at least 8 of
+    whose keypoints land in the image: keypoints (n, T, 3), pose (n, 24, 3), betas
+    (n, 10), SMPL joints (n, 24, 2) px; None if none lands."""
     g_coco, g_smpl, (g_pose, g_betas) = _ghosts(
         rng, cam, sim.area, sim.library, sim.model, n_ghost, sim.kreg
     )
@@ -295,7 +314,7 @@ def _detect_ghosts(
     )  # fmt: skip
     inside = in_img.sum(1) >= 8
     if not inside.any():
-        return
+        return None
     g_coco, g_smpl = g_coco[inside], g_smpl[inside]
     conf = np.clip(rng.uniform(0.25, 0.55, g_coco.shape[:2]), 0, 1)
     g_kp = np.concatenate([g_coco + rng.normal(0, 3, g_coco.shape), conf[..., None]], -1)
@@ -307,10 +326,7 @@ def _detect_ghosts(
     )
     g_kp[off] = (np.nan, np.nan, 0.0)
     g_kp[:, ~sim.defined] = (np.nan, np.nan, 0.0)
-    reg = simulate_regressor(
-        rng, cam, g_pose[inside], g_betas[inside], g_smpl, sim.model, sim.noise
-    )
-    _append(rows, f, v, g_kp, np.full(int(inside.sum()), -1), reg)
+    return g_kp, g_pose[inside], g_betas[inside], g_smpl
 
 
 def _detections(rows: dict[str, list], num_joints: int) -> Detections:
@@ -380,7 +396,10 @@ def _synthesize(
     if use_proxy:
         if video_dir is not None and config.render_video:
             raise ValueError("occlusion='proxy' renders no images: pass render_video=False")
-        _detect_proxy(rng, sim, rig, people, config, progress, rows)
+        if config.batch_frames < 1:
+            raise ValueError(f"batch_frames: expected >= 1, got {config.batch_frames}")
+        detect = _detect_proxy if config.batch_frames == 1 else _detect_proxy_batched
+        detect(rng, sim, rig, people, config, progress, rows)
         return people, _detections(rows, sim.js.num_joints)
     faces = model.faces.numpy()
     writers = _open_writers(rig, config, video_dir)
@@ -467,6 +486,74 @@ def _detect_proxy(
                 start += o.size
             if n_ghost:
                 _detect_ghosts(rng, sim, cams[v], n_ghost, f, v, rows)
+
+
+def _detect_proxy_batched(
+    rng: np.random.Generator,
+    sim: _Simulation,
+    rig: CameraRig,
+    people: SynthPeople,
+    config: SynthConfig,
+    progress: bool,
+    rows: dict[str, list],
+) -> None:
+    """:func:`_detect_proxy` with the regressor run once per ``config.batch_frames``
+    frames, for the people and the ghosts of all their views: the rows wait in
+    ``pending`` (frame, view, keypoints, person ids, pose, betas, SMPL joints px) in the
+    order they are appended."""
+    P, defined = people.keypoints.shape[0], sim.defined
+    bodies = proxy_bodies(sim.model, proxy_for(sim.model), people.betas)
+    ids = np.repeat(np.arange(P), int(defined.sum()))
+    cams = list(rig)
+    tol = sim.noise.self_occlusion_tolerance_mm
+    pending: list[tuple] = []
+    for f in track(range(config.num_frames), "synth frames", progress, unit="frame"):
+        verts = pose_proxy(bodies, people.pose[:, f]) * 1000 + people.transl[:, f, None]
+        coco = people.keypoints[:, f]  # (P, T, 3) mm
+        occ = point_occlusion(cams, verts, bodies.faces, coco[:, defined].reshape(-1, 3),
+                              cull_back_faces=True)  # fmt: skip
+        vis_all, other_all = occ.visible(ids, tolerance_mm=tol), occ.hidden_by_other(ids)
+        for v, cam in enumerate(cams):
+            vis = np.zeros((P, sim.js.num_joints), bool)
+            other = np.zeros((P, sim.js.num_joints), bool)
+            vis[:, defined] = vis_all[v].reshape(P, -1)
+            other[:, defined] = other_all[v].reshape(P, -1)
+            kp, detected = simulate_keypoints(
+                rng, cam, cam.project(coco), ~vis & ~other, other, sim.noise,
+                joint_set=sim.js, defined=defined,
+            )  # fmt: skip
+            o = rng.permutation(np.flatnonzero(detected))  # detector order is arbitrary
+            if o.size:
+                smpl2d = cam.project(people.joints[o, f])
+                pending.append((f, v, kp[o], o, people.pose[o, f], people.betas[o], smpl2d))
+            n_ghost = rng.poisson(sim.noise.false_positives_per_view)
+            ghosts = _ghost_keypoints(rng, sim, cam, n_ghost) if n_ghost else None
+            if ghosts is not None:
+                pending.append((f, v, ghosts[0], np.full(len(ghosts[0]), -1)) + ghosts[1:])
+        if (f + 1) % config.batch_frames == 0 or f + 1 == config.num_frames:
+            _regress_pending(rng, sim, np.stack([c.R for c in cams]), pending, rows)
+            pending = []
+
+
+def _regress_pending(
+    rng: np.random.Generator,
+    sim: _Simulation,
+    R_all: np.ndarray,
+    pending: list[tuple],
+    rows: dict[str, list],
+) -> None:
+    """One regressor call for the ``pending`` rows of :func:`_detect_proxy_batched`
+    (their views' rotations from ``R_all``), appended to ``rows`` in their order."""
+    if not pending:
+        return
+    view = np.concatenate([np.full(len(p[3]), p[1]) for p in pending])
+    pose, betas, smpl2d = (np.concatenate([p[k] for p in pending]) for k in (4, 5, 6))
+    reg = simulate_regressor(rng, R_all[view], pose, betas, smpl2d, sim.model, sim.noise)
+    start = 0
+    for f, v, kp, person, *_ in pending:
+        n = len(person)
+        _append(rows, f, v, kp, person, {k: x[start : start + n] for k, x in reg.items()})
+        start += n
 
 
 def _append(

@@ -25,8 +25,9 @@ from tests.conftest import REPO
 
 SAMPLE = REPO / "sample_data" / "shelf_synth"
 
-# proxy against render, absolute, on the mean of two seeds' 10-frame Shelf scenes: a few
-# times the spread between seeds seen on the sample's settings (bench/bench_synth.py)
+# the fast path against the renders and against the path before it, absolute, on the mean
+# of two seeds' 10-frame Shelf scenes: a few times the spread seen between seeds on the
+# sample's settings (bench/bench_synth.py)
 TOLERANCE = {
     "detections_per_view_frame": 0.15,
     "people_per_view_frame": 0.1,
@@ -76,17 +77,23 @@ def test_statistics_of_exact_detections():
     assert s["missing_by_view"][0] > 0 and (s["missing_by_view"][1:] == 0).all()
 
 
-def test_the_fast_path_changes_no_detection(shelf, monkeypatch):
-    """Torch on one thread and the occlusion's cell pre-filter (this path) against torch's
-    own threads and the float work on every triangle (the path before them): equal."""
+def _before(rig, model, cfg: SynthConfig, monkeypatch):
+    """The proxy path before its speed-ups: torch's own threads, the float work of the
+    occlusion on every triangle, the regressor frame by frame."""
+    slow = functools.partial(point_occlusion, cell_prefilter=False)
+    cfg = dataclasses.replace(cfg, occlusion="proxy", torch_threads=0, batch_frames=1)
+    with monkeypatch.context() as m:
+        m.setattr(scene_gen, "point_occlusion", slow)
+        return synthesize(rig, model, cfg, progress=False)
+
+
+def test_one_thread_and_the_cell_prefilter_change_no_detection(shelf, monkeypatch):
     model, rig, cfg = shelf
     threads = torch.get_num_threads()
-    cfg = dataclasses.replace(cfg, occlusion="proxy", num_frames=4)
-    people, new = synthesize(rig, model, cfg, progress=False)
+    cfg = dataclasses.replace(cfg, occlusion="proxy", num_frames=4, batch_frames=1)
+    _, new = synthesize(rig, model, cfg, progress=False)
     assert torch.get_num_threads() == threads  # restored
-    slow = functools.partial(point_occlusion, cell_prefilter=False)
-    monkeypatch.setattr(scene_gen, "point_occlusion", slow)
-    _, old = synthesize(rig, model, dataclasses.replace(cfg, torch_threads=0), progress=False)
+    _, old = _before(rig, model, cfg, monkeypatch)
     assert len(new) > 4 * len(rig)  # people were seen
     for field in dataclasses.fields(Detections):
         a, b = getattr(new, field.name), getattr(old, field.name)
@@ -95,17 +102,26 @@ def test_the_fast_path_changes_no_detection(shelf, monkeypatch):
             np.testing.assert_array_equal(a, b, err_msg=field.name)
 
 
-def test_proxy_statistics_are_those_of_the_renders(shelf):
+def test_fast_path_statistics_are_those_before_it_and_of_the_renders(shelf, monkeypatch):
+    """The fast path (regressor batched over frames: other random draws) against the
+    path before it and against the full renders the shipped sample was made with."""
     model, rig, cfg = shelf
-    stats = {"render": [], "proxy": []}
+    stats = {"render": [], "before": [], "proxy": []}
     for seed in (0, 1):
-        for mode in stats:
-            c = dataclasses.replace(cfg, occlusion=mode, seed=seed)
-            people, det = synthesize(rig, model, c, progress=False)
+        c = dataclasses.replace(cfg, seed=seed)
+        runs = {
+            "render": synthesize(rig, model, dataclasses.replace(c, occlusion="render"),
+                                 progress=False),
+            "before": _before(rig, model, c, monkeypatch),
+            "proxy": synthesize(rig, model, dataclasses.replace(c, occlusion="proxy"),
+                                progress=False),
+        }  # fmt: skip
+        for mode, (people, det) in runs.items():
             stats[mode].append(detection_statistics(rig, people.keypoints, det, cfg.noise))
     mean = {m: {k: np.mean([s[k] for s in v], axis=0) for k in v[0]} for m, v in stats.items()}
-    for key, tol in TOLERANCE.items():
-        assert abs(mean["proxy"][key] - mean["render"][key]) <= tol, (key, mean, tol)
-    gap = np.abs(mean["proxy"]["missing_by_view"] - mean["render"]["missing_by_view"])
-    assert gap.max() <= MISSING_BY_VIEW, gap
+    for other in ("render", "before"):
+        for key, tol in TOLERANCE.items():
+            assert abs(mean["proxy"][key] - mean[other][key]) <= tol, (other, key, mean, tol)
+        gap = np.abs(mean["proxy"]["missing_by_view"] - mean[other]["missing_by_view"])
+        assert gap.max() <= MISSING_BY_VIEW, (other, gap)
     assert mean["render"]["keypoints_low_confidence"] > 0.05  # occlusion happens: not vacuous
