@@ -253,6 +253,19 @@ def run_sequence(
     person_joints = np.concatenate(
         [fr.triangulation.points.reshape(-1, J, 3) for fr in frames] or [np.zeros((0, J, 3))]
     )
+    return sequence_of_people(person_frame, person_joints, num_frames, config, joint_set)
+
+
+def sequence_of_people(
+    person_frame: np.ndarray,
+    person_joints: np.ndarray,
+    num_frames: int,
+    config: PipelineConfig,
+    joint_set: JointSet,
+) -> SequenceResult:
+    """:func:`run_sequence` from the per-frame people as columns: (Q,) frame and (Q, J, 3)
+    triangulated joints of each person-frame, in frame order (what
+    :mod:`pipeline.stages_chunked` keeps of the frames instead of their results)."""
     tracks = track_people(
         person_frame, person_joints, num_frames, config.tracking, bones=np.array(joint_set.bones)
     )

@@ -1,0 +1,142 @@
+"""The per-frame and sequence stages of a long run in bounded memory.
+
+:func:`pipeline.results.run_stages` keeps every frame's :class:`pipeline.run.FrameResult`
+until the sequence stages and the packing have run, and a frame result holds its
+association's (n, n) affinity and ray-distance matrices: at 31 cameras x 20 people
+(~460 detection rows a frame) 3.65 MB a frame, 36 GB for 10,000 frames.
+:func:`run_stages_chunked` gives the same :class:`~pipeline.results.PipelineResults`
+(tested equal) but packs each frame into its result columns as soon as it is done
+(:func:`pipeline.results.pack_frame`), joins a chunk's columns into one array per field
+every ``chunk_frames`` frames (no per-frame Python objects survive the chunk) and runs
+tracking and filtering on the person columns (:func:`pipeline.run.sequence_of_people`).
+
+What still grows with the frames is what the results hold: per person-frame columns
+(~0.1 MB a frame at 31 x 20) and the affinity edges, every finite pair of a frame
+(101,410 of them, 3.2 MB a frame at 31 x 20, as much as the matrices).
+``keep_edges=False`` leaves the edges out (empty E arrays): the viewer re-runs the frame
+on screen (:func:`pipeline.run.run_frame`) when it needs them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import fields
+
+import numpy as np
+
+from pipeline.config import PipelineConfig
+from pipeline.progress import Progress, StageBar
+from pipeline.results import (
+    EDGE_FIELDS,
+    PERSON_FIELDS,
+    FrameColumns,
+    PipelineResults,
+    filter_arrays,
+    pack_frame,
+)
+from pipeline.run import FRAMES_STAGE, frame_rows, run_frame, sequence_of_people, source_joint_set
+from pipeline.scene import Scene
+
+DEFAULT_CHUNK_FRAMES = 256
+
+
+def _join(cols: list[FrameColumns], num_views: int, num_joints: int) -> FrameColumns:
+    """One FrameColumns of many frames' (in order); an empty one for no frames."""
+    V, J = num_views, num_joints
+    empty = {
+        "person_frame": np.zeros(0, int), "person_joints": np.zeros((0, J, 3)),
+        "person_reproj": np.zeros((0, J, V)), "person_used": np.zeros((0, J, V), bool),
+        "person_members": np.zeros((0, V), int), "person_linkage": np.zeros(0),
+        "edge_a": np.zeros(0, int), "edge_b": np.zeros(0, int), "edge_affinity": np.zeros(0),
+        "edge_distance": np.zeros(0),
+    }  # fmt: skip
+    return FrameColumns(
+        **{
+            f.name: np.concatenate([empty[f.name]] + [getattr(c, f.name) for c in cols])
+            for f in fields(FrameColumns)
+        }
+    )
+
+
+def _without_edges(c: FrameColumns) -> FrameColumns:
+    none_i, none_f = np.zeros(0, int), np.zeros(0)
+    return FrameColumns(
+        c.person_frame, c.person_joints, c.person_reproj, c.person_used, c.person_members,
+        c.person_linkage, none_i, none_i, none_f, none_f,
+    )  # fmt: skip
+
+
+def run_stages_chunked(
+    scene: Scene,
+    config: PipelineConfig,
+    joints2d_all: np.ndarray,
+    *,
+    restored: np.ndarray | None,
+    key: str = "",
+    rows_per_frame: list[np.ndarray] | None = None,
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    keep_edges: bool = True,
+    cancelled: Callable[[], bool] | None = None,
+    progress: Progress = True,
+) -> PipelineResults | None:
+    """:func:`pipeline.results.run_stages` (association, triangulation, tracking,
+    filtering, packed; no SMPL fit) without keeping the frames' results.
+
+    Args:
+        joints2d_all: (N, J, 3) the 2D joints of every detection row (``select_2d``).
+        chunk_frames: frames whose columns are joined into one array per field at once.
+        keep_edges: False leaves the affinity edges (the E arrays) empty.
+        cancelled: checked before each frame; once true the run returns None.
+    """
+    if chunk_frames < 1:
+        raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
+    rows = frame_rows(scene, config) if rows_per_frame is None else rows_per_frame
+    V, J, N = len(scene.rig), joints2d_all.shape[1], len(scene.detections)
+    det_person = np.full(N, -1)
+    det_flipped = np.zeros(N, bool)
+    det_joints2d = joints2d_all  # copied on the first flip
+    chunks: list[FrameColumns] = []
+    pending: list[FrameColumns] = []
+    q = 0
+    with StageBar(FRAMES_STAGE, scene.num_frames, progress, unit="frame") as bar:
+        for f in range(scene.num_frames):
+            if cancelled is not None and cancelled():
+                return None
+            fr = run_frame(scene, f, config, joints2d_all, rows=rows[f])
+            a = fr.association
+            assigned = a.cluster >= 0
+            det_person[fr.rows[assigned]] = q + a.cluster[assigned]
+            if a.flipped.any():
+                if det_joints2d is joints2d_all:
+                    det_joints2d = joints2d_all.copy()
+                det_flipped[fr.rows[a.flipped]] = True
+                det_joints2d[fr.rows[a.flipped]] = fr.joints2d[a.flipped]
+            cols = pack_frame(fr, V, J)
+            pending.append(cols if keep_edges else _without_edges(cols))
+            q += a.num_people
+            del fr, a  # the (n, n) matrices go now, not at the end of the run
+            if len(pending) == chunk_frames:
+                chunks.append(_join(pending, V, J))
+                pending = []
+            bar.update()
+    if cancelled is not None and cancelled():
+        return None
+    cols = _join(chunks + [_join(pending, V, J)], V, J)
+    del chunks, pending
+    js = source_joint_set(scene, config)
+    seq = sequence_of_people(cols.person_frame, cols.person_joints, scene.num_frames, config, js)
+    return PipelineResults(
+        config=config,
+        joint_set=js.name,
+        num_frames=scene.num_frames,
+        num_views=V,
+        det_joints2d=det_joints2d,
+        det_restored=restored,
+        det_person=det_person,
+        det_flipped=det_flipped,
+        **{k: getattr(cols, k) for k in PERSON_FIELDS + EDGE_FIELDS},
+        person_track=seq.person_track,
+        track_raw=seq.tracks.joints,
+        **filter_arrays(seq.filtered),
+        cache_key=key,
+    )
