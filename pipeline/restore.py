@@ -69,22 +69,46 @@ def fit_weak_perspective(
     Args:
         joints_m: (N, J, 3); pixels: (N, J, 2); bbox: (N, 4); weights: (N, J) or None.
     Returns:
-        (N, 3) cam_weak. Linear in (s, s*tx, s*ty).
+        (N, 3) cam_weak. Linear in (s, s*tx, s*ty): closed form for all rows at once
+        (the weighted centroids give the offsets, the centred sums the scale); rows with
+        fewer than two distinct usable joints by least squares one at a time.
     """
     target = pixels_to_crop(np.asarray(pixels, float), bbox)  # (N, J, 2)
+    joints_m = np.asarray(joints_m, float)
     n, j = target.shape[:2]
     w = np.ones((n, j)) if weights is None else np.asarray(weights, float)
-    out = np.zeros((n, 3))
-    for i in range(n):
-        ok = (w[i] > 0) & np.isfinite(target[i]).all(-1) & np.isfinite(joints_m[i]).all(-1)
-        X, Y = joints_m[i, ok, 0], joints_m[i, ok, 1]
-        one, zero = np.ones(ok.sum()), np.zeros(ok.sum())
-        A = np.concatenate([np.stack([X, one, zero], -1), np.stack([Y, zero, one], -1)])
-        b = np.concatenate([target[i, ok, 0], target[i, ok, 1]])
-        sw = np.sqrt(np.concatenate([w[i, ok], w[i, ok]]))
-        s, a, c = np.linalg.lstsq(A * sw[:, None], b * sw, rcond=None)[0]
-        out[i] = (s, a / s, c / s)
+    ok = (w > 0) & np.isfinite(target).all(-1) & np.isfinite(joints_m).all(-1)
+    w = np.where(ok, w, 0.0)
+    xy = np.where(ok[..., None], joints_m[..., :2], 0.0)
+    uv = np.where(ok[..., None], target, 0.0)
+    total = w.sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy_mean = np.einsum("nj,njc->nc", w, xy) / total[:, None]
+        uv_mean = np.einsum("nj,njc->nc", w, uv) / total[:, None]
+        dxy = np.where(ok[..., None], xy - xy_mean[:, None], 0.0)
+        spread = np.einsum("nj,njc->n", w, dxy * dxy)
+        s = np.einsum("nj,njc->n", w, dxy * (uv - uv_mean[:, None])) / spread
+        offset = uv_mean - s[:, None] * xy_mean  # (s * tx, s * ty)
+        out = np.column_stack([s, offset / s[:, None]])
+    bad = ~((total > 0) & (spread > 1e-12 * np.maximum(total, 1e-300)) & np.isfinite(out).all(1))
+    for i in np.flatnonzero(bad):
+        out[i] = _fit_weak_perspective_row(joints_m[i], target[i], w[i], ok[i])
     return out
+
+
+def _fit_weak_perspective_row(
+    joints_m: np.ndarray, target: np.ndarray, w: np.ndarray, ok: np.ndarray
+) -> np.ndarray:
+    """One row of :func:`fit_weak_perspective` by ``np.linalg.lstsq``: (J, 3) joints,
+    (J, 2) crop-normalised targets, (J,) weights, (J,) usable joints -> (3,)."""
+    X, Y = joints_m[ok, 0], joints_m[ok, 1]
+    one, zero = np.ones(ok.sum()), np.zeros(ok.sum())
+    A = np.concatenate([np.stack([X, one, zero], -1), np.stack([Y, zero, one], -1)])
+    b = np.concatenate([target[ok, 0], target[ok, 1]])
+    sw = np.sqrt(np.concatenate([w[ok], w[ok]]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s, a, c = np.linalg.lstsq(A * sw[:, None], b * sw, rcond=None)[0]
+        return np.array([s, a / s, c / s])
 
 
 def restore_joints_2d(

@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from pipeline.body_model import load_body_model
 from pipeline.restore import (
+    _fit_weak_perspective_row,
     crop_to_pixels,
     fit_weak_perspective,
     pixels_to_crop,
@@ -34,6 +35,31 @@ def test_fit_recovers_the_camera(s, tx, ty, x0, size):
     px = weak_perspective_project(joints, cam, bbox)
     np.testing.assert_allclose(fit_weak_perspective(joints, px, bbox), cam, atol=1e-8)
     np.testing.assert_allclose(pixels_to_crop(crop_to_pixels(px, bbox), bbox), px, atol=1e-9)
+
+
+def test_the_closed_form_fit_is_least_squares_row_by_row():
+    """All rows at once equal np.linalg.lstsq one row at a time, with weights, missing
+    joints, and rows with one joint or none (those take the row-by-row path)."""
+    rng = np.random.default_rng(3)
+    n, j = 200, 24
+    joints = rng.normal(0, 0.4, (n, j, 3))
+    cam = np.column_stack([rng.uniform(0.5, 2, n), rng.uniform(-0.3, 0.3, (n, 2))])
+    bbox = np.column_stack([rng.uniform(0, 400, (n, 2)), np.zeros((n, 2))])
+    bbox[:, 2:] = bbox[:, :2] + rng.uniform(100, 500, (n, 1))
+    px = weak_perspective_project(joints, cam, bbox) + rng.normal(0, 3, (n, j, 2))
+    w = rng.uniform(0, 1, (n, j)) * (rng.uniform(size=(n, j)) > 0.2)
+    px[rng.uniform(size=(n, j)) < 0.05] = np.nan
+    w[0] = 0
+    w[1, 1:] = 0
+    w[1, 0] = 1
+    got = fit_weak_perspective(joints, px, bbox, w)
+    target = pixels_to_crop(px, bbox)
+    ok = (w > 0) & np.isfinite(target).all(-1)
+    rows = [_fit_weak_perspective_row(joints[i], target[i], w[i], ok[i]) for i in range(n)]
+    want = np.stack(rows)
+    np.testing.assert_allclose(got[2:], want[2:], rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(got[:2], want[:2])  # the degenerate rows: the same path
+    assert np.isfinite(got[2:]).all() and np.isnan(got[0, 1:]).all()
 
 
 def test_matrix_form_drops_depth():
