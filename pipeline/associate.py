@@ -42,11 +42,19 @@ Units: mm, pixels.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.associate_flips import resolve_flips
+from pipeline.associate_refine import (  # noqa: F401  (cluster_centers, re-exported)
+    CentreRays,
+    centre_rays,
+    cluster_centers,
+    merge_duplicates,
+    refine_clusters,
+    split_inconsistent,
+)
 from pipeline.cameras import CameraRig
 from pipeline.joint_sets import JointSet
 from pipeline.ray_affinity import (
@@ -55,7 +63,6 @@ from pipeline.ray_affinity import (
     ray_distances,
     screened_distances,
 )
-from pipeline.triangulate import triangulate_people
 
 
 @dataclass(frozen=True)
@@ -194,13 +201,6 @@ def ray_distances_reference(
     if other is None:
         mean[np.arange(len(origins)), np.arange(len(origins))] = np.nan
     return mean
-
-
-def centre_rays(dirs: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """(n, 3) each detection's confidence-weighted mean ray (unit; zero if it has none):
-    the direction of its body's centre, whatever its joints are labelled."""
-    c = np.nansum(np.nan_to_num(dirs) * weights[..., None], axis=1)
-    return c / np.maximum(np.linalg.norm(c, axis=-1, keepdims=True), 1e-12)
 
 
 def flip_candidates(
@@ -398,363 +398,6 @@ def _people(
         sub = affinity[np.ix_(rows, rows)]
         linkage.append(float(np.nanmean(sub)) if np.isfinite(sub).any() else np.nan)
     return out, np.array(people, int).reshape(-1, V), np.array(linkage)
-
-
-FLIP_GAIN = 0.7
-"""Mirroring must bring a cluster's mean pair ray distance below this fraction..."""
-FLIP_MIN_MM = 15.0
-"""...and lower it by more than this many millimetres."""
-MAX_EXHAUSTIVE_FLIPS = 9
-"""Clusters up to this size try every assignment of mirrored members; larger ones are
-built greedily (each member oriented to agree with those already placed)."""
-
-
-def resolve_flips(
-    rig: CameraRig,
-    views: np.ndarray,
-    joints2d: np.ndarray,
-    cluster: np.ndarray,
-    dist: np.ndarray,
-    mirrored: np.ndarray,
-    joint_set: JointSet,
-) -> np.ndarray:
-    """(n,) which detections of each cluster have left and right swapped.
-
-    Args:
-        dist, mirrored: (n, n) mean ray distances of two detections as labelled, and with
-            one of them mirrored (NaN where unknown).
-    Returns:
-        bool per detection; see the module docstring for the rule.
-    """
-    flipped = np.zeros(len(views), bool)
-    clip = np.nanmax(np.concatenate([dist.ravel(), mirrored.ravel(), [0.0]]))
-    same = np.where(np.isfinite(dist), dist, clip)
-    cross = np.where(np.isfinite(mirrored), mirrored, clip)
-    for c in np.unique(cluster):
-        rows = np.flatnonzero(cluster == c)
-        if len(rows) < 2:
-            continue
-        S, X = same[np.ix_(rows, rows)], cross[np.ix_(rows, rows)]
-        if (X >= S).all():
-            continue  # no pair is closer mirrored: _orient would mirror nobody
-        bits = _orient(S, X)
-        if not bits.any():
-            continue  # every view agrees: nothing for association to decide
-        # The views split into two mirrored camps: which camp has the labels right?
-        if _faces_backwards(rig, views[rows], joints2d[rows], bits, joint_set):
-            bits = ~bits
-        elif "nose" not in joint_set.index and bits.sum() * 2 > len(bits):
-            bits = ~bits
-        flipped[rows] = bits
-    return flipped
-
-
-def _orient(S: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """(m,) orientation bits minimising the mean pair distance: S where two members share
-    an orientation, X where they differ; the first member is never flipped. Mirroring
-    is taken only when it clearly helps (:data:`FLIP_GAIN`, :data:`FLIP_MIN_MM`): a
-    near-symmetric pose (standing, arms down) fits both ways within the noise, and a
-    wrong flip there costs more than it can win."""
-    m = len(S)
-    if m <= MAX_EXHAUSTIVE_FLIPS:
-        iu, bits, differ = _assignments(m)
-        cost = np.where(differ, X[iu], S[iu]).mean(1)
-        best = int(np.argmin(cost))
-        gain = cost[0] - cost[best]  # code 0: nobody mirrored
-        if gain > FLIP_MIN_MM and cost[best] < FLIP_GAIN * cost[0]:
-            return bits[best]
-        return bits[0]
-    # Greedy for large clusters: place members from the most central one out.
-    order = np.argsort(S.sum(1))
-    bits = np.zeros(m, bool)
-    for i, k in enumerate(order[1:], start=1):
-        placed = order[:i]
-        keep = np.where(bits[placed], X[k, placed], S[k, placed]).mean()
-        swap = np.where(bits[placed], S[k, placed], X[k, placed]).mean()
-        bits[k] = keep - swap > FLIP_MIN_MM and swap < FLIP_GAIN * keep
-    return bits ^ bits[0]
-
-
-@functools.cache
-def _assignments(m: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
-    """Every orientation of m members with the first unflipped: the pair indices, the
-    (2^(m-1), m) bits and whether each pair's members differ."""
-    iu = np.triu_indices(m, 1)
-    codes = np.arange(2 ** (m - 1))
-    bits = np.zeros((len(codes), m), bool)
-    bits[:, 1:] = (codes[:, None] >> np.arange(m - 1)) & 1
-    return iu, bits, bits[:, iu[0]] != bits[:, iu[1]]
-
-
-def _faces_backwards(
-    rig: CameraRig, views: np.ndarray, joints2d: np.ndarray, bits: np.ndarray, js: JointSet
-) -> bool:
-    """Whether the body triangulated with ``bits`` has its nose behind it: the labels'
-    left-to-right direction crossed with up (+z) must point where the nose is."""
-    names = ("nose", "left_shoulder", "right_shoulder")
-    if not all(n in js.index for n in names) or len(views) < 2:
-        return False
-    kp = joints2d.copy()
-    kp[bits] = kp[bits][:, js.flip_index]
-    sel = [js.index[n] for n in names]
-    cams = np.full((1, len(rig), 3, 3), np.nan)
-    cams[..., 2] = 0.0
-    cams[0, views] = kp[:, sel]
-    nose, left, right = triangulate_people(rig, cams, outlier_threshold_px=np.inf).points[0]
-    if not np.isfinite([nose, left, right]).all():
-        return False
-    forward = np.cross(left - right, [0.0, 0.0, 1.0])
-    return float(np.dot(nose - 0.5 * (left + right), forward)) < 0.0
-
-
-def cluster_centers(
-    origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray, cluster: np.ndarray, labels
-) -> np.ndarray:
-    """(len(labels), 3) each cluster's body centre, mm: the point nearest (least squares)
-    the centre rays (:func:`centre_rays`) of its detections; NaN for fewer than two.
-
-    Args:
-        origins: (n, 3) camera centres; dirs: (n, J, 3) unit rays (NaN if missing);
-        weights: (n, J) confidences (0 if missing).
-    """
-    index = {c: i for i, c in enumerate(labels)}
-    rows = np.flatnonzero(np.isin(cluster, labels))
-    which = np.array([index[c] for c in cluster[rows]], int)
-    c = centre_rays(dirs[rows], weights[rows])  # (m, 3)
-    ok = np.linalg.norm(c, axis=-1) > 0.5
-    P = np.eye(3) - c[:, :, None] * c[:, None, :]  # (m, 3, 3) projector off the ray
-    A = np.zeros((len(labels), 3, 3))
-    b = np.zeros((len(labels), 3))
-    np.add.at(A, which[ok], P[ok])
-    np.add.at(b, which[ok], np.einsum("mab,mb->ma", P[ok], origins[rows][ok]))
-    count = np.bincount(which[ok], minlength=len(labels))
-    out = np.full((len(labels), 3), np.nan)
-    seen = count >= 2
-    if seen.any():
-        out[seen] = np.linalg.solve(A[seen] + 1e-9 * np.eye(3), b[seen][..., None])[..., 0]
-    return out
-
-
-def merge_duplicates(
-    origins: np.ndarray,
-    dirs: np.ndarray,
-    weights: np.ndarray,
-    views: np.ndarray,
-    cluster: np.ndarray,
-    params: AssociationParams,
-) -> np.ndarray:
-    """Merge clusters that are one person (see ``AssociationParams.merge_distance_mm``).
-
-    Closest pair first; a merge needs the two clusters' views to be disjoint and each
-    cluster seen by ``min_views`` views (a single stray detection is not a body).
-    Arguments as :func:`cluster_centers`; returns the new (n,) labels.
-    """
-    cluster = cluster.copy()
-    while True:
-        labels = [c for c in np.unique(cluster) if (cluster == c).sum() >= params.min_views]
-        if len(labels) < 2:
-            return cluster
-        centers = cluster_centers(origins, dirs, weights, cluster, labels)
-        gap = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
-        gap[~np.isfinite(gap)] = np.inf
-        np.fill_diagonal(gap, np.inf)
-        pair = None
-        for flat in np.argsort(gap, axis=None):
-            i, j = np.unravel_index(flat, gap.shape)
-            if gap[i, j] >= params.merge_distance_mm:
-                break
-            if not set(views[cluster == labels[i]]) & set(views[cluster == labels[j]]):
-                pair = (labels[i], labels[j])
-                break
-        if pair is None:
-            return cluster
-        cluster[cluster == pair[1]] = pair[0]
-
-
-@dataclass(frozen=True, eq=False)
-class CentreRays:
-    """Each detection's centre ray (:func:`centre_rays`) and what finding the point
-    nearest a set of them needs. origins, rays: (n, 3); has_ray: (n,) bool;
-    proj: (n, 3, 3) projectors off each ray; proj_origin: (n, 3) ``proj @ origin``."""
-
-    origins: np.ndarray
-    rays: np.ndarray
-    has_ray: np.ndarray
-    proj: np.ndarray
-    proj_origin: np.ndarray
-
-    @classmethod
-    def of(cls, origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray) -> CentreRays:
-        rays = centre_rays(dirs, weights)  # zero for a detection without joints
-        proj = np.eye(3) - rays[:, :, None] * rays[:, None, :]
-        return cls(
-            origins=origins,
-            rays=rays,
-            has_ray=np.linalg.norm(rays, axis=-1) > 0.5,
-            proj=proj,
-            proj_origin=np.einsum("nab,nb->na", proj, origins),
-        )
-
-    def centres(self, member: np.ndarray) -> np.ndarray:
-        """(n, C) bool membership -> (C, 3) each set's body centre, mm: the point nearest
-        (least squares) its members' rays, all sets in one batched solve."""
-        member = member & self.has_ray[:, None]
-        A = np.einsum("nc,nab->cab", member, self.proj) + 1e-9 * np.eye(3)
-        b = np.einsum("nc,na->ca", member, self.proj_origin)
-        return np.linalg.solve(A, b[..., None])[..., 0]
-
-
-def _ray_point_distance(origins: np.ndarray, rays: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(m, 3) origins and unit rays, (..., 3) points -> (..., m) distance of each point
-    to each ray (to its origin where the point lies behind it), mm."""
-    v = points[..., None, :] - origins  # (..., m, 3)
-    t = np.maximum((v * rays).sum(-1), 0.0)
-    return np.linalg.norm(v - t[..., None] * rays, axis=-1)
-
-
-def _consistent_core(origins: np.ndarray, rays: np.ndarray, max_mm: float) -> np.ndarray:
-    """(m,) bool, the largest set of centre rays (m, 3) passing within ``max_mm`` of one
-    point: the meeting point of each pair is a candidate body, and the one most rays
-    pass near wins (ties: the smallest sum of distances)."""
-    ia, ib = np.triu_indices(len(origins), 1)
-    # closest points of the two lines: solve for s, t in o_a + s r_a ~ o_b + t r_b
-    w = origins[ia] - origins[ib]
-    b = (rays[ia] * rays[ib]).sum(-1)
-    d, e = (rays[ia] * w).sum(-1), (rays[ib] * w).sum(-1)
-    denom = np.maximum(1.0 - b**2, 1e-9)
-    s, t = (b * e - d) / denom, (e - b * d) / denom
-    mid = 0.5 * (origins[ia] + s[:, None] * rays[ia] + origins[ib] + t[:, None] * rays[ib])
-    dist = _ray_point_distance(origins, rays, mid)  # (pairs, m)
-    near = dist <= max_mm
-    score = near.sum(1) - np.where(near, dist, 0).sum(1) / (max_mm * len(origins) + 1.0)
-    return near[int(np.argmax(score))]
-
-
-def split_inconsistent(
-    origins: np.ndarray,
-    dirs: np.ndarray,
-    weights: np.ndarray,
-    views: np.ndarray,
-    cluster: np.ndarray,
-    affinity: np.ndarray,
-    threshold: float,
-    *,
-    max_mm: float,
-) -> np.ndarray:
-    """Split the clusters whose members' centre rays (:func:`centre_rays`) do not all pass
-    within ``max_mm`` of the cluster's body centre (the point nearest them): the largest
-    subset that meets at one point keeps the label (:func:`_consistent_core`), the rest
-    are clustered again among themselves (:func:`_average_linkage` on ``affinity``).
-    Repeated until every cluster is consistent. Arguments as :func:`cluster_centers`;
-    returns the new (n,) labels (new clusters take unused labels)."""
-    cluster = cluster.copy()
-    geo = CentreRays.of(origins, dirs, weights)
-    rays = geo.rays
-    checked: set[int] = set()  # labels found consistent (their members never change)
-    for _ in range(len(views)):
-        labels, col, counts = np.unique(cluster, return_inverse=True, return_counts=True)
-        todo = (counts >= 3) & ~np.isin(labels, list(checked))  # 2 rays always meet
-        if not todo.any():
-            return cluster
-        member = (col[:, None] == np.flatnonzero(todo)[None]) & geo.has_ray[:, None]  # (n, C)
-        far = _ray_point_distance(origins, rays, geo.centres(member)) > max_mm  # (C, n)
-        far &= member.T
-        checked.update(int(x) for x in labels[todo])
-        for k in np.flatnonzero(far.any(1)):
-            rows = np.flatnonzero(member[:, k])
-            rest = rows[~_consistent_core(origins[rows], rays[rows], max_mm)]
-            if len(rest):
-                sub = _average_linkage(affinity[np.ix_(rest, rest)], views[rest], threshold)
-                cluster[rest] = cluster.max() + 1 + sub
-    return cluster
-
-
-def refine_clusters(
-    affinity: np.ndarray,
-    views: np.ndarray,
-    cluster: np.ndarray,
-    threshold: float,
-    *,
-    min_views: int = 2,
-    geometry: CentreRays | None = None,
-    max_mm: float = np.inf,
-) -> np.ndarray:
-    """Local moves on the clustering's objective, the sum over pairs in one cluster of
-    ``affinity - threshold`` (unknown affinity counts as 0, as in the linkage): while some
-    detection gains by it, the one that gains most moves to another cluster that has no
-    detection of its view and whose members it agrees with above the threshold on
-    average. So a detection goes where most views back it: one strong wrong partner
-    (a single pair) loses to fourteen views that agree almost as well. A move that
-    would leave its cluster with fewer than ``min_views`` detections (a person no more)
-    is taken only if the others left behind have a better cluster too: on the real
-    Pose2Sim demo the woman is seen in two views for a few frames, and one of them
-    agrees about as well with the man's three; moving it would lose her. Given the
-    ``geometry``, a detection joins no cluster of two or more whose body centre its
-    centre ray misses by more than ``max_mm``: far away, pairwise affinities can be high
-    for detections whose rays meet nowhere (see :func:`split_inconsistent`). Every move
-    raises the objective, so it ends.
-
-    Args:
-        affinity: (n, n) pair affinities (NaN unknown); views: (n,) view per detection;
-        cluster: (n,) labels from :func:`_average_linkage`.
-    Returns:
-        (n,) new labels (the same label values; a detection left alone keeps its own).
-    """
-    n = len(views)
-    if n < 3:
-        return cluster
-    excess = np.nan_to_num(affinity, nan=0.0) - threshold
-    np.fill_diagonal(excess, 0.0)
-    # Columns for the clusters at the start (a cluster a move empties keeps its column: no
-    # gain > 0 there, so never a target); one move updates two columns, not all of them.
-    labels, col = np.unique(cluster, return_inverse=True)
-    C, V = len(labels), int(views.max()) + 1
-    member = np.zeros((n, C), bool)
-    member[np.arange(n), col] = True
-    gain = excess @ member  # (n, C): agreement above threshold with each cluster
-    seen = np.zeros((C, V), int)
-    np.add.at(seen, (col, views), 1)
-    size = np.bincount(col, minlength=C)
-    dist = None
-    if geometry is not None:
-        dist = np.zeros((C, n))  # each cluster's body centre to each detection's ray
-        _refine_geometry(geometry, member, np.arange(C), dist)
-    for _ in range(n):
-        allowed = (seen[:, views].T == 0) & (gain > 0)  # no detection of its view; agrees
-        if dist is not None:
-            solid = (member & geometry.has_ray[:, None]).sum(0) >= 2  # a centre needs two rays
-            allowed &= ~solid[None] | (dist.T <= max_mm) | ~geometry.has_ray[:, None]
-        own = gain[np.arange(n), col]
-        better = np.where(allowed, gain - own[:, None], -np.inf)
-        has_home = (better > 1e-9).any(1)
-        # stranded[k]: detections of cluster k without a better cluster of their own
-        stranded = np.bincount(col, weights=~has_home, minlength=C)
-        left = size[col] - 1  # detections left behind by a move
-        keeps = (left >= min_views) | (left == 0) | (stranded[col] - ~has_home == 0)
-        better[~keeps] = -np.inf
-        i, c = np.unravel_index(np.argmax(better), better.shape)
-        if better[i, c] <= 1e-9:
-            break
-        a = col[i]
-        gain[:, a] -= excess[:, i]
-        gain[:, c] += excess[:, i]
-        seen[a, views[i]] -= 1
-        seen[c, views[i]] += 1
-        size[a] -= 1
-        size[c] += 1
-        member[i, a], member[i, c], col[i] = False, True, c
-        if dist is not None:
-            _refine_geometry(geometry, member, np.array([a, c]), dist)
-    return labels[col]
-
-
-def _refine_geometry(
-    geometry: CentreRays, member: np.ndarray, cols: np.ndarray, dist: np.ndarray
-) -> None:
-    """dist[cols] = the distance of each detection's centre ray to the body centre of
-    each cluster in ``cols`` (member: (n, C) bool)."""
-    sets = member[:, cols] & geometry.has_ray[:, None]
-    dist[cols] = _ray_point_distance(geometry.origins, geometry.rays, geometry.centres(sets))
 
 
 def _average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -> np.ndarray:
