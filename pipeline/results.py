@@ -1,9 +1,13 @@
 """One results file per run: everything the viewer and the evaluation need, per frame.
 
-``results.npz`` is columnar: per detection row (N), per person-frame (Q, the people
-the per-frame stages found), per affinity edge (E), per track (K x F). It is written
-atomically, and keyed by a hash of the scene's files and the configuration so a
-re-run with the same inputs reuses it.
+Results are columnar: per detection row (N), per person-frame (Q, the people the
+per-frame stages found), per affinity edge (E), per track (K x F). They are written
+atomically, and keyed by a hash of the scene's files and the configuration so a re-run
+with the same inputs reuses them. Two layouts hold the same arrays and meta: a ``.npz``
+path one compressed file (``results.npz``, read whole), any other path a directory of
+uncompressed ``.npy`` files that :func:`load_results` memory-maps
+(:mod:`pipeline.results_dir`): a viewer of a long, large scene reads only the frames it
+shows.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from pipeline.files import CACHE_DIR, SceneFormatError, load_npz, save_npz_atomi
 from pipeline.kalman import FilterResult
 from pipeline.prior_path import resolve_prior_path
 from pipeline.progress import Progress
+from pipeline.results_dir import open_array_dir, write_array_dir
 from pipeline.run import (
     FrameResult,
     SequenceResult,
@@ -42,7 +47,7 @@ from pipeline.smpl_fit_types import SmplFit
 if TYPE_CHECKING:
     from pipeline.body_model import BodyModel
 
-RESULTS_VERSION = 5  # 5: track_rejected
+RESULTS_VERSION = 5  # 5: track_rejected (both layouts hold the same arrays and meta)
 RESULTS_FILE = "results.npz"  # in the scene's CACHE_DIR
 FIT_JOINT_SETS = FITTABLE_JOINT_SETS  # = smpl_kinematics.SUPPORTED_JOINT_SETS, read torch-free
 """Joint sets whose tracks get SMPL bodies: every set the body-model table
@@ -360,7 +365,8 @@ _ARRAY_FIELDS = [
 _FIT_PREFIXES = {"smpl": "smpl_", "smpl_vae": "smplvae_"}
 
 
-def save_results(results: PipelineResults, path: str | os.PathLike) -> None:
+def _file_contents(results: PipelineResults) -> tuple[dict, dict[str, np.ndarray]]:
+    """(meta, arrays) of ``results`` as either layout stores them."""
     meta = {
         "version": RESULTS_VERSION,
         "config": results.config.to_dict(),
@@ -378,19 +384,45 @@ def save_results(results: PipelineResults, path: str | os.PathLike) -> None:
         fit = getattr(results, name)
         if fit is not None:
             arrays.update(fit.arrays(prefix))
-    save_npz_atomic(path, meta=np.array(json.dumps(meta)), **arrays)
+    return meta, arrays
 
 
-def load_results(
-    path: str | os.PathLike, *, model: BodyModel | BodyModelData | None = None
-) -> PipelineResults:
-    """Read a results file; SMPL fits are bound to ``model`` (default: the one they used)."""
-    path = Path(path)
+def is_npz_path(path: str | os.PathLike) -> bool:
+    """A ``.npz`` path holds the one-file layout; any other path the lazy directory."""
+    return Path(path).suffix.lower() == ".npz"
+
+
+def save_results(results: PipelineResults, path: str | os.PathLike) -> None:
+    """Write ``results`` atomically: one compressed ``.npz`` file if ``path`` ends in
+    ``.npz`` (read whole), else a directory of memory-mappable ``.npy`` arrays
+    (:mod:`pipeline.results_dir`, which the viewer opens without reading it)."""
+    meta, arrays = _file_contents(results)
+    if is_npz_path(path):
+        save_npz_atomic(path, meta=np.array(json.dumps(meta)), **arrays)
+    else:
+        write_array_dir(path, meta, arrays)
+
+
+def _read_contents(path: Path) -> tuple[dict, dict[str, np.ndarray]]:
+    if path.is_dir():
+        return open_array_dir(path)  # memory-mapped: nothing read yet
     a = load_npz(path)
     try:
         meta = json.loads(str(a.pop("meta")))
     except KeyError:
         raise SceneFormatError(path, "meta", "missing: not an mvviz results file") from None
+    return meta, a
+
+
+def load_results(
+    path: str | os.PathLike, *, model: BodyModel | BodyModelData | None = None
+) -> PipelineResults:
+    """Read a results file, or open a results directory (its arrays memory-mapped, read
+    as they are indexed); SMPL fits are bound to ``model`` (default: the one they used)."""
+    path = Path(path)
+    if not path.exists():
+        raise SceneFormatError(path, None, "file not found")
+    meta, a = _read_contents(path)
     if meta.get("version") != RESULTS_VERSION:
         raise SceneFormatError(path, "meta.version", f"expected {RESULTS_VERSION}")
     missing = [k for k in _ARRAY_FIELDS if k not in a]
@@ -433,7 +465,7 @@ def run_or_load(
     """Load cached results if their key matches, else run and save. Returns (results, cached)."""
     path = Path(out) if out else default_results_path(scene)
     key = cache_key(scene, config, model)
-    if path.is_file() and not force:
+    if path.exists() and not force:
         try:
             res = load_results(path, model=model)
             if res.cache_key == key:

@@ -36,7 +36,7 @@ import viser
 
 from mvviz.panels.contract import PanelHost
 from mvviz.panels.run_compare import RunCompare, make_run_compare
-from mvviz.scene.geometry import ViewerData, detection_rays, person_indices
+from mvviz.scene.geometry import ViewerData, lazy_detection_rays, person_indices
 from pipeline.body_arrays import BodyModelData, load_body_model_data
 from pipeline.config import CONFIG_FILE, PipelineConfig, save_config
 from pipeline.files import CACHE_DIR
@@ -214,21 +214,18 @@ def preview_data(data: ViewerData, results: PipelineResults) -> ViewerData:
     """``data`` showing ``results`` that keep its joint set, tracks and SMPL fits (a
     :func:`patch_frame` preview): the per-results indices of :func:`~mvviz.scene.geometry.prepare`
     are recomputed, the bodies reused (``prepare`` would skin every fit again)."""
-    # rays and image-plane points again only for the detections whose 2D joints changed
-    # (another 2D source changes them all; a frame re-run with the same source, none)
+    # rays and image-plane points kept if no detection's 2D joints changed (a frame
+    # re-run with the same source); else computed again from the new joints as indexed
     old, new = data.results.det_joints2d[..., :2], results.det_joints2d[..., :2]
     same = (old == new) | (np.isnan(old) & np.isnan(new))
     changed = np.flatnonzero(~same.all((1, 2)))
-    det_rays, det_plane = data.det_rays, data.det_plane
+    rays_ = {"det_rays": data.det_rays, "det_plane": data.det_plane}  # computed as indexed
     if len(changed):
-        det_rays, det_plane = det_rays.copy(), det_plane.copy()
-        rays_, plane = detection_rays(data.scene, results, data.cameras, changed)
-        det_rays[changed], det_plane[changed] = rays_, plane
+        rays_ = lazy_detection_rays(data.scene, results, data.cameras)
     return dataclasses.replace(
         data,
         results=results,
-        det_rays=det_rays,
-        det_plane=det_plane,
+        **rays_,
         **person_indices(results, data.num_frames),
         filtered=results.track_filtered,
         min_confidence=results.config.triangulation.min_confidence,

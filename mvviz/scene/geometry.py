@@ -19,6 +19,7 @@ import numpy as np
 import viser.transforms as vtf
 
 from mvviz.scene.bodies import Bodies, GtBodies, fitted_bodies, gt_bodies
+from mvviz.scene.lazy_rows import LazyRows, RowBlocks
 from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 from pipeline.palette import TRACK_PALETTE
@@ -112,7 +113,8 @@ MESH_OPACITY = 0.45  # of a translucent body
 FRUSTUM_WIDTHS = (128, 320)
 FRUSTUM_JPEG_QUALITY = 50
 
-OFFSET_FILTERED_M = np.array([1.0, 0.0, 0.0])  # "side by side": filtered shifted 1 m in x
+OFFSET_FILTERED_M = np.array([1.0, 0.0, 0.0])
+CENTER_FRAMES = 1000  # frames the action's centre and spread are read from
 
 
 # --------------------------------------------------------------------------- static data
@@ -183,9 +185,10 @@ class ViewerData:
     rows_per_frame: list[np.ndarray]  # detection rows of each frame
     people_per_frame: list[np.ndarray]  # person-frame rows (q) of each frame
     gt_rows_per_frame: list[np.ndarray]
-    det_track: np.ndarray  # (N,) track of the row's person; -1 untracked / unassigned
-    det_rays: np.ndarray  # (N, J, 3) world unit ray through each detected joint; NaN
-    det_plane: np.ndarray  # (N, J, 3) each detected joint on its frustum's image plane, m
+    # Per detection row, computed for the rows a frame indexes (never all N at start-up):
+    det_track: LazyRows  # (N,) track of the row's person; -1 untracked / unassigned
+    det_rays: LazyRows  # (N, J, 3) world unit ray through each detected joint; NaN
+    det_plane: LazyRows  # (N, J, 3) float32 each detected joint on its frustum's image plane, m
     track_person: np.ndarray  # (K, F) person-frame row of each track and frame, -1
     filtered: np.ndarray  # (K, F, J, 3) the configured filter's output, mm
     gt_points: np.ndarray | None  # (M, Jg, 3) mm
@@ -231,7 +234,10 @@ def prepare(
         gt_rows = group_by_frame(gt.frame, F)
 
     centers = scene.rig.centers * MM
-    pts = results.track_raw.reshape(-1, 3)
+    # at most CENTER_FRAMES frames, evenly spread: enough for percentiles, and a long
+    # sequence's (memory-mapped) tracks are not read whole at start-up
+    step = max(1, -(-F // CENTER_FRAMES))
+    pts = np.asarray(results.track_raw[:, ::step]).reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(1)]
     if len(pts) == 0 and gt_points is not None:
         pts = gt_points.reshape(-1, 3)
@@ -246,7 +252,6 @@ def prepare(
         center, spread = np.array([0.0, 0.0, 1.0]), 2.0
     extent = float(np.max(np.linalg.norm((centers - center)[:, :2], axis=1), initial=3.0))
     cameras = [camera_geometry(c) for c in scene.rig]
-    det_rays, det_plane = detection_rays(scene, results, cameras)
     return ViewerData(
         scene=scene,
         results=results,
@@ -254,9 +259,8 @@ def prepare(
         gt_joint_set=gt_js,
         rows_per_frame=frame_rows(scene, results.config),  # re-timed rows where they were used
         **person_indices(results, F),
+        **lazy_detection_rays(scene, results, cameras),
         gt_rows_per_frame=gt_rows,
-        det_rays=det_rays,
-        det_plane=det_plane,
         filtered=results.track_filtered,
         gt_points=gt_points,
         cameras=cameras,
@@ -272,18 +276,34 @@ def prepare(
 def person_indices(results: PipelineResults, num_frames: int) -> dict[str, object]:
     """The :class:`ViewerData` indices of ``results``' people (F = ``num_frames``):
     ``people_per_frame`` (F lists of person-frame rows), ``det_track`` (N,) the track of
-    each detection's person (-1 untracked or unassigned) and ``track_person`` (K, F)
-    each track's person-frame row (-1)."""
-    pf, pt = results.person_frame, results.person_track
-    det_track = np.append(pt, -1)[np.where(results.det_person >= 0, results.det_person, -1)]
+    each detection's person (-1 untracked or unassigned; computed for the rows indexed)
+    and ``track_person`` (K, F) each track's person-frame row (-1)."""
+    pf, pt = np.asarray(results.person_frame), np.asarray(results.person_track)
+    track_of_person = np.append(pt, -1)  # det_person -1 -> the -1 at the end
+    det_person = results.det_person
+
+    def det_track(rows: np.ndarray) -> tuple[np.ndarray]:
+        return (track_of_person[det_person[rows]],)
+
     track_person = np.full((results.num_tracks, num_frames), -1)
     tracked = np.flatnonzero(pt >= 0)
     track_person[pt[tracked], pf[tracked]] = tracked
     return {
         "people_per_frame": group_by_frame(pf, num_frames),
-        "det_track": det_track,
+        "det_track": RowBlocks(det_track, len(det_person)).array(0),
         "track_person": track_person,
     }
+
+
+def lazy_detection_rays(
+    scene: Scene, results: PipelineResults, cameras: list[CameraGeometry]
+) -> dict[str, LazyRows]:
+    """``det_rays`` and ``det_plane`` of :class:`ViewerData`: :func:`detection_rays` of
+    the rows a frame indexes, computed on first use (both from one computation)."""
+    blocks = RowBlocks(
+        lambda rows: detection_rays(scene, results, cameras, rows), len(results.det_joints2d)
+    )
+    return {"det_rays": blocks.array(0), "det_plane": blocks.array(1)}
 
 
 def detection_rays(

@@ -118,22 +118,27 @@ def test_kalman_and_rts(which, request):
 
 def test_results_round_trip_and_cache(tmp_path, model, campus):
     scene, results, _ = campus
-    path = tmp_path / "r.npz"
-    save_results(results, path)
-    back = load_results(path)
-    np.testing.assert_array_equal(back.person_joints, results.person_joints)
-    np.testing.assert_array_equal(back.track_smoothed, results.track_smoothed)
-    np.testing.assert_array_equal(back.track_rejected, results.track_rejected)
-    assert back.config == results.config
-    assert back.smpl is not None and back.smpl_vae is not None
-    np.testing.assert_array_equal(back.smpl_vae.pose_rotvecs, results.smpl_vae.pose_rotvecs)
-    np.testing.assert_array_equal(back.smpl.betas, results.smpl.betas)
-    r1, cached1 = run_or_load(scene, results.config, model, out=tmp_path / "c.npz", progress=False)
-    r2, cached2 = run_or_load(scene, results.config, model, out=tmp_path / "c.npz", progress=False)
-    assert not cached1 and cached2
-    other = dataclasses.replace(results.config, source="smpl")
-    _, cached3 = run_or_load(scene, other, model, out=tmp_path / "c.npz", progress=False)
-    assert not cached3  # a different config is recomputed
+    # a frame's person-frames are consecutive rows (what the lazy layout's reads rely on)
+    assert (np.diff(results.person_frame) >= 0).all()
+    for name in ("r.npz", "r"):  # one compressed file; the memory-mapped directory
+        path = tmp_path / name
+        save_results(results, path)
+        back = load_results(path)
+        np.testing.assert_array_equal(back.person_joints, results.person_joints)
+        np.testing.assert_array_equal(back.track_smoothed, results.track_smoothed)
+        np.testing.assert_array_equal(back.track_rejected, results.track_rejected)
+        assert back.config == results.config
+        assert back.smpl is not None and back.smpl_vae is not None
+        np.testing.assert_array_equal(back.smpl_vae.pose_rotvecs, results.smpl_vae.pose_rotvecs)
+        np.testing.assert_array_equal(back.smpl.betas, results.smpl.betas)
+    for name in ("c.npz", "c"):
+        out = tmp_path / name
+        r1, cached1 = run_or_load(scene, results.config, model, out=out, progress=False)
+        r2, cached2 = run_or_load(scene, results.config, model, out=out, progress=False)
+        assert not cached1 and cached2
+        other = dataclasses.replace(results.config, source="smpl")
+        _, cached3 = run_or_load(scene, other, model, out=out, progress=False)
+        assert not cached3  # a different config is recomputed
 
 
 def test_smpl_source_runs_and_scores(model, campus):

@@ -1,0 +1,132 @@
+"""The lazy results layout (pipeline.results_dir through pipeline.results): a round trip
+equal to the arrays written and to the .npz layout, memory-mapped on open, and an atomic
+replace (a failure mid-write leaves the previous results whole)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from pipeline.config import PipelineConfig
+from pipeline.files import SceneFormatError
+from pipeline.results import PipelineResults, load_results, save_results
+
+
+def random_results(seed: int = 0, *, F: int = 12, V: int = 4, J: int = 17) -> PipelineResults:
+    """Results of the right shapes and dtypes filled with random numbers (no pipeline run):
+    3 people a frame, each seen by every view, 2 tracks."""
+    rng = np.random.default_rng(seed)
+    N, Q, E, K = F * V * 3, F * 3, F * 10, 2
+    track = lambda *s: rng.normal(size=(K, F) + s)  # noqa: E731
+    return PipelineResults(
+        config=PipelineConfig(),
+        joint_set="coco17",
+        num_frames=F,
+        num_views=V,
+        det_joints2d=rng.normal(size=(N, J, 3)),
+        det_restored=None,
+        det_person=rng.integers(-1, Q, N),
+        person_frame=np.repeat(np.arange(F), 3),
+        person_joints=rng.normal(size=(Q, J, 3)),
+        person_reproj=rng.normal(size=(Q, J, V)),
+        person_used=rng.random((Q, J, V)) > 0.5,
+        person_members=rng.integers(-1, N, (Q, V)),
+        person_linkage=rng.random(Q),
+        person_track=rng.integers(-1, K, Q),
+        edge_a=rng.integers(0, N, E),
+        edge_b=rng.integers(0, N, E),
+        edge_affinity=rng.random(E),
+        edge_distance=rng.random(E) * 100,
+        track_raw=track(J, 3),
+        track_forward=track(J, 3),
+        track_smoothed=track(J, 3),
+        track_prior=track(J, 3),
+        track_innovation=track(J, 3),
+        track_mahalanobis=track(J),
+        track_rejected=track(J) > 1.0,
+        cache_key=f"key{seed}",
+        det_flipped=rng.random(N) > 0.9,
+    )
+
+
+ARRAYS = [
+    f.name
+    for f in dataclasses.fields(PipelineResults)
+    if f.name not in {"config", "joint_set", "num_frames", "num_views", "cache_key", "smpl",
+                      "smpl_vae", "det_restored"}
+]  # fmt: skip
+
+
+def assert_same(a: PipelineResults, b: PipelineResults) -> None:
+    for name in ARRAYS:
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype and x.shape == y.shape, name
+        np.testing.assert_array_equal(x, y, err_msg=name)
+    assert (a.config, a.joint_set, a.num_frames, a.num_views, a.cache_key) == (
+        b.config, b.joint_set, b.num_frames, b.num_views, b.cache_key,
+    )  # fmt: skip
+
+
+def test_directory_round_trip_is_memory_mapped_and_equals_npz(tmp_path):
+    results = random_results()
+    save_results(results, tmp_path / "results")
+    save_results(results, tmp_path / "results.npz")
+    lazy = load_results(tmp_path / "results")
+    whole = load_results(tmp_path / "results.npz")
+    assert_same(lazy, results)
+    assert_same(whole, results)
+    assert (tmp_path / "results").is_dir() and (tmp_path / "results.npz").is_file()
+    for name in ("det_joints2d", "person_joints", "edge_a", "track_smoothed"):
+        assert isinstance(getattr(lazy, name), np.memmap), name  # mapped, not read
+    assert not isinstance(whole.det_joints2d, np.memmap)
+    with pytest.raises(ValueError):  # read-only: the viewer cannot change the file
+        lazy.det_joints2d[0, 0, 0] = 1.0
+    np.testing.assert_array_equal(lazy.people_in_frame(5), results.people_in_frame(5))
+
+
+def test_a_failed_write_leaves_the_previous_results(tmp_path, monkeypatch):
+    path = tmp_path / "results"
+    old, new = random_results(0), random_results(1)
+    save_results(old, path)
+    written = []
+    real_save = np.save
+
+    def failing_save(file, arr, **kw):
+        written.append(file)
+        if len(written) == 5:  # some arrays of the new results are written already
+            raise OSError("disk full")
+        real_save(file, arr, **kw)
+
+    monkeypatch.setattr(np, "save", failing_save)
+    with pytest.raises(OSError, match="disk full"):
+        save_results(new, path)
+    monkeypatch.undo()
+    assert len(written) == 5
+    assert_same(load_results(path), old)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results"]  # no temporary left
+    save_results(new, path)
+    assert_same(load_results(path), new)
+
+
+def test_bad_directories_name_the_file_and_field(tmp_path):
+    path = tmp_path / "results"
+    save_results(random_results(), path)
+    (path / "person_joints.npy").write_bytes((path / "person_joints.npy").read_bytes()[:200])
+    with pytest.raises(SceneFormatError, match="person_joints.npy"):
+        load_results(path)
+    (path / "person_joints.npy").unlink()
+    with pytest.raises(SceneFormatError, match="person_joints"):
+        load_results(path)
+    save_results(random_results(), path)
+    meta = json.loads((path / "meta.json").read_text())
+    (path / "meta.json").write_text(json.dumps({**meta, "version": 1}))
+    with pytest.raises(SceneFormatError, match="meta.version"):
+        load_results(path)
+    (path / "meta.json").unlink()
+    with pytest.raises(SceneFormatError, match="meta.json"):
+        load_results(path)
+    with pytest.raises(SceneFormatError, match="not found"):
+        load_results(tmp_path / "nothing")
