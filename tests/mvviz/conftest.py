@@ -150,6 +150,44 @@ def wait_rendered(app: ViewerApp, page, seconds: float = 1.5) -> None:
     settle(page, seconds)
 
 
+def wait_drawn(
+    app: ViewerApp, page, timeout_s: float = 60.0, interval_s: float = 0.4
+) -> np.ndarray:
+    """The (h, w, 3) canvas once the page shows everything sent for the app's state.
+
+    A fixed settle is not a drawn state: the page applies a frame's messages in order,
+    but a frustum's video arrives as a JPEG that the client decodes into a texture after
+    the message is applied (asynchronously, slower the busier the machine), a camera set
+    from the server eases in over several renders, and filter B's overlay and the failure
+    marks come from panel workers outside the render's batch. So: the app's render and
+    panel workers idle, every page answered a round trip queued behind what was sent
+    (:class:`~mvviz.workers.PageAcks`), then canvas screenshots ``interval_s`` apart
+    until two in a row are the same picture.
+    """
+    from mvviz.workers import PageAcks
+
+    for _ in range(2):  # a render may start panel work and a panel a redraw
+        assert app.wait_idle(30), "the viewer's render did not finish"
+        for panel in (app.filter_panel, app.failure_panel):
+            assert panel.wait_idle(30), f"{type(panel).__name__} did not finish"
+    wait_rendered(app, page, 0.0)  # this page has the frame's batch (its label)
+    acks = PageAcks(app.server, timeout_s=30.0)
+    try:
+        assert acks.wait() >= 1, "no page answered after the viewer's last messages"
+    finally:
+        acks.stop()
+    deadline = time.monotonic() + timeout_s
+    prev = canvas_image(page)
+    while True:
+        page.wait_for_timeout(int(interval_s * 1000))
+        img = canvas_image(page)
+        change = float(np.abs(img.astype(np.int16) - prev).mean())
+        if change < 0.01:  # grey levels per channel: the same picture
+            return img
+        assert time.monotonic() < deadline, f"the canvas kept changing ({change:.3f})"
+        prev = img
+
+
 def keep_screenshot(path: Path, name: str) -> None:
     """Copy a test's screenshot to docs/screenshots/ (the README's pictures) when
     MVVIZ_UPDATE_SCREENSHOTS=1; a normal test run never changes the work tree."""

@@ -21,6 +21,7 @@ from tests.mvviz.conftest import (
     keep_screenshot,
     open_viewer,
     settle,
+    wait_drawn,
     wait_rendered,
 )
 
@@ -65,20 +66,23 @@ def test_canvas_is_not_blank(page, running_app, shots):
 
 
 def test_timeline_changes_the_canvas(page, running_app, shots):
-    for f in (0, 15):  # a fresh page: let what is sent after the first frames arrive
-        running_app.set_frame(f)
-        wait_rendered(running_app, page)
-    running_app.set_frame(0)
-    wait_rendered(running_app, page)
-    a = canvas_image(page)
-    running_app.set_frame(15)
-    wait_rendered(running_app, page)
-    b = save(page, shots, "viewer_tiny_frame15")
-    assert running_app.state.frame == 15
+    app = running_app
+    assert not app.state.playing  # left by no earlier test: the frame is the one set
+    app.set_frame(0)
+    a = wait_drawn(app, page)
+    cv2.imwrite(str(shots / "viewer_tiny_frame0_visit.png"), cv2.cvtColor(a, cv2.COLOR_RGB2BGR))
+    app.set_frame(15)
+    b = wait_drawn(app, page)
+    save(page, shots, "viewer_tiny_frame15")
+    assert app.state.frame == 15
     assert diff(a, b) > 0.3, f"frame change barely changed the canvas ({diff(a, b):.3f})"
-    # "and back: the same frame renders the same picture" is not checked here any more:
-    # in full runs frame 0 revisited differed from its first visit (3.34 vs 4.85 for
-    # 0 -> 15), which passes alone; what changes on the page is an open question.
+    # and back: the same frame is the same picture once the page has drawn it all (a
+    # fixed settle compared a picture whose videos were still decoding: 3.34 vs 4.85)
+    app.set_frame(0)
+    c = wait_drawn(app, page)
+    cv2.imwrite(str(shots / "viewer_tiny_frame0_again.png"), cv2.cvtColor(c, cv2.COLOR_RGB2BGR))
+    print(f"\nframe 0 revisited: {diff(a, c):.3f} (0 -> 15: {diff(a, b):.3f})")
+    assert diff(a, c) < 0.1 * diff(a, b), f"frame 0 revisited: {diff(a, c):.3f} vs {diff(a, b):.3f}"
 
 
 def test_layer_toggle_changes_the_canvas(page, running_app, shots):

@@ -9,8 +9,31 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 
-from tests.mvviz.conftest import open_tab, open_viewer, wait_rendered
+from mvviz.app import ViewerApp
+from mvviz.panels.filter_panel import B_ROOT
+from mvviz.scene.geometry import SELECTED_CAMERA
+from mvviz.state import ViewerState
+from tests.mvviz.conftest import free_port, open_tab, open_viewer, wait_drawn, wait_rendered
+
+
+@pytest.fixture
+def own_app(viewer_scene, frame_store):
+    """A viewer of the tiny scene for one test: the session's ``running_app`` carries what
+    earlier tests left (``test_browser_plot_follows_filter_b`` ends with "Show B" off, so
+    B's overlay is never drawn there; other pages; the selection; the 3D camera)."""
+    scene, results, model = viewer_scene
+    app = ViewerApp(
+        ViewerState.create(scene, results, model), host="127.0.0.1", port=free_port(),
+        frames=frame_store,
+    )  # fmt: skip
+    assert app.wait_idle(30)
+    yield app
+    app.stop()
+
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
 
 def idle(app) -> None:
@@ -95,5 +118,89 @@ def test_failures_list_shows_spans_whole_texts_and_jumps_to_a_seeing_camera(
         page.screenshot(path=str(tmp_path / "failures_jump.png"))
     finally:
         panel.set_criterion(before)
+        idle(app)
+        page.close()
+
+
+def test_filter_b_overlay_only_while_b_differs(browser, own_app, tmp_path):
+    app, fp = own_app, own_app.filter_panel
+    page = open_viewer(browser, app.url)
+    q0 = float(fp.gui.q.value)
+    try:
+        # the tab first: every picture below is taken with the same panels shown
+        open_tab(page, "Filter A/B")
+        app.jump_to(frame=10, track=0)
+        idle(app)
+        assert not fp._nodes[B_ROOT].visible  # B = A: nothing drawn
+        a_only = wait_drawn(app, page).astype(int)
+        page.screenshot(path=str(tmp_path / "b_equals_a.png"))
+        fp.gui.q.value = q0 / 50  # a stiff B: clearly not A
+        idle(app)
+        assert fp._nodes[B_ROOT].visible and fp.gui.show_b.value
+        with_b = wait_drawn(app, page).astype(int)
+        page.screenshot(path=str(tmp_path / "b_differs.png"))
+        changed = float(np.abs(with_b - a_only).max(-1).__gt__(40).mean())
+        assert changed > 1e-3, f"B's skeletons did not show in the page ({changed:.5f})"
+        # "Reset B to A" from the page removes them
+        page.get_by_role("button", name="Reset B to A").click()
+        wait_until(lambda: float(fp.gui.q.value) == q0, what="the reset")
+        idle(app)
+        assert not fp._nodes[B_ROOT].visible
+        reset = wait_drawn(app, page).astype(int)
+        page.screenshot(path=str(tmp_path / "b_reset.png"))
+        left = float(np.abs(reset - a_only).max(-1).__gt__(40).mean())
+        print(f"\nfilter B: pixels changed by B {changed:.5f}, left after the reset {left:.5f}")
+        assert left < changed / 10, f"B's skeletons stayed after the reset ({left} vs {changed})"
+    finally:
+        fp.gui.q.value = q0
+        idle(app)
+        page.close()
+
+
+def yellow_mask(img: np.ndarray) -> np.ndarray:
+    """Pixels of the selected camera's yellow (SELECTED_CAMERA, (235, 190, 0), drawn lit
+    and antialiased: ~(230, 210, 100) on screen); the tracks' orange has less green."""
+    r, g, b = (img[..., c].astype(int) for c in range(3))
+    assert SELECTED_CAMERA[0] > 180 and SELECTED_CAMERA[1] > 150 and SELECTED_CAMERA[2] < 130
+    return (r > 180) & (g > 170) & (b < 150) & (r - b > 80)
+
+
+def test_selected_camera_is_highlighted_in_the_page(browser, own_app, tmp_path):
+    app = own_app
+    before = set(app.server.get_clients())
+    page = open_viewer(browser, app.url)
+    try:
+        wait_until(lambda: set(app.server.get_clients()) - before, what="the page's client")
+        (client,) = (c for i, c in app.server.get_clients().items() if i not in before)
+        centre = app.state.scene.rig.centers.mean(0) / 1000  # metres
+        above = centre + np.array([0.0, -4.0, 30.0])  # the whole rig in view
+
+        def camera_above() -> bool:
+            # a fresh page reports its own camera once it is up, which can undo a camera
+            # set before that: set it until the page reports it back
+            if np.linalg.norm(np.asarray(client.camera.position) - above) < 0.05:
+                return True
+            client.camera.position, client.camera.look_at = above, centre
+            time.sleep(0.2)
+            return False
+
+        wait_until(camera_above, seconds=20, what="the page's camera above the rig")
+        masks = []
+        for v in (0, 1):
+            app.jump_to(view=v)
+            idle(app)
+            img = wait_drawn(app, page)
+            page.screenshot(path=str(tmp_path / f"camera_{v}.png"))
+            masks.append(yellow_mask(img))
+        # each camera's frustum is yellow while it is the camera panel's, not otherwise
+        only0, only1 = masks[0] & ~masks[1], masks[1] & ~masks[0]
+        assert only0.sum() > 30, f"camera 0 is not highlighted ({only0.sum()} px)"
+        assert only1.sum() > 30, f"camera 1 is not highlighted ({only1.sum()} px)"
+        c0, c1 = (np.argwhere(m).mean(0) for m in (only0, only1))  # (row, col) centroids
+        apart = np.linalg.norm(c0 - c1)
+        print(f"\nhighlight: {only0.sum()} / {only1.sum()} px, centroids {apart:.0f} px apart")
+        assert apart > 20, "the highlight did not move to the other camera"
+    finally:
+        app.jump_to(view=0)
         idle(app)
         page.close()
