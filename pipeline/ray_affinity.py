@@ -21,7 +21,7 @@ import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
 
-from pipeline.ray_pairs import PARALLEL_SIN2, pair_ray_distances
+from pipeline.ray_pairs import PARALLEL_SIN2, pair_ray_distances, screen_distances
 
 if TYPE_CHECKING:
     from pipeline.associate import AssociationParams
@@ -35,6 +35,7 @@ __all__ = [
     "part_groups",
     "ray_distances",
     "screen_distances",
+    "screen_distances_unblocked",
     "screened_distances",
 ]
 
@@ -137,14 +138,16 @@ def part_groups(flip: np.ndarray | None, num_joints: int, parts: int = 4) -> lis
     return [np.array([j for k in c for j in orbits[k]], int) for c in chunks if len(c)]
 
 
-def screen_distances(
+def screen_distances_unblocked(
     origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray, groups: list[np.ndarray],
     clip: float,
 ) -> np.ndarray:  # fmt: skip
     """(n, n) a cheap stand-in for :func:`ray_distances`: the same clipped, weighted mean,
     over each body part's mean ray (``groups``) instead of every joint, and without the
     behind-the-camera test (which only raises a distance). Float32, NaN where two
-    detections share no part. Each part is 3 matrix products of depth 3 on (n, n)."""
+    detections share no part. Each part is 3 matrix products of depth 3 on (n, n): the
+    screen before :func:`pipeline.ray_pairs.screen_distances` (the same numbers by row
+    blocks), kept for its test and bench/bench_scale.py's ratio."""
     o = (origins - origins.mean(0)).astype(np.float32)  # centred: float32 keeps 0.01 mm
     ray = np.stack([(np.nan_to_num(dirs[:, g]) * weights[:, g, None]).sum(1) for g in groups])
     norm = np.linalg.norm(ray, axis=-1)  # (K, n)
@@ -249,7 +252,8 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-_pair_kernel = pair_ray_distances  # bench/bench_scale.py swaps in the unchunked one
+# bench/bench_scale.py swaps in the unchunked / unblocked ones
+_pair_kernel, _screen = pair_ray_distances, screen_distances
 
 
 def screened_distances(
@@ -273,7 +277,7 @@ def screened_distances(
     """
     n, J = dirs.shape[:2]
     shared = shared_joints(np.isfinite(dirs).all(-1) & (weights > 0)) >= params.min_shared_joints
-    screen = screen_distances(origins, dirs, weights, part_groups(flip, J), params.joint_clip_mm)
+    screen = _screen(origins, dirs, weights, part_groups(flip, J), params.joint_clip_mm)
     other_view = views[:, None] != views[None, :]
     near = np.triu(other_view & (screen < params.prune_mm), 1)
     dist = np.where(shared & other_view & ~near & ~near.T, screen, np.nan).astype(float)

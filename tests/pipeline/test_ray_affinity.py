@@ -22,6 +22,7 @@ from pipeline.ray_affinity import (
     pinhole_rays,
     ray_distances,
     screen_distances,
+    screen_distances_unblocked,
     screened_distances,
     shared_joints,
 )
@@ -115,6 +116,22 @@ def test_blocked_pair_kernel_equals_the_unchunked_one(monkeypatch):
             assert new_m is None and old_m is None
         else:
             np.testing.assert_allclose(new_m, old_m, atol=1e-3, equal_nan=True)
+
+
+def test_blocked_screen_equals_the_unblocked_one(monkeypatch):
+    import pipeline.ray_pairs as ray_pairs
+
+    o, d, w, views = _detections(np.random.default_rng(5), n_people=8, n_views=10)
+    d[7], w[7] = np.nan, 0.0  # no part at all: NaN
+    groups = part_groups(np.arange(17)[::-1], 17)
+    monkeypatch.setattr(ray_pairs, "SCREEN_BLOCK", 16 * len(o) // 3)  # 16 rows, 5 blocks
+    new = screen_distances(o, d, w, groups, 500.0)
+    old = screen_distances_unblocked(o, d, w, groups, 500.0)
+    off = ~np.eye(len(o), dtype=bool)
+    np.testing.assert_array_equal(np.isnan(new)[off], np.isnan(old)[off])
+    assert np.isnan(old[7]).all() and (old[off] < 100).sum() > 50
+    np.testing.assert_allclose(new[off], old[off], atol=0.01, equal_nan=True)
+    np.testing.assert_array_equal(new, new.T)
 
 
 def test_screen_keeps_every_close_pair_and_unpruned_equals_dense():
