@@ -1,0 +1,231 @@
+"""Peak memory of the pipeline's stages on long scenes, against the number of frames.
+
+Long scenes are made by tiling a short scene in time, not by synthesis (a 31-camera x
+20-person dome synthesises at ~3 frames/s): the base scene's detection rows are looped
+forward and backward in time (:func:`tiled_scene`; keypoints, views and frames only: the
+monocular SMPL predictions are left out, the configured source is the 2D keypoints; no
+ground truth). People reverse their motion at every seam but do not jump, so the tracks
+run through the whole scene as they would in a long recording.
+Base scenes: the shipped sample (5 cameras x 4 people, 250 frames) and, with --dome, a
+``mvviz synth`` dome (31 cameras x 20 people by default, --dome-frames frames,
+synthesised once into --cache).
+
+Each measurement runs in a process of its own (peaks do not mix) and reports, by a thread
+sampling /proc/self/statm every 5 ms, the RSS before the stages (Python, numpy, the
+tiled scene and its 2D joints) and the peak during each stage; also ru_maxrss and CPU
+seconds. Modes, measured alternately per frame count:
+
+* ``keep``: today's :func:`pipeline.results.run_stages` (every frame's result kept until
+  tracking and packing);
+* ``chunked``: :func:`pipeline.stages_chunked.run_stages_chunked` (each frame packed at
+  once), same results;
+* ``lean``: the same without the affinity edges (``keep_edges=False``);
+* ``fit``: ``lean``, then the chunked SMPL fit of the RTS tracks
+  (:func:`pipeline.smpl_fit_chunks.fit_in_chunks`, step I).
+
+Growth per frame is the least-squares slope of peak RSS over the frame counts measured;
+nothing is extrapolated.
+
+Usage:
+    python bench/bench_memory.py [--frames 1000 2500 5000 10000] [--modes keep chunked lean]
+        [--dome] [--dome-frames 10] [--cameras 31] [--people 20] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import resource
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+REPO = Path(__file__).resolve().parents[1]
+PAGE = os.sysconf("SC_PAGE_SIZE")
+MB = 1024.0 * 1024.0
+
+
+def rss_mb() -> float:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * PAGE / MB
+
+
+class PeakSampler:
+    """Peak RSS (MB) per named stage, sampled every ``period`` seconds by a thread."""
+
+    def __init__(self, period: float = 0.005):
+        self.period, self.peaks, self._stage = period, {}, None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            if self._stage is not None:
+                self.peaks[self._stage] = max(self.peaks.get(self._stage, 0.0), rss_mb())
+
+    def stage(self, name: str) -> None:
+        self._stage = name
+        self.peaks[name] = rss_mb()
+
+    def stop(self) -> dict[str, float]:
+        self._stop.set()
+        self._thread.join()
+        return self.peaks
+
+
+def tiled_scene(base, num_frames: int):
+    """``base`` looped forward and backward in time (a palindrome: frames 0..F-1, then
+    F-1..0, ...) to ``num_frames`` frames, keypoint rows only. Backward copies keep every
+    person where the last copy left them, so tracks do not break at the seams (a plain
+    repeat makes a new set of tracks per copy: tracks x frames then grows as frames^2)."""
+    from pipeline.scene import Detections
+
+    det, f0 = base.detections, base.num_frames
+    reps = -(-num_frames // f0)
+    frame = np.concatenate(
+        [k * f0 + (det.frame if k % 2 == 0 else f0 - 1 - det.frame) for k in range(reps)]
+    )
+    keep = frame < num_frames
+    tiled = Detections(
+        frame=frame[keep],
+        view=np.tile(det.view, reps)[keep],
+        keypoints=np.concatenate([det.keypoints] * reps)[keep],
+    )
+    return dataclasses.replace(base, detections=tiled, num_frames=num_frames, gt=None)
+
+
+def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
+    """One measurement (run in its own process)."""
+    from pipeline.config import PipelineConfig
+    from pipeline.results import run_stages
+    from pipeline.run import select_2d
+    from pipeline.scene import load_scene
+    from pipeline.stages_chunked import run_stages_chunked
+
+    config = PipelineConfig()
+    scene = tiled_scene(load_scene(scene_dir), frames)
+    j2d = select_2d(scene, config, None)
+    sampler = PeakSampler()
+    t0 = time.process_time()
+    sampler.stage("before")
+    sampler.stage("stages")
+    if mode == "keep":
+        res = run_stages(scene, config, j2d, restored=None, progress=False)
+    else:
+        res = run_stages_chunked(
+            scene, config, j2d, restored=None, chunk_frames=chunk, keep_edges=mode == "chunked",
+            progress=False,
+        )  # fmt: skip
+    t_stages = time.process_time() - t0
+    fit = {}
+    if mode == "fit":
+        from pipeline.body_model import load_body_model
+        from pipeline.smpl_fit_chunks import fit_in_chunks
+
+        model = load_body_model()
+        sampler.stage("fit")
+        t1 = time.process_time()
+        f1 = fit_in_chunks(res.track_smoothed, res.joint_set, model, progress=False)
+        fit = {
+            "fit_cpu_s": time.process_time() - t1,
+            "person_frames": int(f1.present.sum()),
+            "fit_residual_mm": float(np.nanmean(f1.residual)),
+        }
+    peaks = sampler.stop()
+    return {
+        "frames": frames, "mode": mode, "rows": len(scene.detections),
+        "person_frames_found": len(res.person_frame), "edges": len(res.edge_a),
+        "tracks": res.num_tracks, "rss_before_mb": peaks["before"],
+        "peak_stages_mb": peaks["stages"], "peak_fit_mb": peaks.get("fit", float("nan")),
+        "ru_maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "stages_cpu_s": t_stages, **fit,
+    }  # fmt: skip
+
+
+def dome_dir(cache: Path, cams: int, people: int, frames: int) -> Path:
+    out = cache / f"dome{cams}_p{people}_f{frames}"
+    if not (out / "scene.json").exists():
+        from pipeline.body_model import load_body_model
+        from pipeline.synth.rigs import dome_capture_radius, dome_rig
+        from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
+
+        cfg = SynthConfig(
+            num_people=people, num_frames=frames, seed=cams * 100 + people,
+            render_video=False, area_radius_mm=dome_capture_radius(5000.0), occlusion="proxy",
+        )  # fmt: skip
+        write_synth_scene(out, dome_rig(cams, radius_mm=5000.0), load_body_model(), cfg,
+                          progress=False)  # fmt: skip
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--frames", type=int, nargs="+", default=[1000, 2500, 5000, 10000])
+    parser.add_argument("--modes", nargs="+", default=["keep", "chunked", "lean"],
+                        choices=["keep", "chunked", "lean", "fit"])  # fmt: skip
+    parser.add_argument("--chunk", type=int, default=256)
+    parser.add_argument("--dome", action="store_true", help="tile a synthesised dome scene")
+    parser.add_argument("--dome-frames", type=int, default=10)
+    parser.add_argument("--cameras", type=int, default=31)
+    parser.add_argument("--people", type=int, default=20)
+    parser.add_argument("--cache", type=Path, default=Path("/tmp/mvviz_bench_memory"))
+    parser.add_argument("--json", type=Path)
+    parser.add_argument("--child", nargs=4, metavar=("SCENE", "FRAMES", "MODE", "CHUNK"),
+                        help=argparse.SUPPRESS)  # fmt: skip
+    args = parser.parse_args()
+    if args.child:
+        scene_dir, frames, mode, chunk = args.child
+        print(json.dumps(child(scene_dir, int(frames), mode, int(chunk))))
+        return
+    scene_dir = (
+        dome_dir(args.cache, args.cameras, args.people, args.dome_frames)
+        if args.dome
+        else REPO / "sample_data" / "shelf_synth"
+    )
+    print(f"base scene {scene_dir}; chunk {args.chunk} frames", flush=True)
+    runs = []
+    for frames in args.frames:
+        for mode in args.modes:  # alternated per frame count
+            cmd = [sys.executable, __file__, "--child", str(scene_dir), str(frames), mode,
+                   str(args.chunk)]  # fmt: skip
+            out = subprocess.run(cmd, capture_output=True, text=True, check=True)
+            r = json.loads(out.stdout.strip().splitlines()[-1])
+            runs.append(r)
+            print(
+                f"{frames:6d} frames {mode:8s} rows {r['rows']:9d} edges {r['edges']:10d}  "
+                f"before {r['rss_before_mb']:7.1f} MB  stages peak {r['peak_stages_mb']:7.1f} MB"
+                f"  fit peak {r['peak_fit_mb']:7.1f} MB  ({r['stages_cpu_s']:.1f} CPU s"
+                + (f", fit {r['fit_cpu_s']:.1f} CPU s, {r['person_frames']} pf" if "fit_cpu_s"
+                   in r else "") + ")",  # fmt: skip
+                flush=True,
+            )
+    slopes = {}
+    for mode in args.modes:
+        rs = [r for r in runs if r["mode"] == mode]
+        if len(rs) >= 2:
+            f = np.array([r["frames"] for r in rs], float)
+            for key in ("rss_before_mb", "peak_stages_mb", "peak_fit_mb"):
+                y = np.array([r[key] for r in rs])
+                if np.isfinite(y).all():
+                    slopes[f"{mode}_{key}_kb_per_frame"] = float(np.polyfit(f, y, 1)[0] * 1024)
+    for k, v in slopes.items():
+        print(f"growth {k}: {v:.1f} KB/frame")
+    if args.json:
+        from bench.common import write_json
+
+        write_json(args.json, {"scene": str(scene_dir), "runs": runs, "slopes": slopes})
+
+
+if __name__ == "__main__":
+    main()
