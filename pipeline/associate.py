@@ -299,19 +299,21 @@ def associate_frame(
     best = np.fmin(dist, mirrored)
     affinity = 1.0 - best / params.max_distance_mm
     cluster = _average_linkage(affinity, views, params.min_affinity)
+    # one detection's centre ray, whatever its joints' labels: made once for every step
+    geo = CentreRays.of(origins, dirs, weights)
     # Split, move, split again: a wrong cluster blocks the moves of the detections that
     # belong with its members, and the moves look at affinities only.
     for step in ("split", "refine", "split"):
         if step == "split" and params.split_inconsistent:
             cluster = split_inconsistent(
                 origins, dirs, weights, views, cluster, affinity, params.min_affinity,
-                max_mm=params.joint_clip_mm,
+                max_mm=params.joint_clip_mm, geometry=geo,
             )  # fmt: skip
         elif step == "refine" and params.refine:
             cluster = refine_clusters(
                 affinity, views, cluster, params.min_affinity, min_views=params.min_views,
-                geometry=CentreRays.of(origins, dirs, weights) if params.split_inconsistent
-                else None, max_mm=params.joint_clip_mm,
+                geometry=geo if params.split_inconsistent else None,
+                max_mm=params.joint_clip_mm,
             )  # fmt: skip
     flipped = np.zeros(n, bool)
     if flip is not None:
@@ -321,7 +323,7 @@ def associate_frame(
         weights[flipped] = weights[flipped][:, flip]
 
     if params.merge_distance_mm > 0:
-        cluster = merge_duplicates(origins, dirs, weights, views, cluster, params)
+        cluster = merge_duplicates(origins, dirs, weights, views, cluster, params, geometry=geo)
 
     out, members, linkage = _people(cluster, views, affinity, V, params.min_views)
     return Association(

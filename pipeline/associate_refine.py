@@ -62,19 +62,26 @@ def merge_duplicates(
     views: np.ndarray,
     cluster: np.ndarray,
     params: AssociationParams,
+    *,
+    geometry: CentreRays | None = None,
 ) -> np.ndarray:
     """Merge clusters that are one person (see ``AssociationParams.merge_distance_mm``).
 
     Closest pair first; a merge needs the two clusters' views to be disjoint and each
     cluster seen by ``min_views`` views (a single stray detection is not a body).
-    Arguments as :func:`cluster_centers`; returns the new (n,) labels.
+    Arguments as :func:`cluster_centers` (``geometry``: their :class:`CentreRays`, if
+    already made); returns the new (n,) labels.
     """
     cluster = cluster.copy()
+    geo = CentreRays.of(origins, dirs, weights) if geometry is None else geometry
     while True:
-        labels = [c for c in np.unique(cluster) if (cluster == c).sum() >= params.min_views]
+        labels, counts = np.unique(cluster, return_counts=True)
+        labels = labels[counts >= params.min_views]
         if len(labels) < 2:
             return cluster
-        centers = cluster_centers(origins, dirs, weights, cluster, labels)
+        member = (cluster[:, None] == labels[None, :]) & geo.has_ray[:, None]
+        centers = geo.centres(member)  # as cluster_centers, NaN for fewer than two rays
+        centers[member.sum(0) < 2] = np.nan
         gap = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
         gap[~np.isfinite(gap)] = np.inf
         np.fill_diagonal(gap, np.inf)
@@ -160,16 +167,17 @@ def split_inconsistent(
     threshold: float,
     *,
     max_mm: float,
+    geometry: CentreRays | None = None,
 ) -> np.ndarray:
     """Split the clusters whose members' centre rays (:func:`centre_rays`) do not all pass
     within ``max_mm`` of the cluster's body centre (the point nearest them): the largest
     subset that meets at one point keeps the label (:func:`_consistent_core`), the rest
     are clustered again among themselves (:func:`pipeline.ray_affinity.average_linkage`
     on ``affinity``). Repeated until every cluster is consistent. Arguments as
-    :func:`cluster_centers`; returns the new (n,) labels (new clusters take unused
-    labels)."""
+    :func:`cluster_centers` (``geometry``: their :class:`CentreRays`, if already made);
+    returns the new (n,) labels (new clusters take unused labels)."""
     cluster = cluster.copy()
-    geo = CentreRays.of(origins, dirs, weights)
+    geo = CentreRays.of(origins, dirs, weights) if geometry is None else geometry
     rays = geo.rays
     checked: set[int] = set()  # labels found consistent (their members never change)
     for _ in range(len(views)):
