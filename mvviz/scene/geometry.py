@@ -433,28 +433,32 @@ def reference_skeletons(
 
 
 def detections_2d(data: ViewerData, frame: int) -> dict[str, Detections2D]:
-    """Each view's 2D joints (confidence > 0) of ``frame`` on its frustum's image plane."""
+    """Each view's 2D joints (confidence > 0) of ``frame`` on its frustum's image plane.
+    One gather of the frame's rows for every view (31 views cost ~1/5 of a per-view loop)."""
     rows = data.rows_per_frame[frame]
     res, bones = data.results, np.asarray(data.joint_set.bones).reshape(-1, 2)
+    view, t = data.scene.detections.view[rows], data.det_track[rows]
+    # by view, then in track order (unassigned last): a view's colour arrays then repeat
+    # from frame to frame while the same people are seen, and viser does not send them again
+    order = np.lexsort((np.where(t < 0, np.iinfo(np.int64).max, t), view))
+    r, view, t = rows[order], view[order], t[order]
+    kp = res.det_joints2d[r]  # (n, J, 3)
+    col = np.where((res.det_person[r] < 0)[:, None], UNASSIGNED, track_color(t)).astype(np.uint8)
+    ok = (kp[..., 2] > 0) & np.isfinite(kp[..., :2]).all(-1)  # (n, J)
+    plane = data.det_plane[r]  # (n, J, 3)
+    pts = plane[ok]
+    pcol = np.broadcast_to(col[:, None], ok.shape + (3,))[ok]
+    bok = ok[:, bones[:, 0]] & ok[:, bones[:, 1]]  # (n, B)
+    seg = np.stack([plane[:, bones[:, 0]], plane[:, bones[:, 1]]], 2)[bok]
+    scol = np.broadcast_to(col[:, None, None], bok.shape + (2, 3))[bok]
+    # each view's rows are consecutive: split the flattened points and segments there
+    row_end = np.searchsorted(view, np.arange(len(data.cameras) + 1))
+    pt_end = np.concatenate([[0], np.cumsum(ok.sum(1))])[row_end]
+    seg_end = np.concatenate([[0], np.cumsum(bok.sum(1))])[row_end]
     out = {}
     for v, cam in enumerate(data.cameras):
-        r = rows[data.scene.detections.view[rows] == v]
-        # in track order (unassigned last): the colour arrays then repeat from frame to
-        # frame while the same people are seen, and viser does not send them again
-        t = data.det_track[r]
-        r = r[np.argsort(np.where(t < 0, np.iinfo(np.int64).max, t), kind="stable")]
-        kp = res.det_joints2d[r]  # (n, J, 3)
-        col = np.where(
-            (res.det_person[r] < 0)[:, None], UNASSIGNED, track_color(data.det_track[r])
-        )  # (n, 3)
-        ok = (kp[..., 2] > 0) & np.isfinite(kp[..., :2]).all(-1)  # (n, J)
-        plane = data.det_plane[r]  # (n, J, 3)
-        pts = plane[ok]
-        pcol = np.broadcast_to(col[:, None], ok.shape + (3,))[ok]
-        bok = ok[:, bones[:, 0]] & ok[:, bones[:, 1]]  # (n, B)
-        seg = np.stack([plane[:, bones[:, 0]], plane[:, bones[:, 1]]], 2)[bok]
-        scol = np.broadcast_to(col[:, None, None], bok.shape + (2, 3))[bok]
-        out[cam.name] = Detections2D(pts, pcol.astype(np.uint8), seg, scol.astype(np.uint8))
+        p, q = slice(pt_end[v], pt_end[v + 1]), slice(seg_end[v], seg_end[v + 1])
+        out[cam.name] = Detections2D(pts[p], pcol[p], seg[q], scol[q])
     return out
 
 
