@@ -74,8 +74,9 @@ class SynthConfig:
     """How occluded keypoints are found: ``"render"`` reads the z-buffer of each view's
     full render (the mesh at full resolution); ``"proxy"`` evaluates the depth of a
     50 mm decimated body at the keypoints' pixels only, all views at once
-    (:mod:`pipeline.synth.occlusion`; about 10 times faster, the same statistics within
-    about a percent, see bench/bench_synth.py); ``"auto"``: render when videos are
+    (:mod:`pipeline.synth.occlusion`; dome:16 x 10 people ~0.06 CPU s a frame against
+    ~3 for renders, the same statistics within about a percent, see
+    bench/bench_synth.py and tests/pipeline/synth); ``"auto"``: render when videos are
     written (the render is made anyway), proxy otherwise (``mvviz synth``'s default).
     The library default stays ``"render"``: scenes made by code keep their numbers."""
     torch_threads: int = 1
