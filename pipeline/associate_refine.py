@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 def centre_rays(dirs: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """(n, 3) each detection's confidence-weighted mean ray (unit; zero if it has none):
     the direction of its body's centre, whatever its joints are labelled."""
-    c = np.nansum(np.nan_to_num(dirs) * weights[..., None], axis=1)
+    c = (np.where(np.isfinite(dirs), dirs, 0.0) * weights[..., None]).sum(1)
     return c / np.maximum(np.linalg.norm(c, axis=-1, keepdims=True), 1e-12)
 
 

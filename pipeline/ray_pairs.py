@@ -63,7 +63,6 @@ def pair_ray_distances(
     straight = _detection_arrays(origins, dirs, weights)
     mirror = None if flip is None else straight[:, :, np.asarray(flip)]
     o = (origins - (origins.mean(0) if len(origins) else 0.0)).astype(np.float32)
-    centre_id = np.unique(origins, axis=0, return_inverse=True)[1].ravel()
     out = [np.empty(len(ia))] + ([] if flip is None else [np.empty(len(ia))])
     size = -(-len(ia) // max(-(-len(ia) // BLOCK_PAIRS), 1))  # equal blocks
     for lo in range(0, len(ia), size):
@@ -74,7 +73,7 @@ def pair_ray_distances(
         w0 += A[1] * ob[1]
         w0 += A[2] * ob[2]
         w0 -= A[6]  # (ob - oa) . da
-        one_centre = (centre_id[a] == centre_id[b])[:, None]
+        one_centre = (origins[a] == origins[b]).all(1)[:, None]
         for k, arrays in enumerate((straight,) if mirror is None else (straight, mirror)):
             out[k][lo : lo + len(a)] = _block(A, np.take(arrays, b, axis=1), oa, w0,
                                               one_centre, params)  # fmt: skip
@@ -108,13 +107,17 @@ def _block(
     d = np.fmin(np.divide(num, sin2, out=num), clip)
     # the closest points' parameters s, t (times sin^2 > 0) must both be > 0
     behind = (w0 - dd * w1 <= 0) | (dd * w0 - w1 <= 0) | one_centre
-    d[behind] = clip
-    w = A[7] * B[7]
-    w[parallel] = 0.0
+    d = np.where(behind, clip, d)
+    w = np.where(parallel, np.float32(0.0), A[7] * B[7])
+    # sums over the joints as einsums: a sum or count over a short last axis is 2-4x slower
     total = np.einsum("pj->p", w)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.einsum("pj,pj->p", w, d) / total
-    mean[np.count_nonzero(w, axis=1) < params.min_shared_joints] = np.nan
+    if w.shape[1] < 256:  # a uint8 count
+        shared = np.einsum("pj->p", (w > 0).view(np.uint8))
+    else:
+        shared = np.count_nonzero(w, axis=1)
+    mean[shared < params.min_shared_joints] = np.nan
     return mean
 
 
@@ -135,10 +138,14 @@ def screen_distances(
     transpose (a transposed read of a 3 MB array runs at memory speed)."""
     n = len(origins)
     o = (origins - origins.mean(0)).astype(np.float32)  # centred: float32 keeps 0.01 mm
-    ray = np.stack([(np.nan_to_num(dirs[:, g]) * weights[:, g, None]).sum(1) for g in groups])
+    part = np.zeros((len(groups), dirs.shape[1]))  # (K, J) which joints make each part
+    for k, g in enumerate(groups):
+        part[k, g] = 1.0
+    wd = np.where(np.isfinite(dirs), dirs, 0.0) * weights[..., None]
+    ray = np.einsum("kj,njc->knc", part, wd)
     norm = np.linalg.norm(ray, axis=-1)  # (K, n)
     u = (ray / np.maximum(norm, 1e-12)[..., None]).astype(np.float32)  # (K, n, 3) part rays
-    w = np.where(norm > 1e-9, np.stack([weights[:, g].sum(1) for g in groups]), 0.0)
+    w = np.where(norm > 1e-9, np.einsum("kj,nj->kn", part, weights), 0.0)
     w = w.astype(np.float32)
     U = np.ascontiguousarray(u.transpose(2, 0, 1))  # (3, K, n)
     M = np.ascontiguousarray(np.cross(u, o).transpose(2, 0, 1))  # line moments
