@@ -59,6 +59,7 @@ from pipeline.cameras import CameraRig
 from pipeline.joint_sets import JointSet
 from pipeline.ray_affinity import (
     average_linkage,
+    camera_centres,
     pinhole_rays,
     ray_distances,
     screened_distances,
@@ -153,7 +154,7 @@ def detection_rays(
         dirs[rows] = rig[int(v)].pixels_to_rays(joints2d[rows, :, :2])
     weights = np.where(ok, conf, 0.0)
     dirs[~ok] = np.nan
-    origins = rig.centers[views] if n else np.zeros((0, 3))
+    origins = camera_centres(rig)[views] if n else np.zeros((0, 3))
     return origins, dirs, weights
 
 

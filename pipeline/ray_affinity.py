@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "average_linkage",
+    "camera_centres",
     "pair_ray_distances",
     "pair_ray_distances_unchunked",
     "pinhole_rays",
@@ -143,10 +144,16 @@ def part_groups(flip: np.ndarray | None, num_joints: int, parts: int = 4) -> lis
     (the joint set's flip index; None: no pairs), e.g. COCO-17's head, shoulders and
     elbows, wrists and hips, knees and ankles. A group holds both joints of each pair, so
     its mean ray does not move when a detection's labels are mirrored."""
-    flip = np.arange(num_joints) if flip is None else np.asarray(flip)
-    orbits = sorted({tuple(sorted({j, int(flip[j])})) for j in range(num_joints)})
+    flip = tuple(range(num_joints)) if flip is None else tuple(int(j) for j in flip)
+    return list(_part_groups(flip, num_joints, parts))
+
+
+@functools.lru_cache(maxsize=16)
+def _part_groups(flip: tuple[int, ...], num_joints: int, parts: int) -> tuple[np.ndarray, ...]:
+    """:func:`part_groups` of one joint set, made once (it was ~40 us a frame)."""
+    orbits = sorted({tuple(sorted({j, flip[j]})) for j in range(num_joints)})
     chunks = np.array_split(np.arange(len(orbits)), min(parts, len(orbits)))
-    return [np.array([j for k in c for j in orbits[k]], int) for c in chunks if len(c)]
+    return tuple(np.array([j for k in c for j in orbits[k]], int) for c in chunks if len(c))
 
 
 def screen_distances_unblocked(
@@ -301,6 +308,15 @@ def screened_distances(
             mirrored[ia, ib] = mirrored[ib, ia] = mirror
     np.fill_diagonal(dist, np.nan)
     return dist, mirrored
+
+
+@functools.lru_cache(maxsize=8)
+def camera_centres(rig: CameraRig) -> np.ndarray:
+    """(V, 3) ``rig.centers``, made once per rig (a Python loop over its cameras); read-only:
+    the cache hands out this one array."""
+    centres = rig.centers
+    centres.flags.writeable = False
+    return centres
 
 
 @functools.lru_cache(maxsize=8)
