@@ -33,6 +33,7 @@ from mvviz.panels.diagnose_panel import make_diagnose_panel
 from mvviz.panels.export_panel import make_export_panel
 from mvviz.panels.failure_panel import make_failure_panel
 from mvviz.panels.filter_panel import make_filter_panel
+from mvviz.panels.icons import use_one_icon_zip
 from mvviz.panels.pipeline_panel import make_pipeline_panel
 from mvviz.panels.view_panels import (
     make_camera_panel,
@@ -108,6 +109,7 @@ class ViewerApp:
         server.gui.main_panel.set_width(340)
         server.scene.set_up_direction("+z")
         self._set_initial_camera()
+        use_one_icon_zip()  # the panels' icons: ~0.35 s of CPU less at every start
         self.layers = make_scene_layers(server, state.data, on_joint_click=self._on_joint_click)
         self._build_panels()
         self._image_pool = ThreadPoolExecutor(1, thread_name_prefix="mvviz-images")

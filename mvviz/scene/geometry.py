@@ -471,46 +471,31 @@ def rays(data: ViewerData, frame: int, *, track: int | None = None) -> Rays:
     qs = data.people_per_frame[frame]
     if track is not None:
         qs = qs[res.person_track[qs] == track]
-    segs, cols, outl, views, joints, tracks, people = [], [], [], [], [], [], []
-    for v, cam in enumerate(data.scene.rig):
-        members = res.person_members[qs, v]  # (n,)
-        has = members >= 0
-        q, m = qs[has], members[has]
-        if len(q) == 0:
-            continue
-        kp = res.det_joints2d[m]  # (n, J, 3)
-        X = res.person_joints[q]  # (n, J, 3) mm
-        obs = (kp[..., 2] >= data.min_confidence) & (kp[..., 2] > 0)
-        obs &= np.isfinite(kp[..., :2]).all(-1) & np.isfinite(X).all(-1)
-        qi, j = np.nonzero(obs)
-        if len(qi) == 0:
-            continue
-        d = data.det_rays[m[qi], j]  # (r, 3) unit
-        c = cam.center
-        length = np.einsum("rc,rc->r", X[qi, j] - c, d) * 1.1
-        ok = np.isfinite(d).all(1) & (length > 0)
-        qi, j, d, length = qi[ok], j[ok], d[ok], length[ok]
-        used = res.person_used[q[qi], j, v]
-        trk = res.person_track[q[qi]]
-        segs.append(np.stack([np.broadcast_to(c, d.shape), c + d * length[:, None]], 1) * MM)
-        cols.append(np.where(used[:, None], track_color(trk), OUTLIER))
-        outl.append(~used)
-        views.append(np.full(len(qi), v))
-        joints.append(j)
-        tracks.append(trk)
-        people.append(q[qi])
-    if not segs:
-        z = np.zeros(0, int)
-        return Rays(np.zeros((0, 2, 3)), np.zeros((0, 3), np.uint8), z.astype(bool), z, z, z, z)
-    cat = np.concatenate
+    # every (view, person) pair with a member, view-major: one gather for all views
+    v, qi = np.nonzero(np.asarray(res.person_members[qs]).T >= 0)
+    q = qs[qi]
+    m = res.person_members[q, v]
+    kp = res.det_joints2d[m]  # (n, J, 3)
+    X = res.person_joints[q]  # (n, J, 3) mm
+    obs = (kp[..., 2] >= data.min_confidence) & (kp[..., 2] > 0)
+    obs &= np.isfinite(kp[..., :2]).all(-1) & np.isfinite(X).all(-1)
+    pair, j = np.nonzero(obs)
+    d = data.det_rays[m[pair], j]  # (r, 3) unit
+    c = np.asarray(data.scene.rig.centers, float)[v[pair]]  # (r, 3) mm
+    length = np.einsum("rc,rc->r", X[pair, j] - c, d) * 1.1
+    ok = np.isfinite(d).all(1) & (length > 0)
+    pair, j, d, c, length = pair[ok], j[ok], d[ok], c[ok], length[ok]
+    view, person = v[pair], q[pair]
+    used = res.person_used[person, j, view].astype(bool)
+    trk = res.person_track[person]
     return Rays(
-        cat(segs),
-        cat(cols).astype(np.uint8),
-        cat(outl),
-        cat(views),
-        cat(joints),
-        cat(tracks),
-        cat(people),
+        np.stack([c, c + d * length[:, None]], 1).reshape(-1, 2, 3) * MM,
+        np.where(used[:, None], track_color(trk), OUTLIER).astype(np.uint8).reshape(-1, 3),
+        ~used,
+        view,
+        j,
+        trk,
+        person,
     )
 
 
