@@ -22,6 +22,11 @@ the two workers together get the share the serial process gets alone. The parts:
 - Ray's own start-up in a fresh process: import, ``ray.init``, the first task on every
   worker that imports the pipeline (worker start + torch), ``ray.shutdown``, and the CPU
   seconds of Ray's processes (GCS, raylet, agents, idle workers) by then;
+- the driver of ``mvviz batch`` in a fresh process: its imports and the planning of the
+  scenes (scene, config, body model, cache key), wall and CPU, and whether torch loaded;
+- per repeat, the batch's wall beyond its tasks' work: wall - the sum of the task walls /
+  the cores (what Ray's start, the workers' first imports, the driver's own work and the
+  shutdown add where the tasks do not hide them);
 - per scene, medians over scenes and repeats: ``mvviz run``'s wall and CPU seconds in
   the serial process, and the batch task's per stage (load, frames = restoration +
   association + triangulation, sequence_fit = tracking + filters + SMPL fit,
@@ -100,6 +105,19 @@ stop_ray()
 t4 = time.perf_counter()
 print(json.dumps(dict(import_s=t1 - t0, init_s=t2 - t1, warm_workers_s=t3 - t2,
       shutdown_s=t4 - t3, workers=len(pids), ray_processes_cpu_s=ray_cpu)))
+"""
+DRIVER = """
+import json, sys, time
+t0, c0 = time.perf_counter(), time.process_time()
+from mvviz.cli import build_parser
+argv = ["batch", *sys.argv[1:], "--force"]
+args = build_parser(argv).parse_args(argv)
+t1, c1 = time.perf_counter(), time.process_time()
+from mvviz.cli.batch import plan
+jobs, scenes, model, bad = plan(args)
+t2, c2 = time.perf_counter(), time.process_time()
+print(json.dumps(dict(imports_s=t1 - t0, imports_cpu_s=c1 - c0, plan_s=t2 - t1,
+      plan_cpu_s=c2 - c1, torch_imported="torch" in sys.modules)))
 """
 FIT_THREADS = """
 import json, statistics, sys, time
@@ -188,7 +206,7 @@ def medians(rows: list[dict]) -> dict:
 
 def alternate(names: list[str], tmp: str, repeats: int) -> dict:
     """Serial and batch runs, alternated; their times, loads and per-scene parts."""
-    serial, batch, loads, serial_scenes, task_parts = [], [], [], [], []
+    serial, batch, loads, serial_scenes, task_parts, overhead = [], [], [], [], [], []
     for r in range(repeats):
         loads.append(os.getloadavg()[0])
         took, err = timed([sys.executable, "-c", SERIAL, f"{tmp}/serial", *names])
@@ -203,11 +221,18 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
         batch.append(timed(cmd)[0])
         rows = json.loads(Path(tmp, "report", "batch_report.json").read_text())["rows"]
         task_parts += [row["task_seconds"] for row in rows if row.get("task_seconds")]
+        overhead.append(batch[-1] - sum(map(task_wall, rows)) / (os.cpu_count() or 1))
         print(f"repeat {r + 1}: serial {serial[-1]:.1f} s (load {loads[-2]:.1f}), "
               f"batch {batch[-1]:.1f} s (load {loads[-1]:.1f}): "
               f"{serial[-1] / batch[-1]:.2f}x", flush=True)  # fmt: skip
     return dict(serial=serial, batch=batch, loads=loads, serial_scene=medians(serial_scenes),
-                task=medians(task_parts))  # fmt: skip
+                task=medians(task_parts), overhead=overhead)  # fmt: skip
+
+
+def task_wall(row: dict) -> float:
+    """Wall seconds of a report row's task (the sum of its stages), 0 without one."""
+    parts = row.get("task_seconds") or {}
+    return sum(v for k, v in parts.items() if k.endswith("_s") and not k.endswith("_cpu_s"))
 
 
 def main() -> int:
@@ -239,6 +264,7 @@ def main() -> int:
         equal = not diffs
     load = os.getloadavg()[0]
     ray_start = python_json(RAY_START)
+    driver = python_json(DRIVER, *names)
     fit = python_json(FIT_THREADS, names[0], str(args.fit_repeats))
     figures = {
         "scenes": NUM_SCENES, "cpus": os.cpu_count(), "serial_s": runs["serial"],
@@ -246,18 +272,33 @@ def main() -> int:
         "batch_median_s": statistics.median(runs["batch"]),
         "speedup": statistics.median(runs["serial"]) / statistics.median(runs["batch"]),
         "load_1min": runs["loads"], "load_at_parts": load, "ray_start": ray_start,
+        "driver": driver, "batch_overhead_s": runs["overhead"],
         "serial_per_scene": runs["serial_scene"], "batch_task_per_scene": runs["task"],
         "fit_threads": fit, "results_equal": equal, "results_differ": diffs,
         "autogroup": autogroup(),
     }  # fmt: skip
-    print(f"parts (load {load:.1f}): Ray import {ray_start['import_s']:.2f} s, ray.init "
-          f"{ray_start['init_s']:.2f} s, {ray_start['workers']} workers started + pipeline "
-          f"imported {ray_start['warm_workers_s']:.2f} s, shutdown {ray_start['shutdown_s']:.2f} "
-          f"s; Ray's processes used {ray_start['ray_processes_cpu_s']:.2f} CPU s by then")
+    print(
+        f"parts (load {load:.1f}): Ray import {ray_start['import_s']:.2f} s, ray.init "
+        f"{ray_start['init_s']:.2f} s, {ray_start['workers']} workers started + pipeline "
+        f"imported {ray_start['warm_workers_s']:.2f} s, shutdown {ray_start['shutdown_s']:.2f} "
+        f"s; Ray's processes used {ray_start['ray_processes_cpu_s']:.2f} CPU s by then"
+    )
+    print(
+        f"the driver: imports {driver['imports_s']:.2f} s ({driver['imports_cpu_s']:.2f} CPU s), "
+        f"planning the {NUM_SCENES} scenes {driver['plan_s']:.2f} s ({driver['plan_cpu_s']:.2f} "
+        f"CPU s), torch imported: {driver['torch_imported']}"
+    )
+    print(
+        f"batch beyond its tasks' work (wall - sum of task walls / {os.cpu_count()} cores): "
+        f"{', '.join(f'{x:.1f}' for x in runs['overhead'])} s, median "
+        f"{statistics.median(runs['overhead']):.1f} s"
+    )
     print(f"per scene, serial mvviz run: {json.dumps(runs['serial_scene'])}")
     print(f"per scene, batch task: {json.dumps(runs['task'])}")
-    print(f"SMPL fit of one scene: 1 thread {fit['fit_1_thread_s']:.2f} s, 2 threads "
-          f"{fit['fit_2_threads_s']:.2f} s (same numbers: {fit['same_numbers']})")
+    print(
+        f"SMPL fit of one scene: 1 thread {fit['fit_1_thread_s']:.2f} s, 2 threads "
+        f"{fit['fit_2_threads_s']:.2f} s (same numbers: {fit['same_numbers']})"
+    )
     print(f"serial median {figures['serial_median_s']:.1f} s, batch median "
           f"{figures['batch_median_s']:.1f} s: {figures['speedup']:.2f}x (target 1.7x, "
           f"loads {min(runs['loads']):.1f}-{max(runs['loads']):.1f}); "

@@ -4,13 +4,16 @@ the dataset report (see :mod:`pipeline.batch`)."""
 from __future__ import annotations
 
 import argparse
+import logging
+import signal
 import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from mvviz.cli.run import add_config_options, prepare
 from pipeline.batch.jobs import SceneJob
-from pipeline.batch.report import build_report, write_report
 from pipeline.batch.sweep import setting_slug, sweep_grid
 from pipeline.files import CACHE_DIR, SceneFormatError
 from pipeline.results import cache_key, default_results_path
@@ -88,8 +91,12 @@ def results_path(args: argparse.Namespace, d: Path, scene, setting: tuple[str, .
     return scene.root / CACHE_DIR / "sweep" / f"{name}.npz"
 
 
-def plan(args: argparse.Namespace) -> tuple[list[SceneJob], dict, object, list[dict]]:
-    """(jobs, scenes by directory, body model, rows of scenes that failed to load)."""
+def plan(
+    args: argparse.Namespace, needs_compute: Callable[[], None] | None = None
+) -> tuple[list[SceneJob], dict, object, list[dict]]:
+    """(jobs, scenes by directory, body model, rows of scenes that failed to load);
+    ``needs_compute`` is called for each job whose results are not current (``--force``:
+    every job) as soon as that is known (the caller starts Ray then)."""
     grid = sweep_grid(args.sweep)
     jobs, scenes, bad, model = [], {}, [], None
     seen: dict[str, Path] = {}
@@ -100,8 +107,8 @@ def plan(args: argparse.Namespace) -> tuple[list[SceneJob], dict, object, list[d
             ns = argparse.Namespace(
                 scene=d, config=args.config, set=[*args.set, *setting], smpl_model=args.smpl_model
             )
-            try:
-                scene, config, model = prepare(ns)
+            try:  # the prior checkpoint is read on a worker (torch): pipeline.batch.ray_run
+                scene, config, model = prepare(ns, read_prior=False)
             except (SceneFormatError, OSError, ValueError) as exc:
                 bad.append(_failed_row(d, setting, ns.set, args, f"{type(exc).__name__}: {exc}"))
                 continue
@@ -114,7 +121,81 @@ def plan(args: argparse.Namespace) -> tuple[list[SceneJob], dict, object, list[d
                     config_file=args.config.resolve() if args.config else None,
                 )
             )  # fmt: skip
+            if needs_compute is not None and (args.force or _stale(jobs[-1])):
+                needs_compute()
     return jobs, scenes, model, bad
+
+
+def _stale(job: SceneJob) -> bool:
+    """The job's results or their report figures are not stored with its key."""
+    from pipeline.batch.ray_run import cached_summary  # noqa: PLC0415  (Ray)
+
+    return cached_summary(job)[1] is None
+
+
+class _RayStart:
+    """Ray in a background thread, started once something is to be computed: its
+    processes' start-up (~2-4 s, mostly waiting on them) overlaps the driver's planning,
+    and on an embedded Ray one warm-up task per CPU follows at once, so every worker
+    imports torch and the stages meanwhile (pipeline.batch.ray_run.warm_workers).
+
+    The thread lives until :meth:`stop` and shuts Ray down itself: the embedded Ray's
+    processes die with the thread that started them (Ray starts them with Linux's
+    parent-death signal, which follows the parent thread, not the process)."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args, self.warm = args, []
+        self._thread: threading.Thread | None = None
+        self._ready, self._stop = threading.Event(), threading.Event()
+        self._result: float | BaseException = 0.0
+
+    @property
+    def started(self) -> bool:
+        return self._thread is not None
+
+    def start(self) -> None:
+        if self._thread is None:
+            if threading.current_thread() is threading.main_thread():
+                # What ray.init sets when called from the main thread: a kill exits
+                # through the caller's cleanup (Ray's processes stopped).
+                signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(signum))
+            self._thread = threading.Thread(target=self._run, name="ray", daemon=True)
+            self._thread.start()
+
+    def _run(self) -> None:
+        ray_run = None
+        try:
+            from pipeline.batch import ray_run  # noqa: PLC0415  (Ray)
+
+            logging.getLogger("ray").setLevel(logging.ERROR)  # no "not the main thread" note
+            args = self.args
+            cpus = ray_run.start_ray(args.address, num_cpus=args.num_cpus).get("CPU", 0)
+            if args.address is None:  # a cluster's workers are warm or far: not worth it
+                self.warm = ray_run.warm_workers(int(cpus), args.smpl_model)
+            self._result = cpus
+        except BaseException as exc:  # noqa: BLE001  (raised by wait, in the main thread)
+            self._result = exc
+        self._ready.set()
+        self._stop.wait()
+        self.warm = []
+        if ray_run is not None:
+            ray_run.stop_ray()
+
+    def wait(self) -> float:
+        """Ray's CPUs once it is up (the start's error raised here)."""
+        self.start()
+        self._ready.wait()
+        if isinstance(self._result, BaseException):
+            raise self._result
+        return self._result
+
+    def stop(self, *, wait: bool = True) -> None:
+        """Ray shut down (``wait`` False: the shutdown, ~1.4 s, goes on meanwhile; call
+        again to wait for it)."""
+        if self._thread is not None:
+            self._stop.set()
+            if wait:
+                self._thread.join()
 
 
 def _failed_row(d: Path, setting, set_args, args, error: str) -> dict:
@@ -139,33 +220,44 @@ def _row(outcome) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    # Ray (~0.3 s) and the scheduler load only for this command
-    from pipeline.batch.ray_run import (  # noqa: PLC0415
-        cached_summary,
-        run_jobs,
-        start_ray,
-        stop_ray,
-    )
-
     t0 = time.perf_counter()
-    jobs, scenes, model, bad = plan(args)
+    ray_start = _RayStart(args)
+    if args.force:  # every job computes: Ray starts now, beside the planning
+        ray_start.start()
+    try:
+        jobs, scenes, model, bad = plan(args, ray_start.start)
+        outcomes = _run_jobs(args, ray_start, jobs, scenes, model, bad)
+    except BaseException:
+        ray_start.stop()
+        raise
+    ray_start.stop(wait=False)  # the results are written: its shutdown (~1.4 s) beside the report
+    try:
+        return _report(args, outcomes, bad, t0)
+    finally:
+        ray_start.stop()
+
+
+def _run_jobs(args, ray_start: _RayStart, jobs, scenes, model, bad) -> list:
     for row in bad:
         print(f"{row['label']}: failed to load: {row['error']}", file=sys.stderr)
-    outcomes = []
-    if jobs:
-        # Ray starts only when something is to be computed (a re-run of current results
-        # costs the cache checks alone).
-        if args.force or any(cached_summary(j)[1] is None for j in jobs):
-            cpus = start_ray(args.address, num_cpus=args.num_cpus).get("CPU", 0)
-            where = args.address or "embedded local Ray"
-            print(f"{len(jobs)} runs of {len(scenes)} scenes on {where} ({cpus:g} CPUs)")
-        try:
-            outcomes = run_jobs(
-                jobs, scenes, model, chunk_frames=args.chunk_frames, retries=args.retries,
-                force=args.force, shared_files=args.address is None or args.shared_storage,
-            )  # fmt: skip
-        finally:
-            stop_ray()
+    if not jobs:
+        return []
+    from pipeline.batch.ray_run import run_jobs  # noqa: PLC0415  (Ray)
+
+    if ray_start.started:  # Ray only when something is to be computed
+        cpus = ray_start.wait()
+        where = args.address or "embedded local Ray"
+        print(f"{len(jobs)} runs of {len(scenes)} scenes on {where} ({cpus:g} CPUs)")
+    return run_jobs(
+        jobs, scenes, model, chunk_frames=args.chunk_frames, retries=args.retries,
+        force=args.force, shared_files=args.address is None or args.shared_storage,
+        warm=ray_start.warm,
+    )  # fmt: skip
+
+
+def _report(args, outcomes, bad, t0: float) -> int:
+    from pipeline.batch.report import build_report, write_report  # noqa: PLC0415  (matplotlib)
+
     rows = [_row(o) for o in outcomes] + bad
     for o in outcomes:
         if o.status == "failed":

@@ -16,10 +16,11 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.body_model import BodyModel
+from pipeline.body_arrays import BodyModelData
 from pipeline.config import PipelineConfig
 from pipeline.evaluate import (
     evaluate,
@@ -31,6 +32,9 @@ from pipeline.evaluate import (
 from pipeline.results import RESULTS_VERSION, PipelineResults, fit_bodies, pack_run
 from pipeline.run import FrameResult, frame_rows, restored_joints, run_frame, select_2d
 from pipeline.scene import Scene
+
+if TYPE_CHECKING:  # torch: the driver never imports it, the workers' stages do
+    from pipeline.body_model import BodyModel
 
 WORST_PER_SCENE = 5  # worst moments kept per scene
 WORST_GAP_FRAMES = 10  # two worst moments of a scene are at least this far apart
@@ -76,7 +80,9 @@ def chunk_bounds(num_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
-def scene_inputs(scene: Scene, config: PipelineConfig, model: BodyModel) -> SceneInputs:
+def scene_inputs(
+    scene: Scene, config: PipelineConfig, model: BodyModel | BodyModelData
+) -> SceneInputs:
     """The restoration and source selection of :func:`pipeline.results.run_pipeline`."""
     restored = restored_joints(scene, model)
     return SceneInputs(joints2d=select_2d(scene, config, restored), restored=restored)
@@ -94,7 +100,7 @@ def run_chunk(
 def join_chunks(
     scene: Scene,
     config: PipelineConfig,
-    model: BodyModel,
+    model: BodyModel | BodyModelData,
     inputs: SceneInputs,
     chunks: Sequence[list[FrameResult]],
     key: str,

@@ -14,6 +14,12 @@ back. Without it (a cluster without shared storage) the driver puts each scene a
 body model into Ray's object store (``ray.put``) and writes the results that come back,
 so a worker needs the same mvviz installed, not the scene files.
 
+Start-up: the driver never imports torch (the body model's fingerprint and the cache key
+are numpy; the pose prior checkpoint is read by :func:`check_prior` on a worker, once per
+file, before any scene task); ``mvviz batch`` starts Ray in a background thread beside its
+planning and submits :func:`warm_workers` at once, so the workers import torch and the
+stages meanwhile.
+
 Failures: every task is retried ``retries`` times, after a Python exception
 (``retry_exceptions``) and after its worker or node died (``max_retries``; lost chunk
 results are rebuilt from their lineage); a scene that still fails is reported with its
@@ -21,8 +27,9 @@ error while the others finish.
 
 Bit for bit: the SMPL fit runs on a fixed torch thread count (``FitParams.num_threads``)
 whatever the process; Ray starts its workers with ``OMP_NUM_THREADS=1``, so the tasks
-set the driver's thread count, the one ``mvviz run`` uses on that machine, for the
-other torch work too (the restoration): the numbers are the same as ``mvviz run``'s.
+set the driver's thread count, the one ``mvviz run`` uses on that machine
+(:func:`default_torch_threads`), for any other torch work: the numbers are the same as
+``mvviz run``'s.
 """
 
 from __future__ import annotations
@@ -37,7 +44,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import ray
-import torch
 
 from pipeline.batch.jobs import (
     SceneJob,
@@ -48,7 +54,8 @@ from pipeline.batch.jobs import (
     stored_key,
     summarize,
 )
-from pipeline.body_model import BodyModel, load_body_model
+from pipeline.body_arrays import BodyModelData
+from pipeline.config import PipelineConfig
 from pipeline.files import SceneFormatError, atomic_write
 from pipeline.progress import Progress, StageBar
 from pipeline.results import load_results, save_results
@@ -87,6 +94,60 @@ def stop_ray() -> None:
         ray.shutdown()
 
 
+def default_torch_threads() -> int:
+    """torch's default intra-op thread count in this process, without importing torch
+    (~1.3 s; the driver never needs it): ``MKL_NUM_THREADS``, else ``OMP_NUM_THREADS``
+    (a positive integer; others are ignored), at most the CPUs this process may run on,
+    which are the default (what this torch build does: tests/mvviz/cli/test_batch.py
+    compares the two). What ``mvviz run`` gets here, so the tasks set it for torch work
+    that has no thread count of its own (the fit and the restoration have one)."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    for name in ("MKL_NUM_THREADS", "OMP_NUM_THREADS"):
+        value = os.environ.get(name, "").strip()
+        if value.isdigit() and int(value) > 0:
+            return min(int(value), cpus or 1)
+    return cpus or 1
+
+
+def _set_threads(n: int) -> None:
+    import torch  # noqa: PLC0415  (workers only: the driver never imports torch)
+
+    torch.set_num_threads(n)
+
+
+def _warm_task(model_path: str | None) -> tuple[int, str | None]:
+    """A worker's first task: torch, the stages and the body model (its file, as a scene
+    task reads it) loaded while the driver still plans. Returns (the worker's process
+    id, the error if loading failed: the scene tasks, which load the same, report it)."""
+    try:
+        import pipeline.pose_prior  # noqa: F401, PLC0415  (torch, the fit's modules)
+        import pipeline.restore  # noqa: F401, PLC0415
+        import pipeline.smpl_fit  # noqa: F401, PLC0415
+        from pipeline.body_model import load_body_model  # noqa: PLC0415
+
+        load_body_model(model_path)  # once per process: the scene tasks find it loaded
+    except Exception as exc:  # noqa: BLE001  (reported by the scene tasks)
+        return os.getpid(), f"{type(exc).__name__}: {exc}"
+    return os.getpid(), None
+
+
+def warm_workers(num_cpus: int, model_path: str | None) -> list[ray.ObjectRef]:
+    """One warm-up task per CPU, submitted as soon as Ray is up (the scene tasks queue
+    behind them): each worker imports torch and the pipeline and loads the body model
+    (~2 s) while the driver still plans, not after it has submitted the scenes."""
+    warm = ray.remote(_warm_task).options(max_retries=0)
+    return [warm.remote(model_path) for _ in range(max(int(num_cpus), 1))]
+
+
+def check_prior(path: str | None) -> None:
+    """Read the pose prior checkpoint ``path`` (None: the shipped one) as the fit will
+    (a bad file raises :class:`SceneFormatError` naming it): on a worker, so the driver
+    never imports torch."""
+    from pipeline.pose_prior import load_prior  # noqa: PLC0415
+
+    load_prior(path)
+
+
 # ------------------------------------------------------------------------- the tasks
 
 
@@ -103,6 +164,8 @@ def _model(model):
     """The body model of a task: the one shipped, or the file's (read once per worker)."""
     if not isinstance(model, ModelFile):
         return model
+    from pipeline.body_model import load_body_model  # noqa: PLC0415  (torch)
+
     loaded = load_body_model(model.path)  # once per worker process
     if loaded.fingerprint != model.fingerprint:
         raise SceneFormatError(model.path, None, "body model differs from the driver's")
@@ -132,7 +195,7 @@ def _scene_task(scene, config, model, key, results_path, threads):
     files) the results are written here and only the summary returns. Returns
     (results or None, summary, wall and CPU seconds per stage)."""
     clock = _Clock()
-    torch.set_num_threads(threads)
+    _set_threads(threads)
     scene, model = _scene(scene), _model(model)
     clock.lap("load")
     inputs = scene_inputs(scene, config, model)
@@ -149,17 +212,17 @@ def _scene_task(scene, config, model, key, results_path, threads):
 
 
 def _inputs_task(scene, config, model, threads):
-    torch.set_num_threads(threads)
+    _set_threads(threads)
     return scene_inputs(_scene(scene), config, _model(model))
 
 
 def _chunk_task(scene, config, inputs, start, stop, threads):
-    torch.set_num_threads(threads)
+    _set_threads(threads)
     return run_chunk(_scene(scene), config, inputs, start, stop)
 
 
 def _join_task(scene, config, model, inputs, key, results_path, threads, *chunks):
-    torch.set_num_threads(threads)
+    _set_threads(threads)
     scene = _scene(scene)
     results = join_chunks(scene, config, _model(model), inputs, chunks, key)
     summary = summarize(scene, results)
@@ -170,7 +233,7 @@ def _join_task(scene, config, model, inputs, key, results_path, threads, *chunks
 
 
 def _summary_task(scene, results, threads):
-    torch.set_num_threads(threads)
+    _set_threads(threads)
     return summarize(_scene(scene), results)
 
 
@@ -218,14 +281,14 @@ class _Submitter:
     """Submits a job's tasks. Without shared files, each scene and the body model go into
     the object store once, however many jobs (sweep settings) use them."""
 
-    def __init__(self, scenes: dict[Path, Scene], model: BodyModel, retries: int, shared: bool):
+    def __init__(self, scenes: dict[Path, Scene], model: BodyModelData, retries: int, shared: bool):
         opts = dict(max_retries=retries, retry_exceptions=True)
         tasks = dict(
             scene=_scene_task, inputs=_inputs_task, chunk=_chunk_task, join=_join_task,
             summary=_summary_task,
         )  # fmt: skip
         self.fn = {k: ray.remote(f).options(**opts) for k, f in tasks.items()}
-        self.threads = torch.get_num_threads()
+        self.threads = default_torch_threads()
         self.scenes, self.model, self.shared = scenes, model, shared
         self.num_chunks = 0
         self._scene_refs: dict[Path, ray.ObjectRef] = {}
@@ -289,18 +352,20 @@ def _finish(job: SceneJob, kind: str, ref: ray.ObjectRef, took: float) -> Outcom
 def run_jobs(
     jobs: Sequence[SceneJob],
     scenes: dict[Path, Scene],
-    model: BodyModel,
+    model: BodyModelData,
     *,
     chunk_frames: int = 0,
     retries: int = 2,
     force: bool = False,
     progress: Progress = True,
     shared_files: bool = False,
+    warm: Sequence[ray.ObjectRef] = (),
 ) -> list[Outcome]:
     """Run every job whose results are not current (``force``: all) on the connected
     Ray; ``scenes`` maps each job's ``scene_dir`` to its loaded scene; ``shared_files``:
     the workers read the scenes and write the results at the driver's paths (see the
-    module docstring). Outcomes in the order of ``jobs``. Progress: stage "scenes" (jobs
+    module docstring); ``warm``: the refs of :func:`warm_workers` (collected at the
+    end). Outcomes in the order of ``jobs``. Progress: stage "scenes" (jobs
     done, cached ones counted at once) and stage "chunks" (frame chunks done)."""
     outcomes: list[Outcome | None] = [None] * len(jobs)
     todo: list[tuple[int, bool]] = []
@@ -313,6 +378,11 @@ def run_jobs(
     # The biggest scenes first, so that the last tasks to start are short ones and no
     # worker idles long while another finishes a big scene.
     todo.sort(key=lambda t: -_scene_size(scenes[jobs[t[0]].scene_dir]))
+    bad_prior = _prior_errors([jobs[i].config for i, current in todo if not current], retries)
+    for i, current in todo:
+        if not current and (error := bad_prior.get(_prior_of(jobs[i].config))):
+            outcomes[i] = Outcome(jobs[i], "failed", error=error)
+    todo = [(i, current) for i, current in todo if outcomes[i] is None]
     submitter = _Submitter(scenes, model, retries, shared_files)
     pending: dict[ray.ObjectRef, tuple[str, int]] = {}
     started: dict[int, float] = {}
@@ -333,7 +403,34 @@ def run_jobs(
                 continue
             outcomes[i] = _finish(jobs[i], kind, ready[0], time.perf_counter() - started[i])
             scene_bar.update()
+    for ref in warm:  # done long ago; a failed load is the scene tasks' error to report
+        try:
+            ray.get(ref)
+        except ray.exceptions.RayError:
+            pass
     return [o for o in outcomes if o is not None]
+
+
+def _prior_of(config: PipelineConfig) -> str | None:
+    """The pose prior checkpoint a job's fit reads ("" none, None the shipped one)."""
+    return (config.pose_prior or None) if config.fit_smpl and config.use_pose_prior else ""
+
+
+def _prior_errors(configs: Sequence[PipelineConfig], retries: int) -> dict[str | None, str]:
+    """{checkpoint: error} of the pose priors these configs' fits read that cannot be
+    read: each checked once, on a worker (a task queued behind the warm-ups), before any
+    scene task is submitted, so a bad file fails its jobs at once, not after each
+    scene's restoration, association and retries."""
+    priors = sorted({p for c in configs if (p := _prior_of(c)) != ""}, key=str)
+    check = ray.remote(check_prior).options(max_retries=retries, retry_exceptions=False)
+    refs = {p: check.remote(p) for p in priors}
+    errors = {}
+    for prior, ref in refs.items():
+        try:
+            ray.get(ref)
+        except (ray.exceptions.RayError, SceneFormatError, OSError, ValueError) as exc:
+            errors[prior] = _error_text(exc)
+    return errors
 
 
 def _scene_size(scene: Scene) -> int:

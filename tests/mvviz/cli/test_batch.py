@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import html
 import json
+import os
 import shutil
+import subprocess
+import sys
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -163,6 +166,62 @@ def test_sweep_runs_the_grid(dataset, tmp_path):
     stored = load_results(out / "a" / "kalman.q-2000.npz")
     assert np.array_equal(stored.track_forward, fresh.track_forward, equal_nan=True)
     assert (out / "batch_report.html").is_file()
+
+
+def test_bad_prior_fails_its_jobs_before_any_scene_runs(dataset, tmp_path):
+    """The checkpoint is read on a worker (the driver never imports torch): a file that is
+    no checkpoint fails the job with an error naming it, and no results are written."""
+    bad = tmp_path / "prior.pt"
+    bad.write_bytes(b"not a checkpoint")
+    out = tmp_path / "out"
+    scene = str(dataset / "ref" / "a")
+    assert main(["batch", scene, "--set", f"pose_prior={bad}", "--force", "--out", str(out)]) == 1
+    row = load_report(out)["rows"][0]
+    assert row["status"] == "failed" and row["task_seconds"] is None
+    assert "SceneFormatError" in row["error"] and "not a readable checkpoint" in row["error"]
+    assert str(bad) in row["error"]
+    assert not (out / "a" / "results.npz").exists()
+
+
+DRIVER = """
+import sys
+from mvviz.cli import build_parser
+from mvviz.cli.batch import plan
+import pipeline.batch.ray_run
+argv = ["batch", sys.argv[1], "--force"]
+jobs, scenes, model, bad = plan(build_parser(argv).parse_args(argv))
+assert len(jobs) == 1 and not bad
+print(sorted(m for m in sys.modules if m == "torch" or m.startswith("torch.")))
+"""
+
+
+def test_the_driver_plans_without_torch(dataset):
+    """Importing the batch command and Ray's side and planning (scene, config, body
+    model, cache key) load no torch (~1.3 s of a batch's fixed cost)."""
+    done = subprocess.run([sys.executable, "-c", DRIVER, str(dataset / "ref" / "a")],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    assert done.stdout.strip() == "[]"
+
+
+THREADS = (
+    "import torch; from pipeline.batch.ray_run import default_torch_threads as d; "
+    "print(torch.get_num_threads(), d())"
+)
+
+
+@pytest.mark.parametrize(
+    "env",
+    [{}, {"OMP_NUM_THREADS": "1"}, {"OMP_NUM_THREADS": "99"}, {"OMP_NUM_THREADS": "x"},
+     {"OMP_NUM_THREADS": "2", "MKL_NUM_THREADS": "1"}],
+)  # fmt: skip
+def test_default_torch_threads_is_torchs_own(env):
+    """The thread count the tasks set for torch work without its own is what torch picks
+    in the driver's environment, read without importing torch."""
+    clean = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    done = subprocess.run([sys.executable, "-c", THREADS], env={**clean, **env},
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    torch_threads, ours = done.stdout.split()
+    assert torch_threads == ours
 
 
 def test_no_scenes_is_an_input_error(tmp_path, capsys):
