@@ -13,8 +13,14 @@ search, same Smooth L1 data term and pose / betas regularisers. Both use one tor
 thread (FitParams.num_threads). Also prints MPJPE against the ground truth and the
 plausibility figures of every stage.
 
+With ``--chunk C`` also the chunked fit (:func:`pipeline.smpl_fit_chunks.fit_in_chunks`,
+chunks of C frames warm-started by the previous one), its accuracy in the table, and
+its throughput at 20 tracks (the sample's 4 tracks copied 5 times: a 31 x 20 scene's
+chunk size in rows; the copies' figures are the same fits, only the cost is new),
+alternated with the whole-sequence fit of the same 20 tracks, CPU time.
+
 Usage:
-    python bench/bench_fit.py [--baseline-frames N] [--json FILE]
+    python bench/bench_fit.py [--baseline-frames N] [--chunk C] [--json FILE]
 """
 
 from __future__ import annotations
@@ -49,6 +55,7 @@ from pipeline.smpl_fit import (  # noqa: E402
     initial_alignment,
     plausibility,
 )
+from pipeline.smpl_fit_chunks import fit_in_chunks  # noqa: E402
 from pipeline.smpl_kinematics import keypoint_buffers, matrix_to_rotvec  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -109,12 +116,51 @@ def rows(name: str, scored: np.ndarray, gt_dense: np.ndarray, plaus: dict) -> tu
     return name, {"mpjpe_mm": m["mpjpe"], "accel_mm": m["accel"], "recall": m["recall"], **plaus}
 
 
+def chunked_figures(tracks, js, model, prior, params, chunk: int, repeats: int = 3) -> dict:
+    """The chunked fit on the sample (its fits, for the table) and, alternated with the
+    whole-sequence fit, step I's CPU throughput on the tracks copied to 20."""
+    t0 = time.process_time()
+    c1, c2 = fit_in_chunks(tracks, js, model, prior=prior, params=params, chunk_frames=chunk,
+                           progress=False)  # fmt: skip
+    cpu = time.process_time() - t0
+    n = int(c1.present.sum())
+    print(f"chunks of {chunk} frames, step I + VAE: {n / cpu:7.1f} person-frames/CPU-s, "
+          f"residual step I {np.nanmean(c1.residual):.2f} mm, VAE {np.nanmean(c2.residual):.2f}"
+          " mm")  # fmt: skip
+    wide = np.concatenate([tracks] * 5)
+    cost = {"whole": [], "chunks": []}
+    nw = 0
+    for _ in range(repeats):
+        for name in cost:
+            t0 = time.process_time()
+            if name == "whole":
+                f, _ = fit_sequence(wide, js, model, params=params, progress=False)
+            else:
+                f, _ = fit_in_chunks(wide, js, model, params=params, chunk_frames=chunk,
+                                     progress=False)  # fmt: skip
+            cost[name].append(time.process_time() - t0)
+            nw = int(f.present.sum())
+    rate = {k: nw / float(np.median(v)) for k, v in cost.items()}
+    print(f"step I at 20 tracks ({nw} person-frames), median of {repeats} alternated, CPU: "
+          f"whole sequence {rate['whole']:.1f}, chunks of {chunk} {rate['chunks']:.1f} "
+          "person-frames/CPU-s")  # fmt: skip
+    return {
+        "chunk_frames": chunk, "chunked_step1_vae_pf_per_cpu_s": n / cpu,
+        "chunked_step1_residual_mm": float(np.nanmean(c1.residual)),
+        "chunked_vae_residual_mm": float(np.nanmean(c2.residual)),
+        "step1_pf_per_cpu_s_20_tracks": rate,
+        "fits": {"smpl_chunks": c1, "smpl_vae_chunks": c2},
+        "fit_objects": {"smpl_chunks": c1, "smpl_vae_chunks": c2},
+    }  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--scene", type=Path, default=REPO / "sample_data" / "shelf_synth")
     parser.add_argument("--baseline-frames", type=int, default=24)
+    parser.add_argument("--chunk", type=int, default=0, help="also the fit in chunks of C frames")
     parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     args = parser.parse_args()
 
@@ -174,6 +220,7 @@ def main() -> None:
         f"{base['step1_residual_same_frames_mm']:.1f} mm)"
     )
     print(f"speed-up step I / baseline: {ratio:.1f}x")
+    chunked = chunked_figures(tracks, js, model, prior, params, args.chunk) if args.chunk else {}
 
     gt_slots, _ = ground_truth_slots(scene.gt, js)
     gt_dense, _ = gt_per_frame(scene.gt, gt_slots, results.num_frames)
@@ -194,7 +241,11 @@ def main() -> None:
         ]
     )  # fmt: skip
     joints_dense, _ = gt_per_frame(scene.gt, scene.gt.joints3d, results.num_frames)
-    for name, fit in (("smpl", fit1), ("smpl_vae", fit2)):
+    for name, fit in chunked.pop("fits", {}).items():
+        table[name] = rows(name, scored(fit.keypoints), gt_dense, plausibility(fit))[1]
+    fits_by_name = {"smpl": fit1, "smpl_vae": fit2}
+    fits_by_name.update({k: v for k, v in chunked.pop("fit_objects", {}).items()})
+    for name, fit in fits_by_name.items():
         table[name]["mpjpe_smpl24_joints_mm"] = stage_metrics(fit.joints, joints_dense)[0]["mpjpe"]
     print(f"\n{'stage':9s} {'MPJPE':>7s} {'accel':>6s} {'limits/1k':>9s} {'hinge/1k':>8s} "
           f"{'bone std':>8s} {'foot jit':>8s} {'wrist jit':>9s}")  # fmt: skip
@@ -207,10 +258,10 @@ def main() -> None:
         )
     print("(MPJPE, accel: COCO-17 keypoints vs gt keypoints3d where raw has the joint, mm;"
           " plausibility over whole tracks; SMPL-24 joints vs joints3d, all frames: "
-          + ", ".join(f"{k} {table[k]['mpjpe_smpl24_joints_mm']:.1f}" for k in ("smpl", "smpl_vae"))
+          + ", ".join(f"{k} {table[k]['mpjpe_smpl24_joints_mm']:.2f}" for k in fits_by_name)
           + " mm)")  # fmt: skip
     if args.json:
-        out = {"fast": fast, "baseline": base, "speedup": ratio, "stages": table}
+        out = {"fast": fast, "baseline": base, "speedup": ratio, "stages": table, **chunked}
         write_json(args.json, out)
 
 

@@ -134,7 +134,7 @@ def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
         model = load_body_model()
         sampler.stage("fit")
         t1 = time.process_time()
-        f1 = fit_in_chunks(res.track_smoothed, res.joint_set, model, progress=False)
+        f1, _ = fit_in_chunks(res.track_smoothed, res.joint_set, model, progress=False)
         fit = {
             "fit_cpu_s": time.process_time() - t1,
             "person_frames": int(f1.present.sum()),

@@ -508,6 +508,26 @@ def fit_sequence(
         return _fit(x, buf, model, prior, params, weights, progress)
 
 
+@dataclass(frozen=True, eq=False)
+class WarmStart:
+    """Where a fit starts instead of phase 0: what an earlier fit (the previous chunk of
+    the same tracks, :mod:`pipeline.smpl_fit_chunks`) found. K tracks, F frames, mm.
+
+    Attributes:
+        betas: (K, B) per track, NaN for a track the earlier fit did not see (phase 0's
+            betas then).
+        keypoint_offsets: (K, T, 3) mm per track, NaN likewise (then zero).
+        pose_rotvecs: (K, F, 24, 3) local axis-angle per person-frame, NaN where phase 0
+            starts (frames the earlier fit did not cover).
+        transl: (K, F, 3) mm, NaN likewise.
+    """
+
+    betas: np.ndarray
+    keypoint_offsets: np.ndarray
+    pose_rotvecs: np.ndarray
+    transl: np.ndarray
+
+
 def _fit(
     x: np.ndarray,
     buf: KeypointBuffers,
@@ -516,6 +536,7 @@ def _fit(
     params: FitParams,
     weights: np.ndarray | None,
     progress: Progress,
+    warm: WarmStart | None = None,
 ) -> tuple[SmplFit, SmplFit | None]:
     prob = _pack(x, None if weights is None else np.asarray(weights, float), buf.fitted)
     nb = buf.J_shapedirs.shape[-1]
@@ -526,7 +547,7 @@ def _fit(
             torch.zeros(0, 3), seconds=0.0, stage="smpl",
         )  # fmt: skip
         return empty, (None if prior is None else dataclasses.replace(empty, stage="smpl_vae"))
-    R1, betas, transl, off1 = _step_one(prob, buf, params, progress)
+    R1, betas, transl, off1 = _step_one(prob, buf, params, progress, warm)
     fit1 = _make_fit(
         prob, buf, model, R1, betas, transl, seconds=time.perf_counter() - t0, stage="smpl",
         offsets=off1,
@@ -541,29 +562,57 @@ def _fit(
     return fit1, fit2
 
 
-def _step_one(prob: _Problem, buf: KeypointBuffers, params: FitParams, progress: Progress):
-    """Phase 0 (closed-form root, translation, limbs and betas), then step I by Adam.
+def _phase_zero(prob: _Problem, buf: KeypointBuffers, params: FitParams, warm: WarmStart | None):
+    """Initial rotations (N, 24, 3, 3), translations (N, 3), betas (K, nb) and keypoint
+    offsets (K, T, 3), metres, numpy: phase 0's closed forms, replaced by ``warm``'s values
+    where it has them; and (K,) bool, the tracks whose betas and offsets ``warm`` holds."""
+    R0, transl = initial_alignment(prob, buf, min_points=params.min_torso_points)
+    rotmats = analytic_pose(prob, buf, R0)
+    betas = initial_betas(prob, buf)
+    offsets = np.zeros((prob.K, buf.num_targets, 3))
+    if warm is None:
+        return rotmats, transl, betas, offsets, np.zeros(prob.K, bool)
+    seen = np.isfinite(warm.betas).all(1) & np.isfinite(warm.keypoint_offsets).all((1, 2))
+    betas[seen] = warm.betas[seen]
+    offsets[seen] = warm.keypoint_offsets[seen] / MM_PER_M
+    pose = warm.pose_rotvecs[prob.track, prob.frame]  # (N, 24, 3)
+    posed = np.isfinite(pose).all((1, 2)) & np.isfinite(warm.transl[prob.track, prob.frame]).all(1)
+    rotmats[posed] = rotvec_to_matrix(pose[posed])
+    transl[posed] = warm.transl[prob.track[posed], prob.frame[posed]] / MM_PER_M
+    return rotmats, transl, betas, offsets, seen
+
+
+def _step_one(
+    prob: _Problem, buf: KeypointBuffers, params: FitParams, progress: Progress,
+    warm: WarmStart | None = None,
+):  # fmt: skip
+    """Phase 0 (closed-form root, translation, limbs and betas; or ``warm``'s values),
+    then step I by Adam (``params.iters``, or ``params.iters_warm`` from a warm start).
+    The betas and offsets of the tracks ``warm`` holds stay as they are (a track's body is
+    the one of its first chunk, so all its frames share one shape).
     Returns rotations (N, 24, 3, 3), betas (K, nb), translations (N, 3) and the learnt
     keypoint offsets (K, T, 3) or None, all detached."""
-    R0, t_init = initial_alignment(prob, buf, min_points=params.min_torso_points)
-    rotmats0 = torch.as_tensor(analytic_pose(prob, buf, R0), dtype=torch.float32)
-    rot6d = matrix_to_rot6d(rotmats0).requires_grad_(True)
+    rotmats0, t_init, betas0, offsets0, held = _phase_zero(prob, buf, params, warm)
+    held_t = torch.as_tensor(held)
+    rot6d = matrix_to_rot6d(torch.as_tensor(rotmats0, dtype=torch.float32)).requires_grad_(True)
     transl = torch.as_tensor(t_init, dtype=torch.float32).requires_grad_(True)
-    betas = torch.as_tensor(initial_betas(prob, buf), dtype=torch.float32).requires_grad_(True)
+    betas = torch.as_tensor(betas0, dtype=torch.float32).requires_grad_(True)
     w_joint = params.w_pose + params.w_free * buf.free_weight  # (24,)
     w_joint[0] = 0.0
-    offsets = torch.zeros(prob.K, buf.num_targets, 3, requires_grad=True)
+    offsets = torch.as_tensor(offsets0, dtype=torch.float32).requires_grad_(True)
     use_offsets = params.w_offset > 0
     # (T, 1): the targets whose offsets this fit learns (the others stay zero)
     learnt = (buf.offset_mask - (0.0 if params.foot_offsets else buf.foot_offset))[:, None]
 
     def loss_step1() -> torch.Tensor:
         R = rot6d_to_matrix(rot6d)
-        off = (offsets * learnt)[prob.track_rows] if use_offsets else None
-        loss = _objective(R, betas[prob.track_rows], transl, prob, buf, params, off)
-        loss = loss + params.w_betas * (betas * betas).mean()
+        b = torch.where(held_t[:, None], betas.detach(), betas) if held.any() else betas
+        o = torch.where(held_t[:, None, None], offsets.detach(), offsets) if held.any() else offsets
+        off = (o * learnt)[prob.track_rows] if use_offsets else None
+        loss = _objective(R, b[prob.track_rows], transl, prob, buf, params, off)
+        loss = loss + params.w_betas * (b * b).mean()
         if use_offsets:
-            loss = loss + params.w_offset * (offsets * offsets).sum(-1).mean()
+            loss = loss + params.w_offset * (o * o).sum(-1).mean()
         if params.w_limit > 0:
             loss = loss + params.w_limit * limit_penalty(R).mean()
         return loss + (_rest_distance(R) * w_joint).sum(1).mean()
@@ -571,7 +620,8 @@ def _step_one(prob: _Problem, buf: KeypointBuffers, params: FitParams, progress:
     groups = [([rot6d], params.lr_rot), ([transl], params.lr_transl_m), ([betas], params.lr_betas)]
     if use_offsets:
         groups.append(([offsets], params.lr_offset_m))
-    adam_cosine(groups, loss_step1, params.iters, progress=progress, desc="SMPL fit (step I)")
+    iters = params.iters if warm is None else params.iters_warm
+    adam_cosine(groups, loss_step1, iters, progress=progress, desc="SMPL fit (step I)")
     with torch.no_grad():
         R1 = rot6d_to_matrix(rot6d)
     off1 = (offsets * learnt).detach() if use_offsets else None

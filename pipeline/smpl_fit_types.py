@@ -30,6 +30,9 @@ class FitParams:
     """Smooth L1 switch point, metres: quadratic below, linear above."""
     iters: int = 120
     """Adam iterations of step I."""
+    iters_warm: int = 120
+    """Adam iterations of step I from a warm start (a chunk whose betas, offsets and
+    overlap frames come from the previous chunk, :mod:`pipeline.smpl_fit_chunks`)."""
     lr_rot: float = 0.04
     """Learning rate of the 6D rotations (unit-scale vectors)."""
     lr_transl_m: float = 0.01
