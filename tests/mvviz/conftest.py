@@ -155,14 +155,12 @@ def wait_drawn(
 ) -> np.ndarray:
     """The (h, w, 3) canvas once the page shows everything sent for the app's state.
 
-    A fixed settle is not a drawn state: the page applies a frame's messages in order,
-    but a frustum's video arrives as a JPEG that the client decodes into a texture after
-    the message is applied (asynchronously, slower the busier the machine), a camera set
-    from the server eases in over several renders, and filter B's overlay and the failure
-    marks come from panel workers outside the render's batch. So: the app's render and
-    panel workers idle, every page answered a round trip queued behind what was sent
-    (:class:`~mvviz.workers.PageAcks`), then canvas screenshots ``interval_s`` apart
-    until two in a row are the same picture.
+    A label and a fixed settle are not a drawn state: filter B's overlay and the failure
+    marks are sent by panel workers outside the render's batch, and a frustum's video
+    is a JPEG that viser's client decodes into a texture after applying its message
+    (asynchronously). So: the render and panel workers idle, every page answered a round
+    trip queued behind what was sent (:class:`~mvviz.workers.PageAcks`), then canvas
+    screenshots ``interval_s`` apart until two in a row are the same picture.
     """
     from mvviz.workers import PageAcks
 

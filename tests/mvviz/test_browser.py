@@ -76,8 +76,7 @@ def test_timeline_changes_the_canvas(page, running_app, shots):
     save(page, shots, "viewer_tiny_frame15")
     assert app.state.frame == 15
     assert diff(a, b) > 0.3, f"frame change barely changed the canvas ({diff(a, b):.3f})"
-    # and back: the same frame is the same picture once the page has drawn it all (a
-    # fixed settle compared a picture whose videos were still decoding: 3.34 vs 4.85)
+    # and back: the same frame is the same picture once the page has drawn it all
     app.set_frame(0)
     c = wait_drawn(app, page)
     cv2.imwrite(str(shots / "viewer_tiny_frame0_again.png"), cv2.cvtColor(c, cv2.COLOR_RGB2BGR))
