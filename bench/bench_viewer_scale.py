@@ -10,10 +10,13 @@ times alternated:
   the first HTTP answer and to the "ready" line (scene loaded, viewer built, first frame
   drawn), the process's CPU seconds and its resident memory (VmRSS, and the peak VmHWM)
   at that point;
-- in this process, the viewer on that layout (every layer on, as bench/bench_viewer.py
-  starts it; its ``start_app`` / ``measure`` helpers): --changes random frame changes,
-  server time and CPU per change (median, p95) and the bytes on the wire per change with
-  31 frusta, broken down by what they update.
+- in this process, the viewer on that layout with the layers ``python app.py`` opens
+  with (:data:`APP_LAYERS`: meshes off; past 8 cameras the 2D detections on the camera
+  panel's frustum only), started by bench/bench_viewer.py's ``start_app`` and measured
+  by its ``measure``: --changes random frame changes, server time and CPU per change
+  (median, p95) and the bytes on the wire per change with 31 frusta, broken down by what
+  they update. Then, on the directory only, every layer on (:data:`EVERY_LAYER`: meshes,
+  fitted bodies on the image, 2D detections on all 31 frusta).
 
 With --video-frames F (default 20; 0: skip) a twin scene of the same rig and people with
 videos (``--video-scale``) is synthesised over F frames: the same frame-change figures
@@ -55,6 +58,12 @@ DOME_MM, AREA_MM = 5000.0, 4200.0  # 20 people cannot walk 150 frames in the 3 m
 LAYOUTS = {"directory": "results", "npz": "results.npz"}  # under SCENE/.mvviz
 TARGET_S, TARGET_MS, TARGET_KB = 5.0, 20.0, 100.0
 START_KEYS = ("http_s", "ready_s", "cpu_s", "rss_mb", "peak_rss_mb")
+CHANGE_KEYS = ("median_ms", "p95_ms", "median_cpu_ms", "median_kb", "open_and_build_cpu_s")
+# start_app turns every layer on; these options give the layers app.py opens a
+# 31-camera scene with, and every layer with the 2D detections on every frustum
+APP_LAYERS = {"meshes": False, "fit_meshes": False, "bodies_on_images": False,
+              "detections2d_panel_camera_only": True}  # fmt: skip
+EVERY_LAYER = {"detections2d_panel_camera_only": False}
 
 
 def dome_scene(out: Path, cams: int, people: int, frames: int, seed: int, video: float) -> Scene:
@@ -140,11 +149,14 @@ def time_app_start(scene: Path, results: Path) -> dict[str, float]:
     return out
 
 
-def frame_changes(scene: Scene, path: Path, model, frames, changes: np.ndarray) -> dict:
-    """The viewer in this process on results ``path``: ``changes`` frame changes."""
+def frame_changes(
+    scene: Scene, path: Path, model, frames, changes: np.ndarray, layers: dict
+) -> dict:
+    """The viewer in this process on results ``path`` with ``layers`` (start_app's
+    options): ``changes`` frame changes."""
     t0 = time.process_time()
     results = load_results(path, model=model)
-    app, tap = start_app(scene, results, model, frames)
+    app, tap = start_app(scene, results, model, frames, **layers)
     try:
         built_cpu = time.process_time() - t0
         measure(app, tap, changes[:3], None)  # warm up
@@ -185,7 +197,7 @@ def main(argv: list[str] | None = None) -> dict:
     rng = np.random.default_rng(0)
     changes = rng.integers(0, scene.num_frames, args.changes + 3)
     starts: dict[str, list[dict]] = {k: [] for k in LAYOUTS}
-    changed: dict[str, list[dict]] = {k: [] for k in LAYOUTS}
+    changed: dict[str, list[dict]] = {k: [] for k in (*LAYOUTS, "every layer")}
     for run in range(args.runs):
         for layout in LAYOUTS:
             s = time_app_start(scene.root, paths[layout])
@@ -193,20 +205,25 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"run {run} {layout}: app.py first HTTP answer {s.get('http_s', np.nan):.2f} s, "
                   f"ready {s['ready_s']:.2f} s (CPU {s['cpu_s']:.1f} s), RSS "
                   f"{s['rss_mb']:.0f} MB (peak {s['peak_rss_mb']:.0f})", flush=True)  # fmt: skip
-            c = frame_changes(scene, paths[layout], model, None, changes)
+            c = frame_changes(scene, paths[layout], model, None, changes, APP_LAYERS)
             changed[layout].append(c)
-            report(f"run {run} {layout}: frame change", c)
+            report(f"run {run} {layout}: frame change, app.py's layers", c)
+        c = frame_changes(scene, paths["directory"], model, None, changes, EVERY_LAYER)
+        changed["every layer"].append(c)
+        report(f"run {run} directory: frame change, every layer", c)
     out: dict = {"scene": str(scene.root), "frames": scene.num_frames,
                  "detections": len(scene.detections), "layouts": {}}  # fmt: skip
     for layout in LAYOUTS:
         st, ch = starts[layout], changed[layout]
         out["layouts"][layout] = {
             **{k: median_of(st, k) for k in START_KEYS},
-            **{k: median_of(ch, k) for k in ("median_ms", "p95_ms", "median_cpu_ms", "median_kb",
-                                             "open_and_build_cpu_s")},
+            **{k: median_of(ch, k) for k in CHANGE_KEYS},
             "breakdown_kb": ch[-1]["breakdown_kb"],
             "starts": st,
         }  # fmt: skip
+    ch = changed["every layer"]
+    out["every_layer"] = {**{k: median_of(ch, k) for k in CHANGE_KEYS},
+                          "breakdown_kb": ch[-1]["breakdown_kb"]}  # fmt: skip
     if args.video_frames > 0:
         out["video"] = video_twin(args, model)
     summary(out)
@@ -225,12 +242,15 @@ def video_twin(args: argparse.Namespace, model) -> dict:
     frames = FrameStore(scene, cache_dir=scene.root / CACHE_DIR / "frames").start()
     assert frames.wait(600), "decoding the twin's videos took too long"
     changes = np.random.default_rng(1).integers(0, scene.num_frames, args.changes + 3)
-    runs = [frame_changes(scene, paths["directory"], model, frames, changes)
-            for _ in range(args.runs)]  # fmt: skip
-    for i, r in enumerate(runs):
-        report(f"video twin run {i}: frame change", r)
-    keys = ("median_ms", "p95_ms", "median_cpu_ms", "median_kb")
-    return {**{k: median_of(runs, k) for k in keys}, "breakdown_kb": runs[-1]["breakdown_kb"]}
+    out = {}
+    for name, layers in (("app_layers", APP_LAYERS), ("every_layer", EVERY_LAYER)):
+        runs = [frame_changes(scene, paths["directory"], model, frames, changes, layers)
+                for _ in range(args.runs)]  # fmt: skip
+        for i, r in enumerate(runs):
+            report(f"video twin run {i}: frame change, {name}", r)
+        out[name] = {**{k: median_of(runs, k) for k in CHANGE_KEYS},
+                     "breakdown_kb": runs[-1]["breakdown_kb"]}  # fmt: skip
+    return out
 
 
 def summary(out: dict) -> None:
@@ -243,13 +263,15 @@ def summary(out: dict) -> None:
             f"(CPU {r['median_cpu_ms']:.1f}, target <= {TARGET_MS:.0f}), "
             f"{r['median_kb']:.1f} KB (target <= {TARGET_KB:.0f})"
         )
+    e = out["every_layer"]
+    print(f"  every layer (directory): frame change {e['median_ms']:.1f} ms (CPU "
+          f"{e['median_cpu_ms']:.1f}), {e['median_kb']:.1f} KB")  # fmt: skip
     d, z = out["layouts"]["directory"], out["layouts"]["npz"]
     print(f"  directory / npz: ready {d['ready_s'] / z['ready_s']:.2f}x, RSS "
           f"{d['rss_mb'] / z['rss_mb']:.2f}x, frame change CPU "
           f"{d['median_cpu_ms'] / z['median_cpu_ms']:.2f}x")  # fmt: skip
-    if "video" in out:
-        v = out["video"]
-        print(f"  with video on the 31 frusta: frame change {v['median_ms']:.1f} ms (CPU "
+    for name, v in out.get("video", {}).items():
+        print(f"  video on the 31 frusta, {name}: frame change {v['median_ms']:.1f} ms (CPU "
               f"{v['median_cpu_ms']:.1f}), {v['median_kb']:.1f} KB")  # fmt: skip
 
 

