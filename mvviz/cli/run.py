@@ -37,7 +37,11 @@ def add_pipeline_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
     add_config_options(p)
     p.add_argument(
-        "--out", type=Path, default=None, help="results file (default SCENE/.mvviz/results.npz)"
+        "--out",
+        type=Path,
+        default=None,
+        help="results file (default SCENE/.mvviz/results.npz); a path not ending in .npz is "
+        "a directory of memory-mapped arrays the viewer reads frame by frame (long scenes)",
     )
     p.add_argument("--force", action="store_true", help="ignore cached results")
 

@@ -47,7 +47,11 @@ def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False
         help="override a pipeline config value (repeatable)",
     )  # fmt: skip
     p.add_argument(
-        "--out", type=Path, default=None, help="results file (default SCENE/.mvviz/results.npz)"
+        "--out",
+        type=Path,
+        default=None,
+        help="results file (default SCENE/.mvviz/results.npz); a path not ending in .npz is "
+        "a directory of memory-mapped arrays the viewer reads frame by frame (long scenes)",
     )
     p.add_argument("--force", action="store_true", help="re-run the pipeline, ignore the cache")
     p.add_argument("--frame", type=int, default=None, help="open at this frame")
