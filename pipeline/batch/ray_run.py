@@ -25,11 +25,10 @@ Failures: every task is retried ``retries`` times, after a Python exception
 results are rebuilt from their lineage); a scene that still fails is reported with its
 error while the others finish.
 
-Bit for bit: the SMPL fit runs on a fixed torch thread count (``FitParams.num_threads``)
-whatever the process; Ray starts its workers with ``OMP_NUM_THREADS=1``, so the tasks
-set the driver's thread count, the one ``mvviz run`` uses on that machine
-(:func:`default_torch_threads`), for any other torch work: the numbers are the same as
-``mvviz run``'s.
+Bit for bit: the SMPL fit and the restoration run on fixed torch thread counts
+(``FitParams.num_threads``, ``pipeline.restore.RESTORE_THREADS``) whatever the process,
+and the tasks run the rest of torch on :data:`TASK_TORCH_THREADS`: the numbers are the
+same as ``mvviz run``'s.
 """
 
 from __future__ import annotations
@@ -61,6 +60,13 @@ from pipeline.progress import Progress, StageBar
 from pipeline.results import load_results, save_results
 from pipeline.scene import Scene, load_scene
 
+TASK_TORCH_THREADS = 1
+"""torch's threads in a task: a task holds one CPU (two workers of the driver's 2
+threads would put 4 threads on 2 cores). The fit and the restoration run on their own
+fixed counts anyway; the rest gives the same numbers on 1 thread as on ``mvviz run``'s
+default (tests/mvviz/cli/test_batch.py; bench_batch compares 8 scenes). One scene task
+alone in a process costs the same either way (6.4-7.4 CPU s at 1 and at 2 threads,
+alternated, load ~10)."""
 RAY_TEMP_DIR = Path(tempfile.gettempdir()) / "mvviz-ray"  # embedded Ray's sessions and logs
 SUMMARY_SUFFIX = ".summary.json"  # beside a results file: its report figures and key
 
@@ -92,21 +98,6 @@ def start_ray(address: str | None = None, *, num_cpus: int | None = None) -> dic
 def stop_ray() -> None:
     if ray.is_initialized():
         ray.shutdown()
-
-
-def default_torch_threads() -> int:
-    """torch's default intra-op thread count in this process, without importing torch
-    (~1.3 s; the driver never needs it): ``MKL_NUM_THREADS``, else ``OMP_NUM_THREADS``
-    (a positive integer; others are ignored), at most the CPUs this process may run on,
-    which are the default (what this torch build does: tests/mvviz/cli/test_batch.py
-    compares the two). What ``mvviz run`` gets here, so the tasks set it for torch work
-    that has no thread count of its own (the fit and the restoration have one)."""
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    for name in ("MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-        value = os.environ.get(name, "").strip()
-        if value.isdigit() and int(value) > 0:
-            return min(int(value), cpus or 1)
-    return cpus or 1
 
 
 def _set_threads(n: int) -> None:
@@ -288,7 +279,7 @@ class _Submitter:
             summary=_summary_task,
         )  # fmt: skip
         self.fn = {k: ray.remote(f).options(**opts) for k, f in tasks.items()}
-        self.threads = default_torch_threads()
+        self.threads = TASK_TORCH_THREADS
         self.scenes, self.model, self.shared = scenes, model, shared
         self.num_chunks = 0
         self._scene_refs: dict[Path, ray.ObjectRef] = {}

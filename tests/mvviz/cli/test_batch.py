@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import html
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -201,27 +200,6 @@ def test_the_driver_plans_without_torch(dataset):
     done = subprocess.run([sys.executable, "-c", DRIVER, str(dataset / "ref" / "a")],
                           capture_output=True, text=True, check=True)  # fmt: skip
     assert done.stdout.strip() == "[]"
-
-
-THREADS = (
-    "import torch; from pipeline.batch.ray_run import default_torch_threads as d; "
-    "print(torch.get_num_threads(), d())"
-)
-
-
-@pytest.mark.parametrize(
-    "env",
-    [{}, {"OMP_NUM_THREADS": "1"}, {"OMP_NUM_THREADS": "99"}, {"OMP_NUM_THREADS": "x"},
-     {"OMP_NUM_THREADS": "2", "MKL_NUM_THREADS": "1"}],
-)  # fmt: skip
-def test_default_torch_threads_is_torchs_own(env):
-    """The thread count the tasks set for torch work without its own is what torch picks
-    in the driver's environment, read without importing torch."""
-    clean = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-    done = subprocess.run([sys.executable, "-c", THREADS], env={**clean, **env},
-                          capture_output=True, text=True, check=True)  # fmt: skip
-    torch_threads, ours = done.stdout.split()
-    assert torch_threads == ours
 
 
 def test_no_scenes_is_an_input_error(tmp_path, capsys):
