@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 from mvviz.scene.geometry import (
     ALL_FRUSTA_MAX_CAMERAS,
+    MANY_CAMERAS_FRUSTUM_WIDTH,
     LayerToggles,
     Selection,
     ViewerData,
@@ -60,6 +61,8 @@ class ViewerState:
         track = 0 if data.num_tracks else None
         many = len(scene.rig) > ALL_FRUSTA_MAX_CAMERAS  # what a frame change sends
         layers = LayerToggles(detections2d_panel_camera_only=many)
+        if many:
+            layers.frustum_image_width = MANY_CAMERAS_FRUSTUM_WIDTH
         return cls(data=data, selection=Selection(track=track, joint=joint), layers=layers)
 
     def snapshot(self) -> ViewerState:

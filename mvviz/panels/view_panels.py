@@ -333,7 +333,7 @@ def make_layers_handles(server: viser.ViserServer, state: ViewerState) -> Layers
         window = server.gui.add_slider(
             "Trail ± frames", min=0, max=100, step=1, initial_value=lay.trail_window
         )
-        widths = tuple(f"{w} px" for w in FRUSTUM_WIDTHS)
+        widths = tuple(f"{w} px" for w in sorted({*FRUSTUM_WIDTHS, lay.frustum_image_width}))
         frustum_width = server.gui.add_dropdown(
             "Frustum video", widths, initial_value=f"{lay.frustum_image_width} px"
         )

@@ -120,6 +120,9 @@ FRUSTUM_JPEG_QUALITY = 50
 OFFSET_FILTERED_M = np.array([1.0, 0.0, 0.0])
 CENTER_FRAMES = 1000  # frames the action's centre and spread are read from
 ALL_FRUSTA_MAX_CAMERAS = 8  # more cameras: 2D detections on the panel camera's frustum only
+# and the frustums' video this wide (px): 31 frusta's 128 px JPEGs were 62.5 KB a frame
+# change (bench/bench_viewer_scale.py), more than half of it
+MANY_CAMERAS_FRUSTUM_WIDTH = 80
 
 
 # --------------------------------------------------------------------------- static data

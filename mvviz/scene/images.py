@@ -311,13 +311,24 @@ class FrameStore:
 
     def small(self, cam: str, frame: int, width: int) -> np.ndarray | None:
         """``cam``'s ``frame`` ``width`` px wide (a frustum's image): from the pre-decoded
-        frames when there, else decoded now at the smallest JPEG reduction at least that
-        wide and resized. None if not available (yet)."""
+        frames when there (resized if ``width`` is narrower), else decoded now at the
+        smallest JPEG reduction at least that wide and resized. None if not available
+        (yet)."""
         with self._lock:
-            ready = self._small_ready.get((cam, width))
-            if ready is not None and 0 <= frame < len(ready) and ready[frame]:
-                return self._small[(cam, width)][frame]
-        return self._decode_small_frame(cam, frame, width)
+            for w in (width, THUMBNAIL_WIDTH):
+                ready = self._small_ready.get((cam, w))
+                if ready is not None and 0 <= frame < len(ready) and ready[frame]:
+                    img = self._small[(cam, w)][frame]
+                    break
+            else:
+                img = None
+        if img is None or img.shape[1] < width:
+            return self._decode_small_frame(cam, frame, width)
+        if img.shape[1] == width:
+            return img
+        # narrower than the pre-decoded ones (many cameras): a resize, not a JPEG decode
+        h = max(1, round(img.shape[0] * width / img.shape[1]))
+        return cv2.resize(img, (width, h), interpolation=cv2.INTER_AREA)
 
     def _decode_small_frame(
         self, cam: str, frame: int, width: int, *, cache: bool = True

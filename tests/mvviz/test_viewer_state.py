@@ -7,6 +7,7 @@ import dataclasses
 import threading
 import time
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -14,6 +15,7 @@ import torch
 from mvviz.app import LatestWins, ViewerApp
 from mvviz.scene.geometry import (
     FRUSTUM_WIDTHS,
+    MANY_CAMERAS_FRUSTUM_WIDTH,
     MM,
     OUTLIER,
     UNASSIGNED,
@@ -484,9 +486,7 @@ def test_fitted_meshes_follow_the_smpl_fit(viewer_scene, viewer_state):
     assert set(geom.fit_meshes) == set(np.flatnonzero(fit.present[:, f]).tolist())
 
 
-def test_past_the_camera_limit_2d_detections_go_on_the_panel_camera_only(
-    viewer_scene, monkeypatch
-):
+def test_past_the_camera_limit_2d_detections_go_on_the_panel_camera_only(viewer_scene, monkeypatch):
     scene, results, model = viewer_scene
     st = ViewerState.create(scene, results, model)
     assert not st.layers.detections2d_panel_camera_only  # 3 cameras: on every frustum
@@ -503,3 +503,19 @@ def test_past_the_camera_limit_2d_detections_go_on_the_panel_camera_only(
         assert len(only[name].points) > 0
         for f in dataclasses.fields(only[name]):
             np.testing.assert_array_equal(getattr(only[name], f.name), getattr(full[name], f.name))
+
+
+def test_past_the_camera_limit_the_frustum_video_is_narrower(
+    viewer_scene, frame_store, monkeypatch
+):
+    scene, results, model = viewer_scene
+    monkeypatch.setattr("mvviz.state.ALL_FRUSTA_MAX_CAMERAS", 2)
+    st = ViewerState.create(scene, results, model)
+    w = st.layers.frustum_image_width
+    assert w == MANY_CAMERAS_FRUSTUM_WIDTH < FRUSTUM_WIDTHS[0]
+    cam = scene.rig.names[0]
+    small, wide = frame_store.small(cam, 3, w), frame_store.small(cam, 3, FRUSTUM_WIDTHS[0])
+    assert small.shape[1] == w and small.shape[0] == round(wide.shape[0] * w / wide.shape[1])
+    # the pre-decoded frame resized: the same picture, within a grey level or two on average
+    want = cv2.resize(wide, small.shape[1::-1], interpolation=cv2.INTER_AREA)
+    assert np.abs(small.astype(int) - want).mean() < 2.0
