@@ -112,6 +112,11 @@ def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
     from pipeline.stages_chunked import run_stages_chunked
 
     config = PipelineConfig()
+    model = None
+    if mode == "fit":  # torch and the body model (~200 MB) before the stages' window
+        from pipeline.body_model import load_body_model
+
+        model = load_body_model()
     scene = tiled_scene(load_scene(scene_dir), frames)
     j2d = select_2d(scene, config, None)
     sampler = PeakSampler()
@@ -127,11 +132,9 @@ def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
         )  # fmt: skip
     t_stages = time.process_time() - t0
     fit = {}
-    if mode == "fit":
-        from pipeline.body_model import load_body_model
+    if model is not None:
         from pipeline.smpl_fit_chunks import fit_in_chunks
 
-        model = load_body_model()
         sampler.stage("fit")
         t1 = time.process_time()
         f1, _ = fit_in_chunks(res.track_smoothed, res.joint_set, model, progress=False)
