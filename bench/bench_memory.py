@@ -15,8 +15,8 @@ sampling /proc/self/statm every 5 ms, the RSS before the stages (Python, numpy, 
 tiled scene and its 2D joints) and the peak during each stage; also ru_maxrss and CPU
 seconds. Modes, measured alternately per frame count:
 
-* ``keep``: today's :func:`pipeline.results.run_stages` (every frame's result kept until
-  tracking and packing);
+* ``keep``: ``pack_run(run_frames(...))``, the stages before the chunked ones (every
+  frame's result kept until tracking and packing);
 * ``chunked``: :func:`pipeline.stages_chunked.run_stages_chunked` (each frame packed at
   once), same results;
 * ``lean``: the same without the affinity edges (``keep_edges=False``);
@@ -106,8 +106,8 @@ def tiled_scene(base, num_frames: int):
 def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
     """One measurement (run in its own process)."""
     from pipeline.config import PipelineConfig
-    from pipeline.results import run_stages
-    from pipeline.run import select_2d
+    from pipeline.results import pack_run
+    from pipeline.run import run_frames, select_2d
     from pipeline.scene import load_scene
     from pipeline.stages_chunked import run_stages_chunked
 
@@ -124,7 +124,9 @@ def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
     sampler.stage("before")
     sampler.stage("stages")
     if mode == "keep":
-        res = run_stages(scene, config, j2d, restored=None, progress=False)
+        frames_kept = run_frames(scene, config, j2d, progress=False)
+        res = pack_run(scene, frames_kept, config, j2d, restored=None)
+        del frames_kept
     else:
         res = run_stages_chunked(
             scene, config, j2d, restored=None, chunk_frames=chunk, keep_edges=mode == "chunked",

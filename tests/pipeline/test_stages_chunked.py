@@ -1,4 +1,5 @@
-"""The chunked stages give the same results as the stages that keep every frame."""
+"""The chunked stages (what ``pipeline.results.run_stages`` runs) give the same results as
+the stages that keep every frame (``pack_run(run_frames(...))``)."""
 
 from dataclasses import fields
 from pathlib import Path
@@ -7,8 +8,8 @@ import numpy as np
 import pytest
 
 from pipeline.config import PipelineConfig
-from pipeline.results import EDGE_FIELDS, PipelineResults, run_stages
-from pipeline.run import select_2d
+from pipeline.results import EDGE_FIELDS, PipelineResults, pack_run, run_stages
+from pipeline.run import run_frames, select_2d
 from pipeline.scene import load_scene
 from pipeline.stages_chunked import run_stages_chunked
 
@@ -26,8 +27,12 @@ def test_chunked_stages_equal_the_stages_that_keep_every_frame(name):
     scene = load_scene(SCENES / name)
     config = PipelineConfig()
     j2d = select_2d(scene, config, None)
-    want = run_stages(scene, config, j2d, restored=None, progress=False)
+    frames = run_frames(scene, config, j2d, progress=False)
+    want = pack_run(scene, frames, config, j2d, restored=None)
     got = run_stages_chunked(scene, config, j2d, restored=None, chunk_frames=7, progress=False)
+    default = run_stages(scene, config, j2d, restored=None, progress=False)
+    for k, v in _arrays(default).items():
+        np.testing.assert_array_equal(v, getattr(want, k), err_msg=k)
     a, b = _arrays(want), _arrays(got)
     assert a.keys() == b.keys() and len(want.person_frame) > 500 and len(want.edge_a) > 1000
     for k in a:
