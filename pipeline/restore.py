@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from pipeline.torch_threads import torch_threads
+
 RESTORE_THREADS = 1
 """torch intra-op threads of :func:`restore_joints_2d` (restored after). Its ops are
 small (a few thousand rows of 24 joints): one thread is as fast, and two beside a busy
@@ -140,12 +142,8 @@ def restore_joints_2d(
     out[..., 2] = 0.0
     valid = np.isfinite(smpl_pose).all(1) & np.isfinite(cam_weak).all(1)
     rows = np.flatnonzero(valid)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(RESTORE_THREADS)
-    try:
+    with torch_threads(RESTORE_THREADS):
         _restore_rows(smpl_pose, smpl_betas, cam_weak, bbox, model, score, rows, batch, out)
-    finally:
-        torch.set_num_threads(threads)
     return out
 
 

@@ -82,7 +82,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -111,6 +110,7 @@ from pipeline.smpl_kinematics import (
     rot6d_to_matrix,
     rotvec_to_matrix,
 )
+from pipeline.torch_threads import torch_threads
 
 if TYPE_CHECKING:
     from pipeline.pose_prior import PosePrior
@@ -465,17 +465,6 @@ def _check_tracks(tracks_mm: np.ndarray, joint_set: str) -> np.ndarray:
     return x
 
 
-@contextmanager
-def _torch_threads(n: int):
-    old = torch.get_num_threads()
-    if n > 0:
-        torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
-
-
 def fit_sequence(
     tracks_mm: np.ndarray,
     joint_set: str,
@@ -504,7 +493,7 @@ def fit_sequence(
     buf = keypoint_buffers(model, joint_set)
     if params.limb_offsets:  # every fitted target may carry an offset (FitParams.limb_offsets)
         buf = dataclasses.replace(buf, offset_mask=torch.as_tensor(buf.fitted, dtype=torch.float32))
-    with _torch_threads(params.num_threads):
+    with torch_threads(params.num_threads):
         return _fit(x, buf, model, prior, params, weights, progress)
 
 

@@ -32,9 +32,9 @@ from pipeline.smpl_fit import (
     WarmStart,
     _check_tracks,
     _fit,
-    _torch_threads,
     keypoint_buffers,
 )
+from pipeline.torch_threads import torch_threads
 
 if TYPE_CHECKING:
     from pipeline.body_model import BodyModel
@@ -81,7 +81,7 @@ def fit_in_chunks(
     last: list[SmplFit | None] = [None, None]
     seconds = [0.0, 0.0]
     starts = range(0, max(F, 1), chunk_frames)
-    with _torch_threads(params.num_threads), StageBar("SMPL fit (chunks)", len(starts),
+    with torch_threads(params.num_threads), StageBar("SMPL fit (chunks)", len(starts),
                                                       progress, unit="chunk") as bar:  # fmt: skip
         for s in starts:
             e, ws = min(s + chunk_frames, F), max(s - overlap, 0)
