@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import tempfile
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +40,7 @@ from pipeline.synth.render import (
     render_meshes,
     visible_mask,
 )
+from pipeline.torch_threads import torch_threads
 
 # Clothing colours (RGB), one per person; the viewer uses its own palette.
 PERSON_COLOURS = (
@@ -355,20 +355,8 @@ def synthesize(
     progress: bool = True,
 ) -> tuple[SynthPeople, Detections]:
     """Plan, pose, render and detect. Writes ``video_dir/<camera>.mp4`` when given."""
-    with _torch_threads(config.torch_threads):
+    with torch_threads(config.torch_threads):
         return _synthesize(rig, model, config, video_dir, progress)
-
-
-@contextmanager
-def _torch_threads(n: int):
-    """Torch's intra-op threads set to ``n`` (0: left alone) inside, restored after."""
-    old = torch.get_num_threads()
-    if n > 0:
-        torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 def _synthesize(
@@ -435,6 +423,28 @@ def _synthesize(
     return people, _detections(rows, sim.js.num_joints)
 
 
+
+def _proxy_masks(
+    sim: _Simulation, bodies, people: SynthPeople, f: int, cams: list
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Frame ``f``'s occlusion from the posed proxy bodies: per view, (P, J) bool masks
+    (visible, hidden by another person) over the joint set, False on undefined joints."""
+    P, defined = people.keypoints.shape[0], sim.defined
+    ids = np.repeat(np.arange(P), int(defined.sum()))
+    verts = pose_proxy(bodies, people.pose[:, f]) * 1000 + people.transl[:, f, None]
+    points = people.keypoints[:, f][:, defined].reshape(-1, 3)
+    occ = point_occlusion(cams, verts, bodies.faces, points, cull_back_faces=True)
+    tol = sim.noise.self_occlusion_tolerance_mm
+    vis_all, other_all = occ.visible(ids, tolerance_mm=tol), occ.hidden_by_other(ids)
+    out = []
+    for v in range(len(cams)):
+        vis = np.zeros((P, sim.js.num_joints), bool)
+        other = np.zeros((P, sim.js.num_joints), bool)
+        vis[:, defined] = vis_all[v].reshape(P, -1)
+        other[:, defined] = other_all[v].reshape(P, -1)
+        out.append((vis, other))
+    return out
+
 def _detect_proxy(
     rng: np.random.Generator,
     sim: _Simulation,
@@ -447,24 +457,15 @@ def _detect_proxy(
     """Detections of every frame with occlusion from the proxy body: per frame, pose the
     proxies, find the surface at every keypoint's pixel in all views at once, simulate
     the 2D detector per view and the monocular regressor for all views in one call."""
-    P, defined = people.keypoints.shape[0], sim.defined
+    defined = sim.defined
     bodies = proxy_bodies(sim.model, proxy_for(sim.model), people.betas)
-    ids = np.repeat(np.arange(P), int(defined.sum()))
     cams = list(rig)
     R_all = np.stack([c.R for c in cams])
-    tol = sim.noise.self_occlusion_tolerance_mm
     for f in track(range(config.num_frames), "synth frames", progress, unit="frame"):
-        verts = pose_proxy(bodies, people.pose[:, f]) * 1000 + people.transl[:, f, None]
         coco = people.keypoints[:, f]  # (P, T, 3) mm
-        occ = point_occlusion(cams, verts, bodies.faces, coco[:, defined].reshape(-1, 3),
-                              cull_back_faces=True)  # fmt: skip
-        vis_all, other_all = occ.visible(ids, tolerance_mm=tol), occ.hidden_by_other(ids)
+        masks = _proxy_masks(sim, bodies, people, f, cams)
         found = []  # per view: (view, people in detector order, their keypoints)
-        for v, cam in enumerate(cams):
-            vis = np.zeros((P, sim.js.num_joints), bool)
-            other = np.zeros((P, sim.js.num_joints), bool)
-            vis[:, defined] = vis_all[v].reshape(P, -1)
-            other[:, defined] = other_all[v].reshape(P, -1)
+        for v, (cam, (vis, other)) in enumerate(zip(cams, masks, strict=True)):
             kp, detected = simulate_keypoints(
                 rng, cam, cam.project(coco), ~vis & ~other, other, sim.noise,
                 joint_set=sim.js, defined=defined,
@@ -502,23 +503,14 @@ def _detect_proxy_batched(
     frames, for the people and the ghosts of all their views: the rows wait in
     ``pending`` (frame, view, keypoints, person ids, pose, betas, SMPL joints px) in the
     order they are appended."""
-    P, defined = people.keypoints.shape[0], sim.defined
+    defined = sim.defined
     bodies = proxy_bodies(sim.model, proxy_for(sim.model), people.betas)
-    ids = np.repeat(np.arange(P), int(defined.sum()))
     cams = list(rig)
-    tol = sim.noise.self_occlusion_tolerance_mm
     pending: list[tuple] = []
     for f in track(range(config.num_frames), "synth frames", progress, unit="frame"):
-        verts = pose_proxy(bodies, people.pose[:, f]) * 1000 + people.transl[:, f, None]
         coco = people.keypoints[:, f]  # (P, T, 3) mm
-        occ = point_occlusion(cams, verts, bodies.faces, coco[:, defined].reshape(-1, 3),
-                              cull_back_faces=True)  # fmt: skip
-        vis_all, other_all = occ.visible(ids, tolerance_mm=tol), occ.hidden_by_other(ids)
-        for v, cam in enumerate(cams):
-            vis = np.zeros((P, sim.js.num_joints), bool)
-            other = np.zeros((P, sim.js.num_joints), bool)
-            vis[:, defined] = vis_all[v].reshape(P, -1)
-            other[:, defined] = other_all[v].reshape(P, -1)
+        masks = _proxy_masks(sim, bodies, people, f, cams)
+        for v, (cam, (vis, other)) in enumerate(zip(cams, masks, strict=True)):
             kp, detected = simulate_keypoints(
                 rng, cam, cam.project(coco), ~vis & ~other, other, sim.noise,
                 joint_set=sim.js, defined=defined,
