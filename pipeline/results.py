@@ -150,13 +150,77 @@ def pack_frame(fr: FrameResult, num_views: int, num_joints: int) -> FrameColumns
     )
 
 
-def _empty_columns(num_views: int, num_joints: int) -> FrameColumns:
+def join_columns(cols: list[FrameColumns], num_views: int, num_joints: int) -> FrameColumns:
+    """One FrameColumns of many frames' (in order); an empty one for no frames."""
     V, J = num_views, num_joints
-    return FrameColumns(
+    empty = FrameColumns(
         np.zeros(0, int), np.zeros((0, J, 3)), np.zeros((0, J, V)), np.zeros((0, J, V), bool),
         np.zeros((0, V), int), np.zeros(0), np.zeros(0, int), np.zeros(0, int), np.zeros(0),
         np.zeros(0),
     )  # fmt: skip
+    return FrameColumns(
+        **{
+            f.name: np.concatenate([getattr(c, f.name) for c in [empty, *cols]])
+            for f in dataclasses.fields(FrameColumns)
+        }
+    )
+
+
+class DetectionLabels:
+    """Per detection row, filled frame by frame in order: the person-frame it was
+    associated to (-1: none), whether the association flipped its left/right, and its 2D
+    joints (``joints2d_all`` until the first flip, then a copy holding the flipped rows)."""
+
+    def __init__(self, joints2d_all: np.ndarray):
+        n = len(joints2d_all)
+        self.person = np.full(n, -1)
+        self.flipped = np.zeros(n, bool)
+        self.joints2d = joints2d_all
+        self._given = joints2d_all
+        self.num_people = 0  # person-frames so far: the next frame's first index
+
+    def add(self, fr: FrameResult) -> None:
+        a = fr.association
+        assigned = a.cluster >= 0
+        self.person[fr.rows[assigned]] = self.num_people + a.cluster[assigned]
+        if a.flipped.any():
+            if self.joints2d is self._given:
+                self.joints2d = self._given.copy()
+            rows = fr.rows[a.flipped]
+            self.flipped[rows] = True
+            self.joints2d[rows] = fr.joints2d[a.flipped]
+        self.num_people += a.num_people
+
+
+def assemble_results(
+    labels: DetectionLabels,
+    columns: FrameColumns,
+    seq: SequenceResult,
+    *,
+    config: PipelineConfig,
+    joint_set: str,
+    num_frames: int,
+    num_views: int,
+    restored: np.ndarray | None,
+    cache_key: str = "",
+) -> PipelineResults:
+    """:class:`PipelineResults` from the per-detection labels, the frames' joined
+    columns and the sequence stages."""
+    return PipelineResults(
+        config=config,
+        joint_set=joint_set,
+        num_frames=num_frames,
+        num_views=num_views,
+        det_joints2d=labels.joints2d,
+        det_restored=restored,
+        det_person=labels.person,
+        det_flipped=labels.flipped,
+        **{k: getattr(columns, k) for k in PERSON_FIELDS + EDGE_FIELDS},
+        person_track=seq.person_track,
+        track_raw=seq.tracks.joints,
+        **filter_arrays(seq.filtered),
+        cache_key=cache_key,
+    )
 
 
 def filter_arrays(filtered: FilterResult) -> dict[str, np.ndarray]:
@@ -180,45 +244,21 @@ def pack(
     joint_set: str,
     num_frames: int,
     num_views: int,
-    num_detections: int,
     restored: np.ndarray | None,
     joints2d_all: np.ndarray,
     cache_key: str = "",
 ) -> PipelineResults:
     """Flatten per-frame results and the sequence stages into :class:`PipelineResults`."""
-    J = joints2d_all.shape[1]
-    det_person = np.full(num_detections, -1)
-    det_flipped = np.zeros(num_detections, bool)
-    det_joints2d = joints2d_all
-    cols = [_empty_columns(num_views, J)]
-    q = 0
+    labels = DetectionLabels(joints2d_all)
+    cols = []
     for fr in frames:
-        a = fr.association
-        assigned = a.cluster >= 0
-        det_person[fr.rows[assigned]] = q + a.cluster[assigned]
-        if a.flipped.any():
-            if det_joints2d is joints2d_all:
-                det_joints2d = joints2d_all.copy()
-            rows = fr.rows[a.flipped]
-            det_flipped[rows] = True
-            det_joints2d[rows] = fr.joints2d[a.flipped]
-        cols.append(pack_frame(fr, num_views, J))
-        q += a.num_people
-    return PipelineResults(
-        config=config,
-        joint_set=joint_set,
-        num_frames=num_frames,
-        num_views=num_views,
-        det_joints2d=det_joints2d,
-        det_restored=restored,
-        det_person=det_person,
-        det_flipped=det_flipped,
-        **{k: np.concatenate([getattr(c, k) for c in cols]) for k in PERSON_FIELDS + EDGE_FIELDS},
-        person_track=seq.person_track,
-        track_raw=seq.tracks.joints,
-        **filter_arrays(seq.filtered),
+        labels.add(fr)
+        cols.append(pack_frame(fr, num_views, joints2d_all.shape[1]))
+    return assemble_results(
+        labels, join_columns(cols, num_views, joints2d_all.shape[1]), seq, config=config,
+        joint_set=joint_set, num_frames=num_frames, num_views=num_views, restored=restored,
         cache_key=cache_key,
-    )
+    )  # fmt: skip
 
 
 def pack_run(
@@ -235,7 +275,7 @@ def pack_run(
     seq = run_sequence(frames, scene.num_frames, config, js)
     return pack(
         frames, seq, config=config, joint_set=js.name, num_frames=scene.num_frames,
-        num_views=len(scene.rig), num_detections=len(scene.detections), restored=restored,
+        num_views=len(scene.rig), restored=restored,
         joints2d_all=joints2d_all, cache_key=key,
     )  # fmt: skip
 

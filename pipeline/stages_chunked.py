@@ -20,42 +20,23 @@ on screen (:func:`pipeline.run.run_frame`) when it needs them.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import fields
 
 import numpy as np
 
 from pipeline.config import PipelineConfig
 from pipeline.progress import Progress, StageBar
 from pipeline.results import (
-    EDGE_FIELDS,
-    PERSON_FIELDS,
+    DetectionLabels,
     FrameColumns,
     PipelineResults,
-    filter_arrays,
+    assemble_results,
+    join_columns,
     pack_frame,
 )
 from pipeline.run import FRAMES_STAGE, frame_rows, run_frame, sequence_of_people, source_joint_set
 from pipeline.scene import Scene
 
 DEFAULT_CHUNK_FRAMES = 256
-
-
-def _join(cols: list[FrameColumns], num_views: int, num_joints: int) -> FrameColumns:
-    """One FrameColumns of many frames' (in order); an empty one for no frames."""
-    V, J = num_views, num_joints
-    empty = {
-        "person_frame": np.zeros(0, int), "person_joints": np.zeros((0, J, 3)),
-        "person_reproj": np.zeros((0, J, V)), "person_used": np.zeros((0, J, V), bool),
-        "person_members": np.zeros((0, V), int), "person_linkage": np.zeros(0),
-        "edge_a": np.zeros(0, int), "edge_b": np.zeros(0, int), "edge_affinity": np.zeros(0),
-        "edge_distance": np.zeros(0),
-    }  # fmt: skip
-    return FrameColumns(
-        **{
-            f.name: np.concatenate([empty[f.name]] + [getattr(c, f.name) for c in cols])
-            for f in fields(FrameColumns)
-        }
-    )
 
 
 def _without_edges(c: FrameColumns) -> FrameColumns:
@@ -91,52 +72,30 @@ def run_stages_chunked(
     if chunk_frames < 1:
         raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
     rows = frame_rows(scene, config) if rows_per_frame is None else rows_per_frame
-    V, J, N = len(scene.rig), joints2d_all.shape[1], len(scene.detections)
-    det_person = np.full(N, -1)
-    det_flipped = np.zeros(N, bool)
-    det_joints2d = joints2d_all  # copied on the first flip
+    V, J = len(scene.rig), joints2d_all.shape[1]
+    labels = DetectionLabels(joints2d_all)
     chunks: list[FrameColumns] = []
     pending: list[FrameColumns] = []
-    q = 0
     with StageBar(FRAMES_STAGE, scene.num_frames, progress, unit="frame") as bar:
         for f in range(scene.num_frames):
             if cancelled is not None and cancelled():
                 return None
             fr = run_frame(scene, f, config, joints2d_all, rows=rows[f])
-            a = fr.association
-            assigned = a.cluster >= 0
-            det_person[fr.rows[assigned]] = q + a.cluster[assigned]
-            if a.flipped.any():
-                if det_joints2d is joints2d_all:
-                    det_joints2d = joints2d_all.copy()
-                det_flipped[fr.rows[a.flipped]] = True
-                det_joints2d[fr.rows[a.flipped]] = fr.joints2d[a.flipped]
+            labels.add(fr)
             cols = pack_frame(fr, V, J)
             pending.append(cols if keep_edges else _without_edges(cols))
-            q += a.num_people
-            del fr, a  # the (n, n) matrices go now, not at the end of the run
+            del fr  # the (n, n) matrices go now, not at the end of the run
             if len(pending) == chunk_frames:
-                chunks.append(_join(pending, V, J))
+                chunks.append(join_columns(pending, V, J))
                 pending = []
             bar.update()
     if cancelled is not None and cancelled():
         return None
-    cols = _join(chunks + [_join(pending, V, J)], V, J)
+    cols = join_columns(chunks + [join_columns(pending, V, J)], V, J)
     del chunks, pending
     js = source_joint_set(scene, config)
     seq = sequence_of_people(cols.person_frame, cols.person_joints, scene.num_frames, config, js)
-    return PipelineResults(
-        config=config,
-        joint_set=js.name,
-        num_frames=scene.num_frames,
-        num_views=V,
-        det_joints2d=det_joints2d,
-        det_restored=restored,
-        det_person=det_person,
-        det_flipped=det_flipped,
-        **{k: getattr(cols, k) for k in PERSON_FIELDS + EDGE_FIELDS},
-        person_track=seq.person_track,
-        track_raw=seq.tracks.joints,
-        **filter_arrays(seq.filtered),
-        cache_key=key,
-    )
+    return assemble_results(
+        labels, cols, seq, config=config, joint_set=js.name, num_frames=scene.num_frames,
+        num_views=V, restored=restored, cache_key=key,
+    )  # fmt: skip
