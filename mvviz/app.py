@@ -94,6 +94,9 @@ class ViewerApp:
         self._reasons_lock = threading.Lock()
         self._stopped = threading.Event()
         self._play_wake = threading.Event()
+        # video frames playback has advanced (skipped ones included): how far it got,
+        # which the frame number alone cannot tell once it loops
+        self.frames_played = 0
         self._applied_layers: LayerToggles | None = None
         self.last_render_ms: dict[str, float] = {}
         self.render_errors: list[str] = []
@@ -441,6 +444,7 @@ class ViewerApp:
                     st.playing = False
                     self._on_change("playing")
                     continue
+            self.frames_played += step
             self.set_frame(f)
             self._renderer.wait_idle(self._acks.timeout_s)
             self._acks.wait()

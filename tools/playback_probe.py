@@ -129,13 +129,11 @@ def measure_playback(
     app.redraw("playing")
     image_lag, sent_hi, sent_lo, label_lag = [], [], [], []
     time.sleep(1.0)  # the first frames of playback
-    t0, r0, last, advanced = time.perf_counter(), log.count(), app.state.frame, 0
+    t0, r0, played0 = time.perf_counter(), log.count(), app.frames_played
     while time.perf_counter() - t0 < seconds:
         server_frame, before = app.state.frame, log.count()
         got = page.evaluate(SAMPLE_JS)
         after = log.count()
-        advanced += (server_frame - last) % n
-        last = server_frame
         picture, label = log.frame(got["hashes"]), got["label"]
         hi = None if label is None else log.behind(label, after)
         lo = None if label is None else log.behind(label, before)
@@ -146,6 +144,7 @@ def measure_playback(
             label_lag.append((server_frame - label) % n)
         time.sleep(interval_s)
     took, renders = time.perf_counter() - t0, log.count() - r0
+    advanced = app.frames_played - played0  # the player's own count: loops included
     app.state.playing = False
     app.redraw("playing")
 

@@ -122,10 +122,6 @@ def test_failures_list_shows_spans_whole_texts_and_jumps_to_a_seeing_camera(
         page.close()
 
 
-@pytest.mark.skip(
-    reason="issue 13 open: passes in 3 runs of the browser tests together, failed in the stop-25 "
-    "full CI rehearsal; B overlay and its reset are tested in-process (test_filter_panel)"
-)
 def test_filter_b_overlay_only_while_b_differs(browser, own_app, tmp_path):
     app, fp = own_app, own_app.filter_panel
     page = open_viewer(browser, app.url)
