@@ -46,7 +46,7 @@ from pipeline.smpl_fit_types import SmplFit
 if TYPE_CHECKING:
     from pipeline.body_model import BodyModel
 
-RESULTS_VERSION = 5  # 5: track_rejected (both layouts hold the same arrays and meta)
+RESULTS_VERSION = 6  # 6: edges only where a reader uses them, int32 / float32 (5: track_rejected)
 RESULTS_FILE = "results.npz"  # in the scene's CACHE_DIR
 FIT_JOINT_SETS = FITTABLE_JOINT_SETS  # = smpl_kinematics.SUPPORTED_JOINT_SETS, read torch-free
 """Joint sets whose tracks get SMPL bodies: every set the body-model table
@@ -55,7 +55,8 @@ FIT_JOINT_SETS = FITTABLE_JOINT_SETS  # = smpl_kinematics.SUPPORTED_JOINT_SETS, 
 
 @dataclass(frozen=True, eq=False)
 class PipelineResults:
-    """A run, as arrays. Shapes: N detection rows, Q person-frames, E affinity edges,
+    """A run, as arrays. Shapes: N detection rows, Q person-frames, E affinity edges
+    (:func:`pack_frame`: a person's own pairs and the compatible pairs across people),
     K tracks, F frames, V views, J joints of the source joint set."""
 
     config: PipelineConfig
@@ -72,10 +73,10 @@ class PipelineResults:
     person_members: np.ndarray  # (Q, V) detection row per view, -1
     person_linkage: np.ndarray  # (Q,) mean affinity inside the cluster
     person_track: np.ndarray  # (Q,) track index, -1
-    edge_a: np.ndarray  # (E,) detection row
-    edge_b: np.ndarray  # (E,) detection row
-    edge_affinity: np.ndarray  # (E,)
-    edge_distance: np.ndarray  # (E,) mean ray distance, mm
+    edge_a: np.ndarray  # (E,) int32 detection row
+    edge_b: np.ndarray  # (E,) int32 detection row
+    edge_affinity: np.ndarray  # (E,) float32
+    edge_distance: np.ndarray  # (E,) float32 mean ray distance, mm
     track_raw: np.ndarray  # (K, F, J, 3)
     track_forward: np.ndarray  # (K, F, J, 3) Kalman forward filter
     track_smoothed: np.ndarray  # (K, F, J, 3) RTS
@@ -113,7 +114,7 @@ EDGE_FIELDS = ("edge_a", "edge_b", "edge_affinity", "edge_distance")
 @dataclass(frozen=True, eq=False)
 class FrameColumns:
     """One frame's rows of the :class:`PipelineResults` person (Q) and edge (E) arrays;
-    P people, n detection rows, E edges (the pairs of rows with a finite affinity)."""
+    P people, n detection rows, E edges (see :func:`pack_frame`)."""
 
     person_frame: np.ndarray  # (P,) int
     person_joints: np.ndarray  # (P, J, 3) mm
@@ -121,20 +122,28 @@ class FrameColumns:
     person_used: np.ndarray  # (P, J, V) bool
     person_members: np.ndarray  # (P, V) detection row per view, -1
     person_linkage: np.ndarray  # (P,)
-    edge_a: np.ndarray  # (E,) detection row
-    edge_b: np.ndarray  # (E,) detection row
-    edge_affinity: np.ndarray  # (E,)
-    edge_distance: np.ndarray  # (E,) mm
+    edge_a: np.ndarray  # (E,) int32 detection row
+    edge_b: np.ndarray  # (E,) int32 detection row
+    edge_affinity: np.ndarray  # (E,) float32
+    edge_distance: np.ndarray  # (E,) float32 mm
 
 
 def pack_frame(fr: FrameResult, num_views: int, num_joints: int) -> FrameColumns:
     """``fr``'s association and triangulation as rows of the results' Q and E arrays
-    (detection indices are the scene's rows, ``fr.rows[...]``)."""
+    (detection indices are the scene's rows, ``fr.rows[...]``).
+
+    The edges kept are the pairs a reader of the results uses: each person's own pairs
+    (a detection's affinity to its own person) and the compatible pairs (affinity > 0:
+    a detection close to two people). The incompatible rest, most pairs once there are
+    many people (~30x the kept ones on a 31-camera dome with 20 people), would be most
+    of the results' size and is the association's business only."""
     a, t = fr.association, fr.triangulation
     P, V, J = a.num_people, num_views, num_joints
     members = np.where(a.members >= 0, fr.rows[np.maximum(a.members, 0)], -1)
     ia, ib = np.triu_indices(len(fr.rows), 1)
-    keep = np.isfinite(a.affinity[ia, ib])
+    aff = a.affinity[ia, ib]
+    same = (a.cluster[ia] >= 0) & (a.cluster[ia] == a.cluster[ib])
+    keep = np.isfinite(aff) & ((aff > 0) | same)
     ia, ib = ia[keep], ib[keep]
     return FrameColumns(
         person_frame=np.full(P, fr.frame, int),
@@ -143,10 +152,10 @@ def pack_frame(fr: FrameResult, num_views: int, num_joints: int) -> FrameColumns
         person_used=t.used.reshape(P, J, V).astype(bool),
         person_members=members.reshape(P, V).astype(int),
         person_linkage=np.asarray(a.linkage, float).reshape(P),
-        edge_a=fr.rows[ia].astype(int),
-        edge_b=fr.rows[ib].astype(int),
-        edge_affinity=a.affinity[ia, ib].astype(float),
-        edge_distance=a.ray_distance[ia, ib].astype(float),
+        edge_a=fr.rows[ia].astype(np.int32),
+        edge_b=fr.rows[ib].astype(np.int32),
+        edge_affinity=a.affinity[ia, ib].astype(np.float32),
+        edge_distance=a.ray_distance[ia, ib].astype(np.float32),
     )
 
 
@@ -155,8 +164,8 @@ def join_columns(cols: list[FrameColumns], num_views: int, num_joints: int) -> F
     V, J = num_views, num_joints
     empty = FrameColumns(
         np.zeros(0, int), np.zeros((0, J, 3)), np.zeros((0, J, V)), np.zeros((0, J, V), bool),
-        np.zeros((0, V), int), np.zeros(0), np.zeros(0, int), np.zeros(0, int), np.zeros(0),
-        np.zeros(0),
+        np.zeros((0, V), int), np.zeros(0), np.zeros(0, np.int32), np.zeros(0, np.int32),
+        np.zeros(0, np.float32), np.zeros(0, np.float32),
     )  # fmt: skip
     return FrameColumns(
         **{

@@ -11,8 +11,9 @@ every ``chunk_frames`` frames (no per-frame Python objects survive the chunk) an
 tracking and filtering on the person columns (:func:`pipeline.run.sequence_of_people`).
 
 What still grows with the frames is what the results hold: per person-frame columns
-(~0.1 MB a frame at 31 x 20) and the affinity edges, every finite pair of a frame
-(101,410 of them, 3.2 MB a frame at 31 x 20, as much as the matrices).
+(~0.1 MB a frame at 31 x 20) and the affinity edges :func:`~pipeline.results.pack_frame`
+keeps (each person's own pairs and the compatible ones: at 31 x 20 a few thousand a
+frame, 16 bytes each; every finite pair was 101,410 of them, 3.2 MB a frame).
 ``keep_edges=False`` leaves the edges out (empty E arrays): the viewer re-runs the frame
 on screen (:func:`pipeline.run.run_frame`) when it needs them.
 """
@@ -40,7 +41,7 @@ DEFAULT_CHUNK_FRAMES = 256
 
 
 def _without_edges(c: FrameColumns) -> FrameColumns:
-    none_i, none_f = np.zeros(0, int), np.zeros(0)
+    none_i, none_f = np.zeros(0, np.int32), np.zeros(0, np.float32)
     return FrameColumns(
         c.person_frame, c.person_joints, c.person_reproj, c.person_used, c.person_members,
         c.person_linkage, none_i, none_i, none_f, none_f,

@@ -40,7 +40,8 @@ from pipeline.evaluate import evaluate
 from pipeline.files import SceneFormatError
 from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.joint_sets import COCO17, SMPL24, mapping_indices
-from pipeline.results import run_pipeline
+from pipeline.results import run_pipeline, run_stages
+from pipeline.run import run_frames, select_2d
 from pipeline.scene import load_scene
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.mvviz.conftest import (
@@ -73,6 +74,51 @@ def tiny(tmp_path_factory):
     )
     scene = load_scene(root)
     return scene, run_pipeline(scene, PipelineConfig(), model, progress=False)
+
+
+def every_finite_edge(scene, res):
+    """``res`` with the edges results held before version 6: every pair of detections
+    of a frame with a finite affinity (the incompatible ones too)."""
+    config = res.config
+    frames = run_frames(scene, config, select_2d(scene, config, None), progress=False)
+    parts = []
+    for fr in frames:
+        ia, ib = np.triu_indices(len(fr.rows), 1)
+        aff = fr.association.affinity[ia, ib]
+        k = np.isfinite(aff)
+        dist = fr.association.ray_distance[ia[k], ib[k]]
+        parts.append((fr.rows[ia[k]], fr.rows[ib[k]], aff[k], dist))
+    a, b, aff, dist = (np.concatenate(x) for x in zip(*parts, strict=True))
+    return dataclasses.replace(res, edge_a=a, edge_b=b, edge_affinity=aff, edge_distance=dist)
+
+
+@pytest.mark.parametrize("name", ["tiny", "shelf_synth_noisy"])
+def test_the_edges_kept_give_the_failures_every_edge_gives(name, tiny):
+    """Results keep a person's own pairs and the compatible ones (affinity > 0): what the
+    association criterion reads. With every finite pair it finds the same failures."""
+    if name == "tiny":
+        scene, res = tiny
+    else:
+        scene = load_scene(REPO / "sample_data" / name)
+        config = PipelineConfig()
+        res = run_stages(scene, config, select_2d(scene, config, None), restored=None,
+                         progress=False)  # fmt: skip
+    full = every_finite_edge(scene, res)
+    assert res.edge_a.dtype == np.int32 and res.edge_affinity.dtype == np.float32
+    same = (res.det_person[full.edge_a] >= 0) & (
+        res.det_person[full.edge_a] == res.det_person[full.edge_b]
+    )
+    assert len(res.edge_a) == int(((full.edge_affinity > 0) | same).sum())
+    assert len(res.edge_a) < len(full.edge_a)
+    got = find_failures(scene, res, criterion="association")
+    want = find_failures(scene, full, criterion="association")
+    close = [f for f in want if f.kind.startswith("close to two")]
+    print(f"\n{name}: {len(res.edge_a)} of {len(full.edge_a)} edges kept; "
+          f"{len(want)} association failures, {len(close)} close to two")  # fmt: skip
+    assert [(f.frame, f.track, f.view, f.kind) for f in got] == [
+        (f.frame, f.track, f.view, f.kind) for f in want
+    ]
+    np.testing.assert_allclose([f.score for f in got], [f.score for f in want], rtol=1e-6)
 
 
 def person_at(results, frame: int, track: int) -> int:
@@ -220,16 +266,20 @@ def test_association_conflict_and_gap_rank_first(tiny):
     scene, res = tiny
     f = 5
     qa, qb = person_at(res, f, 0), person_at(res, f, 1)
-    pa, pb = res.det_person[res.edge_a], res.det_person[res.edge_b]
-    e = int(np.flatnonzero((pa == qa) & (pb == qb))[0])
-    aff = res.edge_affinity.copy()
-    aff[e] = 0.99
-    found = find_failures(
-        scene, dataclasses.replace(res, edge_affinity=aff), criterion="association"
-    )
-    first, view = found[0], scene.detections.view
+    # a planted edge: detection a of person qa as close to b of person qb as can be (the
+    # results keep no edge between two people that are apart: affinity <= 0)
+    view = scene.detections.view
+    a = int(np.flatnonzero(res.det_person == qa)[0])
+    b = int(np.flatnonzero((res.det_person == qb) & (view != view[a]))[0])
+    planted = dataclasses.replace(
+        res,
+        edge_a=np.append(res.edge_a, np.int32(a)), edge_b=np.append(res.edge_b, np.int32(b)),
+        edge_affinity=np.append(res.edge_affinity, np.float32(0.99)),
+        edge_distance=np.append(res.edge_distance, np.float32(1.0)),
+    )  # fmt: skip
+    found = find_failures(scene, planted, criterion="association")
+    first = found[0]
     assert first.frame == f and first.score == pytest.approx(0.99)
-    a, b = int(res.edge_a[e]), int(res.edge_b[e])
     assert (first.track, first.view) in {(0, int(view[a])), (1, int(view[b]))}
     assert "close to track" in first.text
     # a gap in track 0's raw triangulation (present before and after) ranks first
