@@ -34,6 +34,9 @@ the two workers together get the share the serial process gets alone. The parts:
 - the SMPL fit of one scene with 1 and with 2 torch threads (``smpl_fit.num_threads``,
   alternated), and whether the two give the same numbers.
 
+Then the bound: the batch's tasks' CPU seconds, Ray's start-up CPU and the driver's,
+perfectly packed on the cores, and the speed-up that allows.
+
 Checks that the last repeat's results of the two ways are equal array for array (and names
 the entries that differ, if any).
 
@@ -298,6 +301,19 @@ def main() -> int:
     print(
         f"SMPL fit of one scene: 1 thread {fit['fit_1_thread_s']:.2f} s, 2 threads "
         f"{fit['fit_2_threads_s']:.2f} s (same numbers: {fit['same_numbers']})"
+    )
+    # The best a batch can do on these cores: its tasks' CPU, Ray's start-up (processes
+    # and warm workers) and the driver's imports and planning, perfectly packed.
+    cores = os.cpu_count() or 1
+    work = NUM_SCENES * sum(v for k, v in runs["task"].items() if k.endswith("_cpu_s"))
+    fixed = ray_start["ray_processes_cpu_s"] + driver["imports_cpu_s"] + driver["plan_cpu_s"]
+    best = (work + fixed) / cores
+    figures["batch_bound_s"] = best
+    figures["speedup_bound"] = figures["serial_median_s"] / best
+    print(
+        f"bound: tasks {work:.1f} CPU s + Ray's start-up and the driver {fixed:.1f} CPU s on "
+        f"{cores} cores, perfectly packed: batch >= {best:.1f} s, speed-up <= "
+        f"{figures['speedup_bound']:.2f}x"
     )
     print(f"serial median {figures['serial_median_s']:.1f} s, batch median "
           f"{figures['batch_median_s']:.1f} s: {figures['speedup']:.2f}x (target 1.7x, "

@@ -23,6 +23,7 @@ at a lower CPU priority (nice 10) than the viewer.
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -106,9 +107,12 @@ class RerunWebServer:
             "--web-viewer-port", str(web_port), "--port", str(grpc_port),
             "--server-memory-limit", SERVER_MEMORY_LIMIT, "--hide-welcome-screen",
         ]  # fmt: skip
+        # ``python -m rerun`` runs rerun's binary as its child: a session of its own lets
+        # stop() end both (ending the Python wrapper alone left the server running)
         self.process = subprocess.Popen(
             cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
             preexec_fn=_lower_priority if os.name == "posix" else None,
+            start_new_session=os.name == "posix",
         )  # fmt: skip
         self._wait_listening(30.0)
 
@@ -141,13 +145,50 @@ class RerunWebServer:
         return f"http://{self._connect_host}:{self.web_port}/?url={quote(self.grpc_uri, safe='')}"
 
     def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
+        """End the server: the wrapper and rerun's binary (the wrapper's session)."""
+        if os.name != "posix":
+            if self.process.poll() is None:
+                self.process.terminate()
+            self.process.wait(5)
+            return
+        for sig in (signal.SIGTERM, signal.SIGKILL):
             try:
-                self.process.wait(5)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(5)
+                os.killpg(self.process.pid, sig)
+            except ProcessLookupError:
+                break  # the session has ended
+            end = time.monotonic() + 5.0
+            while time.monotonic() < end:
+                self.process.poll()  # reaps the wrapper
+                if not _session_alive(self.process.pid):
+                    break
+                time.sleep(0.05)
+            else:
+                continue
+            break
+        try:
+            self.process.wait(5)  # the wrapper, reaped
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait(5)
+
+
+def _session_alive(sid: int) -> bool:
+    """A process of session ``sid`` still runs (not a zombie waiting to be reaped)."""
+    proc = Path("/proc")
+    if not proc.is_dir():
+        try:
+            os.killpg(sid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+    for stat in proc.glob("[0-9]*/stat"):
+        try:
+            state, _ppid, _pgrp, session = stat.read_text().rsplit(")", 1)[1].split()[:4]
+        except (OSError, ValueError):
+            continue  # ended meanwhile
+        if int(session) == sid and state != "Z":
+            return True
+    return False
 
 
 class LiveRerun:

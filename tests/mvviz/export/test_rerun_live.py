@@ -163,3 +163,21 @@ def test_log_scene_into_the_global_recording(viewer_scene, tmp_path):
     s = read_rrd_summary(tmp_path / "global.rrd")
     np.testing.assert_array_equal(s.frames, [1])
     assert f"/world/cameras/{scene.rig.names[0]}/image" in s.rows
+
+
+def test_rerun_server_stop_ends_rerun_itself():
+    """``python -m rerun`` runs rerun's binary as its child: stop() ends both, and the
+    ports are free again (ending the wrapper alone had left the binary serving)."""
+    from mvviz.export.rerun_live import RerunWebServer, _session_alive, port_is_free  # noqa: PLC0415
+
+    server = RerunWebServer(web_port=free_port())
+    sid = server.process.pid
+    binaries = [
+        p for p in Path("/proc").glob("[0-9]*/stat")
+        if int(p.read_text().rsplit(")", 1)[1].split()[3]) == sid and int(p.parent.name) != sid
+    ]  # fmt: skip
+    assert binaries, "rerun's binary is not in the server's session"
+    server.stop()
+    assert server.process.poll() is not None
+    assert not _session_alive(sid), "a process of the rerun server is still running"
+    assert port_is_free("127.0.0.1", server.web_port) and port_is_free("127.0.0.1", server.grpc_port)
