@@ -12,8 +12,9 @@ tracking and filtering on the person columns (:func:`pipeline.run.sequence_of_pe
 
 What still grows with the frames is what the results hold: per person-frame columns
 (~0.1 MB a frame at 31 x 20) and the affinity edges :func:`~pipeline.results.pack_frame`
-keeps (each person's own pairs and the compatible ones: at 31 x 20 a few thousand a
-frame, 16 bytes each; every finite pair was 101,410 of them, 3.2 MB a frame).
+keeps (each person's own pairs and the compatible ones: at 31 x 20 ~23,300 a frame,
+16 bytes each, 1.15 MB a frame of peak in all; every finite pair, ~110,000 of 32 bytes,
+was 3.7 MB a frame: ``bench/bench_memory.py --dome``).
 ``keep_edges=False`` leaves the edges out (empty E arrays): the viewer re-runs the frame
 on screen (:func:`pipeline.run.run_frame`) when it needs them.
 """
