@@ -144,7 +144,7 @@ def pack_frame(fr: FrameResult, num_views: int, num_joints: int) -> FrameColumns
     aff = a.affinity[ia, ib]
     same = (a.cluster[ia] >= 0) & (a.cluster[ia] == a.cluster[ib])
     keep = np.isfinite(aff) & ((aff > 0) | same)
-    ia, ib = ia[keep], ib[keep]
+    ia, ib, aff = ia[keep], ib[keep], aff[keep]
     return FrameColumns(
         person_frame=np.full(P, fr.frame, int),
         person_joints=t.points.reshape(P, J, 3).astype(float),
@@ -154,7 +154,7 @@ def pack_frame(fr: FrameResult, num_views: int, num_joints: int) -> FrameColumns
         person_linkage=np.asarray(a.linkage, float).reshape(P),
         edge_a=fr.rows[ia].astype(np.int32),
         edge_b=fr.rows[ib].astype(np.int32),
-        edge_affinity=a.affinity[ia, ib].astype(np.float32),
+        edge_affinity=aff.astype(np.float32),
         edge_distance=a.ray_distance[ia, ib].astype(np.float32),
     )
 

@@ -156,20 +156,23 @@ class RerunWebServer:
                 os.killpg(self.process.pid, sig)
             except ProcessLookupError:
                 break  # the session has ended
-            end = time.monotonic() + 5.0
-            while time.monotonic() < end:
-                self.process.poll()  # reaps the wrapper
-                if not _session_alive(self.process.pid):
-                    break
-                time.sleep(0.05)
-            else:
-                continue
-            break
+            if self._session_ended(within_s=5.0):
+                break
         try:
             self.process.wait(5)  # the wrapper, reaped
         except subprocess.TimeoutExpired:
             self.process.kill()
             self.process.wait(5)
+
+    def _session_ended(self, within_s: float) -> bool:
+        """Wait up to ``within_s`` for every process of the server's session to end."""
+        end = time.monotonic() + within_s
+        while _session_alive(self.process.pid):
+            self.process.poll()  # reaps the wrapper
+            if time.monotonic() > end:
+                return False
+            time.sleep(0.05)
+        return True
 
 
 def _session_alive(sid: int) -> bool:
