@@ -23,6 +23,19 @@ CHROMIUM_ARGS = [
 ]
 
 
+def pinned_dpr_url(url: str, dpr: float = 1.0) -> str:
+    """``url`` with viser's ``fixedDpr`` query: the page renders at ``dpr`` always.
+
+    viser's client lowers its device-pixel ratio (to 0.75 here) once it has drawn ~10
+    consecutive 250 ms windows slowly, which software WebGL does during playback or a
+    run of frame changes, and raises it only after as many fast windows: lines come out
+    thinner and paler, point sprites smaller. A picture then depends on what the page
+    drew before, not on what it shows, so pictures that are compared pin the ratio.
+    """
+    sep = "&" if "?" in url else "?"
+    return f"{url}{sep}fixedDpr={dpr:g}"
+
+
 def launch_chromium(playwright):
     """A headless chromium browser from a ``sync_playwright()`` context."""
     return playwright.chromium.launch(

@@ -18,7 +18,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mvviz.cli.view import add_view_options, start  # noqa: E402
-from tools.chromium import close_webgl_notice, launch_chromium  # noqa: E402
+from tools.chromium import close_webgl_notice, launch_chromium, pinned_dpr_url  # noqa: E402
 
 
 def main() -> None:
@@ -42,7 +42,7 @@ def main() -> None:
     with sync_playwright() as pw:
         browser = launch_chromium(pw)
         page = browser.new_page(viewport={"width": 1600, "height": 900})
-        page.goto(app.url)
+        page.goto(pinned_dpr_url(app.url))  # crisp pictures whatever the page drew before
         page.wait_for_selector("canvas", timeout=60_000)
         close_webgl_notice(page)
         page.wait_for_timeout(3000)

@@ -23,7 +23,7 @@ from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.results import run_or_load, run_pipeline
 from pipeline.scene import load_scene
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
-from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium
+from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium, pinned_dpr_url
 
 REPO = Path(__file__).resolve().parents[2]
 CAMPUS = REPO / "sample_data" / "rigs" / "campus_voxelpose.json"
@@ -103,10 +103,15 @@ def browser():
         b.close()
 
 
-def open_viewer(browser, url: str):
-    """A page showing the viewer, its canvas up and the software-WebGL notice closed."""
+def open_viewer(browser, url: str, *, adaptive_dpr: bool = False):
+    """A page showing the viewer, its canvas up and the software-WebGL notice closed.
+
+    Its device-pixel ratio is pinned to 1 (:func:`tools.chromium.pinned_dpr_url`) unless
+    ``adaptive_dpr``: viser's adaptive ratio makes a picture depend on how slowly the
+    page drew before it (stop 27's frame-0 revisit and filter-B checks differed by
+    thinner, paler rays at ratio 0.75, not by what was shown)."""
     page = browser.new_page(viewport=VIEWPORT)
-    page.goto(url)
+    page.goto(url if adaptive_dpr else pinned_dpr_url(url))
     page.wait_for_selector("canvas", timeout=60_000)
     close_webgl_notice(page)
     settle(page)

@@ -59,7 +59,8 @@ def test_a_page_answers_after_applying_the_frame(browser, own_app):
 
 
 def test_playback_drops_frames_instead_of_lagging(browser, own_app):
-    page = open_viewer(browser, own_app.url)
+    # viser's adaptive pixel ratio on, as a user's page has it: this measures lag
+    page = open_viewer(browser, own_app.url, adaptive_dpr=True)
     log = PictureLog(own_app)
     try:
         lag = measure_playback(own_app, page, log, seconds=8.0, interval_s=0.1)

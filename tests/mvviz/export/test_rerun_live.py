@@ -180,4 +180,6 @@ def test_rerun_server_stop_ends_rerun_itself():
     server.stop()
     assert server.process.poll() is not None
     assert not _session_alive(sid), "a process of the rerun server is still running"
-    assert port_is_free("127.0.0.1", server.web_port) and port_is_free("127.0.0.1", server.grpc_port)
+    assert port_is_free("127.0.0.1", server.web_port) and port_is_free(
+        "127.0.0.1", server.grpc_port
+    )

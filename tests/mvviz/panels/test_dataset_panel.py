@@ -4,8 +4,8 @@ chromium: scenes sorted by a metric, a click opens another scene at its worst mo
 from __future__ import annotations
 
 import argparse
-from concurrent.futures import ThreadPoolExecutor
 import time
+from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
 import pytest

@@ -34,6 +34,7 @@ from pipeline.config import load_config
 from pipeline.evaluate import evaluate
 from pipeline.kalman import KalmanParams, kalman_filter
 from tests.mvviz.conftest import free_port, keep_screenshot, open_tab, settle, wait_rendered
+from tools.chromium import pinned_dpr_url
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -290,7 +291,7 @@ def test_browser_plot_follows_filter_b(browser, running_app, tmp_path):
     others = set(app.server.get_clients())
     page = browser.new_page(viewport={"width": 1500, "height": 1400})
     try:
-        page.goto(app.url)
+        page.goto(pinned_dpr_url(app.url))  # compared pictures: a fixed pixel ratio
         page.wait_for_selector("canvas", timeout=60_000)
         deadline = time.monotonic() + 10
         while not set(app.server.get_clients()) - others and time.monotonic() < deadline:
