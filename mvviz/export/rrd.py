@@ -26,6 +26,7 @@ from rerun.chunk import RrdReader
 from mvviz.export.rerun import (  # noqa: F401  (re-exported: the names this module always had)
     APP_ID,
     DEFAULT_PLOT_JOINTS,
+    MESH_CHUNK_FRAMES,
     MM_TO_M,
     ClassLayout,
     MeshSequence,
@@ -236,6 +237,7 @@ def export_rrd(
     mesh_cell_mm: float | None = 25.0,
     extra_meshes: Mapping[str, MeshSequence] | None = None,
     plot_joints: Sequence[str] = DEFAULT_PLOT_JOINTS,
+    mesh_chunk_frames: int = MESH_CHUNK_FRAMES,
     progress: Progress = True,
 ) -> Path:
     """Write ``scene`` and its ``results`` to the recording ``path``, atomically.
@@ -257,6 +259,8 @@ def export_rrd(
             full resolution.
         extra_meshes: name -> MeshSequence, logged at ``world/meshes/<name>``.
         plot_joints: joints plotted per track (aliases such as ``pelvis`` resolve per set).
+        mesh_chunk_frames: frames of GT meshes and bodies skinned and sent at a time: the
+            export's memory does not grow with the scene's length (0: all at once).
     Returns:
         ``path``.
     """
@@ -286,7 +290,7 @@ def export_rrd(
             sources = scene_frame_sources(scene)
             offsets = results.config.sync.by_camera()  # re-timed cameras' pictures
             prefetch = _Prefetcher(sources, frame_ids, logger.cam_size, jpeg_quality, offsets)
-        _log_frames(logger, frame_ids, prefetch, progress)
+        _log_frames(logger, frame_ids, prefetch, progress, mesh_chunk_frames)
         _complete(rec, tmp, path)
     except BaseException:
         try:
@@ -316,13 +320,16 @@ def _log_frames(
     frame_ids: np.ndarray,
     prefetch: _Prefetcher | None,
     progress: Progress,
+    mesh_chunk_frames: int = MESH_CHUNK_FRAMES,
 ) -> None:
     """Every frame (with its prefetched images), then the GT meshes, bodies and plots."""
-    for f in track(frame_ids, "export rrd", progress, unit="frame"):
+    for i, f in enumerate(track(frame_ids, "export rrd", progress, unit="frame")):
         imgs = prefetch.next() if prefetch is not None else None
         logger.log_frame(int(f), images=imgs, gt_meshes=False, bodies=False)
-    logger.send_gt_meshes(frame_ids)
-    logger.send_bodies(frame_ids)
+        if mesh_chunk_frames > 0 and (i + 1) % mesh_chunk_frames == 0:
+            logger.rec.flush()  # written before more is queued: memory of one chunk
+    logger.send_gt_meshes(frame_ids, mesh_chunk_frames)
+    logger.send_bodies(frame_ids, mesh_chunk_frames)
     logger.send_plots(frame_ids)
 
 

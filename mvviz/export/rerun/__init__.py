@@ -85,7 +85,7 @@ from mvviz.export.rerun.layout import (
     select_frames,
     track_color,
 )
-from mvviz.export.rerun.logger import ImageLike, SceneLogger
+from mvviz.export.rerun.logger import MESH_CHUNK_FRAMES, ImageLike, SceneLogger
 from mvviz.export.rerun.meshes import decimate_mesh, display_mesh, skin_subset
 from pipeline.body_model import BodyModel
 from pipeline.diagnose.retime import picture_frame
@@ -94,7 +94,8 @@ from pipeline.scene import Scene
 
 __all__ = [
     "APP_ID", "AXIS_COLORS", "BODY_STAGES", "DEFAULT_PLOT_JOINTS", "GREY_UNASSIGNED",
-    "GREY_UNTRACKED", "GT_COLOR", "JOINT_ALIASES", "MM_TO_M", "ClassLayout", "ImageLike",
+    "GREY_UNTRACKED", "GT_COLOR", "JOINT_ALIASES", "MESH_CHUNK_FRAMES", "MM_TO_M", "ClassLayout",
+    "ImageLike",
     "MeshSequence", "SceneLogger", "annotation_context", "body_color", "check_inputs",
     "decimate_mesh", "display_mesh", "encode_jpeg", "log_scene", "make_blueprint",
     "ray_segments", "resize", "resolve_plot_joint", "scaled_intrinsics", "select_frames",

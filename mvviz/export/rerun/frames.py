@@ -179,15 +179,16 @@ def _log_rays(logger, scene, results, people) -> None:
 
 
 def _log_gt(logger, gt, layout, rows: np.ndarray, mesh_vertices: np.ndarray | None) -> None:
-    """GT skeletons and, given ``mesh_vertices`` (GT row -> (V', 3) m), GT meshes."""
-    for i in rows:
+    """GT skeletons and, given ``mesh_vertices`` ((len(rows), V', 3) m, one mesh per row
+    of ``rows``), GT meshes."""
+    for n, i in enumerate(rows):
         p = int(gt.person_id[i])
         pts = _points3d(gt.joints3d[i], layout.gt(p), 0.015)
         if pts is not None:
             logger.log(f"world/skeletons/gt/{p}", pts)
         if mesh_vertices is not None:
             logger.log(
-                f"world/meshes/gt/{p}", rr.Mesh3D.from_fields(vertex_positions=mesh_vertices[i])
+                f"world/meshes/gt/{p}", rr.Mesh3D.from_fields(vertex_positions=mesh_vertices[n])
             )
 
 

@@ -45,6 +45,18 @@ from pipeline.run import row_frames
 from pipeline.scene import Scene
 from pipeline.smpl_fit_types import SmplFit
 
+SKIN_BATCH = 128  # meshes skinned per torch call
+MESH_CHUNK_FRAMES = 64
+"""Frames of mesh vertices sent per ``send_columns`` call: 20 people x ~1,700 kept
+vertices x 12 bytes x 64 frames is ~26 MB, whatever the scene's length."""
+
+
+def _chunks(values: np.ndarray, size: int) -> list[np.ndarray]:
+    """``values`` cut in consecutive pieces of ``size`` (0: one piece)."""
+    size = len(values) if size <= 0 else int(size)
+    return [values[a : a + size] for a in range(0, len(values), max(size, 1))]
+
+
 ImageLike = bytes | np.ndarray  # JPEG bytes, or a BGR uint8 image (h, w, 3)
 
 
@@ -179,21 +191,22 @@ class SceneLogger:
 
     # ------------------------------------------------------------------ frames
 
-    def gt_mesh_vertices(self) -> np.ndarray | None:
-        """(num_gt_rows, V', 3) float32 world METRES of every GT row's decimated mesh,
-        skinned in batches on first use (None without meshes)."""
+    def gt_mesh_vertices(self, rows: np.ndarray) -> np.ndarray | None:
+        """(len(rows), V', 3) float32 world METRES: the decimated mesh of each GT row of
+        ``rows``, skinned in batches (None without meshes). Only the rows asked for: a
+        long scene's every GT mesh would not fit in memory (10,000 frames x 20 people x
+        ~1,700 kept vertices is ~4 GB)."""
         if not self.has_meshes:
             return None
-        if self._mesh_vertices is None:
-            gt, keep = self.scene.gt, self.mesh_keep
-            out = np.empty((len(gt.frame), len(keep), 3), np.float32)
-            with torch.no_grad():
-                for a in range(0, len(out), 128):
-                    b = min(a + 128, len(out))
-                    v = skin_subset(self.body_model, gt.smpl_pose[a:b], gt.smpl_betas[a:b], keep)
-                    out[a:b] = v + gt.transl[a:b, None, :] * MM_TO_M
-            self._mesh_vertices = out
-        return self._mesh_vertices
+        gt, keep = self.scene.gt, self.mesh_keep
+        rows = np.asarray(rows, np.int64)
+        out = np.empty((len(rows), len(keep), 3), np.float32)
+        with torch.no_grad():
+            for a in range(0, len(rows), SKIN_BATCH):
+                r = rows[a : a + SKIN_BATCH]
+                v = skin_subset(self.body_model, gt.smpl_pose[r], gt.smpl_betas[r], keep)
+                out[a : a + len(r)] = v + gt.transl[r, None, :] * MM_TO_M
+        return out
 
     def body_vertices(self, stage: str, tracks: np.ndarray, frames: np.ndarray) -> np.ndarray:
         """(N, V', 3) float32 world METRES: the display mesh of the ``stage`` fit of
@@ -202,8 +215,8 @@ class SceneLogger:
         out = np.empty((len(tracks), len(keep), 3), np.float32)
         model = torch_body_model(fit.model)  # a loaded run's fit holds the numpy arrays
         with torch.no_grad():
-            for a in range(0, len(out), 128):
-                k, f = tracks[a : a + 128], frames[a : a + 128]
+            for a in range(0, len(out), SKIN_BATCH):
+                k, f = tracks[a : a + SKIN_BATCH], frames[a : a + SKIN_BATCH]
                 v = skin_subset(model, fit.pose_rotvecs[k, f], fit.betas[k], keep)
                 out[a : a + len(k)] = v + fit.transl[k, f][:, None, :] * MM_TO_M
         return out
@@ -253,8 +266,8 @@ class SceneLogger:
         _log_rays(logger, self.scene, res, self.person_by_frame.get(f))
         gt = self.scene.gt
         if gt is not None and f in self.gt_by_frame:
-            verts = self.gt_mesh_vertices() if gt_meshes else None
-            _log_gt(logger, gt, layout, self.gt_by_frame[f], verts)
+            rows = self.gt_by_frame[f]
+            _log_gt(logger, gt, layout, rows, self.gt_mesh_vertices(rows) if gt_meshes else None)
         for stage, fit in self.fits.items() if bodies else ():
             ks = np.flatnonzero(fit.present[:, f])
             if ks.size:
@@ -274,42 +287,61 @@ class SceneLogger:
 
     # ------------------------------------------------------------------ columns
 
-    def send_gt_meshes(self, frame_ids: np.ndarray) -> None:
-        """Every GT mesh's vertices over ``frame_ids`` as one column per person
-        (``send_columns``); a frame where the person is absent gets an empty mesh."""
-        verts = self.gt_mesh_vertices()
+    def send_gt_meshes(self, frame_ids: np.ndarray, chunk_frames: int = MESH_CHUNK_FRAMES) -> None:
+        """Every GT mesh's vertices over ``frame_ids`` as columns per person
+        (``send_columns``), ``chunk_frames`` frames at a time (0: all at once, as before
+        stop 28), each chunk skinned just before it is sent: the export's memory stays
+        that of one chunk however long the scene. From the person's first frame on, a
+        frame where it is absent gets an empty mesh."""
         gt = self.scene.gt
-        if verts is None:
+        if not self.has_meshes:
             return
+        frame_ids = np.asarray(frame_ids, np.int64)
         fps = self.scene.fps
         for p in self.layout.gt_people:
-            row_of = {int(gt.frame[i]): i for i in np.flatnonzero(gt.person_id == p)}
-            present = np.array([int(f) in row_of for f in frame_ids])
+            mine = np.flatnonzero(gt.person_id == p)
+            row_at = np.full(self.scene.num_frames, -1, np.int64)
+            row_at[gt.frame[mine]] = mine
+            present = row_at[frame_ids] >= 0
             if not present.any():
                 continue
-            # from the first frame with the person: empty partitions where it is absent
-            fr = np.asarray(frame_ids)[int(np.argmax(present)) :]
-            rows = [row_of[int(f)] for f in fr if int(f) in row_of]
-            lengths = np.array([verts.shape[1] if int(f) in row_of else 0 for f in fr])
-            _send_mesh_column(self.rec, f"world/meshes/gt/{p}", fr, verts[rows], lengths, fps)
+            fr = frame_ids[int(np.argmax(present)) :]  # from the first frame with the person
+            for chunk in _chunks(fr, chunk_frames):
+                rows = row_at[chunk]
+                lengths = np.where(rows >= 0, len(self.mesh_keep), 0)
+                verts = self.gt_mesh_vertices(rows[rows >= 0])
+                _send_mesh_column(self.rec, f"world/meshes/gt/{p}", chunk, verts, lengths, fps)
+                self._drain(chunk_frames)
 
-    def send_bodies(self, frame_ids: np.ndarray) -> None:
-        """Every fitted body's vertices over ``frame_ids`` as one column per (stage,
-        track), as :meth:`send_gt_meshes`."""
+    def send_bodies(self, frame_ids: np.ndarray, chunk_frames: int = MESH_CHUNK_FRAMES) -> None:
+        """Every fitted body's vertices over ``frame_ids`` as columns per (stage, track),
+        chunk by chunk, as :meth:`send_gt_meshes`."""
         frame_ids = np.asarray(frame_ids, np.int64)
         for stage, fit in self.fits.items():
+            n = len(self.body_meshes[stage][0])
             present = fit.present[:, frame_ids]  # (K, F')
-            ks, cols = np.nonzero(present)
-            if ks.size == 0:
-                continue
-            verts = self.body_vertices(stage, ks, frame_ids[cols])
-            n = verts.shape[1]
-            for k in np.unique(ks):
-                pk = present[k]
-                fr = frame_ids[int(np.argmax(pk)) :]
-                lengths = np.where(pk[int(np.argmax(pk)) :], n, 0)
-                _send_mesh_column(self.rec, f"world/bodies/{stage}/{k}", fr, verts[ks == k],
-                                  lengths, self.scene.fps)  # fmt: skip
+            first = np.where(present.any(1), np.argmax(present, 1), len(frame_ids))
+            for chunk_at in _chunks(np.arange(len(frame_ids)), chunk_frames):
+                lo, hi = int(chunk_at[0]), int(chunk_at[-1]) + 1
+                started = np.flatnonzero(first < hi)  # empty meshes where a track pauses
+                if started.size == 0:
+                    continue
+                ks, cols = np.nonzero(present[:, lo:hi])
+                verts = self.body_vertices(stage, ks, frame_ids[lo + cols])
+                for k in started:
+                    start = max(lo, int(first[k]))  # from the track's first fitted frame
+                    lengths = np.where(present[k, start:hi], n, 0)
+                    _send_mesh_column(self.rec, f"world/bodies/{stage}/{k}",
+                                      frame_ids[start:hi], verts[ks == k], lengths,
+                                      self.scene.fps)  # fmt: skip
+                self._drain(chunk_frames)
+
+    def _drain(self, chunk_frames: int) -> None:
+        """Wait until what was sent is written: rerun queues what it is given faster
+        than its writer compresses and writes it, so without this a whole scene's meshes
+        wait in memory (measured: ~150 KB a frame of the sample kept until the end)."""
+        if chunk_frames > 0:
+            self.rec.flush()
 
     def send_plots(
         self,

@@ -466,3 +466,62 @@ def test_log_scene_reads_a_retimed_cameras_picture_at_its_offset(tiny):
     )  # fmt: skip
     assert sources[late].asked == [3, 4]
     assert sources[scene.rig.names[0]].asked == [0, 1]
+
+
+def mesh_rows(path: Path) -> dict[str, dict[int, np.ndarray]]:
+    """entity -> frame -> (V, 3) logged vertex positions, for every mesh entity."""
+    out: dict[str, dict[int, np.ndarray]] = {}
+    for chunk in RrdReader(str(path)).stream():
+        ent = str(chunk.entity_path)
+        batch = chunk.to_record_batch()
+        if "Mesh3D:vertex_positions" in batch.schema.names and "frame" in batch.schema.names:
+            rows = out.setdefault(ent, {})
+            frames = batch.column("frame").to_pylist()
+            for f, v in zip(
+                frames, batch.column("Mesh3D:vertex_positions").to_pylist(), strict=True
+            ):
+                assert f not in rows, (ent, f)  # every frame once, whatever the chunks
+                rows[f] = np.asarray(v, np.float32).reshape(-1, 3)
+    return out
+
+
+def test_meshes_sent_in_chunks_are_the_meshes_sent_at_once(tiny, tmp_path):
+    """GT meshes and fitted bodies go out 3 frames at a time (a long scene's memory stays
+    one chunk's): the same vertices per entity and frame as in one piece, with a person
+    who starts late and one who pauses (empty meshes there, from the first frame on)."""
+    scene, results, model = tiny
+    gt = scene.gt
+    # GT person 0 absent at frames 4-5, GT person 1 only from frame 5 on
+    keep = ~(
+        ((gt.person_id == 0) & np.isin(gt.frame, [4, 5])) | ((gt.person_id == 1) & (gt.frame < 5))
+    )
+    gt2 = dataclasses.replace(gt, **{k: v[keep] for k, v in gt.arrays().items()})
+    scene2 = dataclasses.replace(scene, gt=gt2)
+    fits = {}
+    for stage in body_stages(results):
+        fit = getattr(results, stage)
+        transl = fit.transl.copy()
+        transl[0, 3:7] = np.nan  # track 0 pauses over a chunk boundary
+        transl[1, :4] = np.nan  # track 1 starts in the second chunk
+        fits[stage] = dataclasses.replace(fit, transl=transl)
+    results2 = dataclasses.replace(results, **fits)
+    paths = {}
+    for chunk in (3, 0):
+        paths[chunk] = tmp_path / f"chunk{chunk}.rrd"
+        export_rrd(scene2, results2, model, paths[chunk], images=False,
+                   mesh_chunk_frames=chunk, progress=False)  # fmt: skip
+    chunked, whole = mesh_rows(paths[3]), mesh_rows(paths[0])
+    assert set(chunked) == set(whole) and any("/bodies/" in e for e in whole)
+    for ent, rows in whole.items():
+        assert set(chunked[ent]) == set(rows), ent
+        for f, v in rows.items():
+            # skinned in other batches: float32 rounding, ~0.2 micrometres
+            np.testing.assert_allclose(chunked[ent][f], v, atol=1e-6, err_msg=f"{ent} frame {f}")
+    # the pauses are empty meshes from the first frame on; nothing before it
+    assert min(whole["/world/meshes/gt/1"]) == 5
+    assert all(len(whole["/world/meshes/gt/0"][f]) == 0 for f in (4, 5))
+    for stage in fits:
+        assert min(whole[f"/world/bodies/{stage}/1"]) == 4
+        track0 = whole[f"/world/bodies/{stage}/0"]
+        assert [f for f in range(3, 7) if len(track0[f])] == []
+        assert all(len(track0[f]) > 0 for f in (0, 1, 2, 7, 8, 9))
