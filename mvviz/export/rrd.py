@@ -300,11 +300,16 @@ def export_rrd(
         raise
     finally:
         torch.set_num_threads(torch_threads)
-        if prefetch is not None:
-            prefetch.close()
-        for src in sources.values():
-            src.close()
+        _close_readers(prefetch, sources)
     return path
+
+
+def _close_readers(prefetch: _Prefetcher | None, sources: Mapping[str, FrameSource]) -> None:
+    """Stop the image prefetch threads, then close the video readers they read from."""
+    if prefetch is not None:
+        prefetch.close()
+    for src in sources.values():
+        src.close()
 
 
 def _temp_beside(path: Path) -> Path:
