@@ -5,8 +5,10 @@ radius (``dome:N:5000``, people in its 3 m capture circle), the shipped detector
 --frames frames per scene, for every cameras x people of the grid (kept under --cache
 and reused). Per scene, alternated over --repeats runs: ``pipeline.run.run_frame`` on
 every frame with today's association (``pipeline.ray_affinity.screened_distances``: a
-part-ray screen, then the per-joint kernel on the pairs it keeps, both by cache-sized
-blocks, ``pipeline.ray_pairs``), with the screen and kernel before the blocks
+part-ray screen, then the per-joint kernel on the pairs it keeps, in one compiled pass,
+``pipeline.ray_fused``, where a frame has ``COMPILED_MIN_DETECTIONS`` detections), with
+the NumPy screen and kernel on every frame ("numpy": by cache-sized blocks,
+``pipeline.ray_pairs``), with the screen and kernel before the blocks
 ("unblocked": ``screen_distances_unblocked``, ``pair_ray_distances_unchunked``), with
 the association before the screen (``pipeline.associate.dense_frame_distances``: every
 pair, patched in), and
@@ -58,12 +60,17 @@ STAGES = ("associate_frame", "triangulate_people")  # pipeline.run's names, time
 
 @contextlib.contextmanager
 def kernels(mode: str):
-    """Association as today ("new"), with the screen and pair kernel before they went
+    """Association as today ("new": the compiled screen and kernel where a frame has
+    ``COMPILED_MIN_DETECTIONS`` detections), with the NumPy screen and kernel on every
+    frame ("numpy": today's before the compiled pass), with those before they went
     by cache-sized blocks ("unblocked": ``ray_affinity.screen_distances_unblocked``,
     ``pair_ray_distances_unchunked``), with every pair's distance ("dense", the kernels
     before the screen) or with the kernels as first written ("reference")."""
     saved = associate._frame_distances, associate.ray_distances, associate._average_linkage
     saved_screen = ray_affinity._pair_kernel, ray_affinity._screen
+    saved_min = ray_affinity.COMPILED_MIN_DETECTIONS
+    if mode != "new":  # every other mode is a NumPy one
+        ray_affinity.COMPILED_MIN_DETECTIONS = sys.maxsize
     if mode == "unblocked":
         ray_affinity._pair_kernel = ray_affinity.pair_ray_distances_unchunked
         ray_affinity._screen = ray_affinity.screen_distances_unblocked
@@ -77,6 +84,7 @@ def kernels(mode: str):
     finally:
         associate._frame_distances, associate.ray_distances, associate._average_linkage = saved
         ray_affinity._pair_kernel, ray_affinity._screen = saved_screen
+        ray_affinity.COMPILED_MIN_DETECTIONS = saved_min
 
 
 @contextlib.contextmanager
@@ -250,14 +258,14 @@ def plot(grid: list[dict], path: Path, fits: dict) -> None:
 def table(grid: list[dict]) -> list[str]:
     """The grid as a Markdown table: frames/s (CPU) per stage, accuracy."""
     out = [
-        "| cameras | people | detections / frame | association frames/s (unblocked; every "
-        "pair) | speed-up (vs every pair) | triangulation frames/s | association P / R | "
+        "| cameras | people | detections / frame | association frames/s (NumPy; every "
+        "pair) | speed-up vs NumPy (vs every pair) | triangulation frames/s | association P / R | "
         "MPJPE mm (every pair) |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for g in grid:
         n, d = g["new"], g["dense"]
-        u = g.get("unblocked", n)  # runs before this mode: none
+        u = g.get("numpy", n)  # runs before this mode: none
         out.append(
             f"| {g['cameras']} | {g['people']} | {g['dets']:.0f} | {1 / n['assoc_s']:,.0f} "
             f"({1 / u['assoc_s']:,.0f}; {1 / d['assoc_s']:,.0f}) | "
@@ -295,7 +303,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--from-json", type=Path, default=None, help="table and plot of a run")
     args = ap.parse_args(argv)
-    modes = ("new", "unblocked", "dense") + (("reference",) if args.reference else ())
+    modes = ("new", "numpy", "unblocked", "dense") + (("reference",) if args.reference else ())
     if args.from_json:
         saved = json.loads(args.from_json.read_text())
         modes = tuple(m for m in modes if m in saved["grid"][0])  # older runs lack some

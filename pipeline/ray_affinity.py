@@ -272,6 +272,12 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 # bench/bench_scale.py swaps in the unchunked / unblocked ones
 _pair_kernel, _screen = pair_ray_distances, screen_distances
+COMPILED_MIN_DETECTIONS = 48
+"""Frames with at least this many detections go through
+:func:`pipeline.ray_fused.fused_screened_distances` (one compiled pass, the same numbers in
+float64); smaller ones through the NumPy screen and kernel, whose per-call cost is small
+there, so a sample-sized scene never loads Numba (~0.9 s a process: its import and the
+cached machine code). bench/bench_scale.py sets it out of reach for its NumPy baseline."""
 
 
 def screened_distances(
@@ -295,6 +301,12 @@ def screened_distances(
     """
     n, J = dirs.shape[:2]
     shared = shared_joints(np.isfinite(dirs).all(-1) & (weights > 0)) >= params.min_shared_joints
+    if n >= COMPILED_MIN_DETECTIONS:
+        from pipeline.ray_fused import fused_screened_distances  # noqa: PLC0415  (numba)
+
+        groups = part_groups(flip, J)
+        return fused_screened_distances(origins, dirs, weights, views, flip, groups, shared,
+                                        params)  # fmt: skip
     screen = _screen(origins, dirs, weights, part_groups(flip, J), params.joint_clip_mm)
     other_view = views[:, None] != views[None, :]
     near = np.triu(other_view & (screen < params.prune_mm), 1)

@@ -147,7 +147,7 @@ def test_screen_keeps_every_close_pair_and_unpruned_equals_dense():
     pruned, _ = screened_distances(o, d, w, views, None, p)
     far = np.isfinite(dense) & (screen >= p.prune_mm)
     assert far.mean() > 0.3  # the screen does throw pairs away
-    np.testing.assert_allclose(pruned[far], screen[far], rtol=1e-6)
+    np.testing.assert_allclose(pruned[far], screen[far], atol=0.05)  # float32 screen
     np.testing.assert_allclose(pruned[~far], dense[~far], atol=0.05, equal_nan=True)
 
 

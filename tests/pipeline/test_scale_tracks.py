@@ -4,9 +4,12 @@ people are seen by few cameras far away, a dome) scored end to end."""
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
+import pipeline.ray_affinity as ray_affinity
 from pipeline.associate import AssociationParams, _average_linkage, refine_clusters
 from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
@@ -137,3 +140,25 @@ def test_wide_ring_needs_the_geometric_checks(scale_scenes):
     )
     assert s["precision"] <= full["precision"] - 0.02, (s, full)
     assert full["precision"] >= 0.99, full
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_compiled_pass_gives_the_numpy_clusters_on_big_rigs(scale_scenes, monkeypatch, name):
+    """pipeline.ray_fused on every frame against the NumPy screen and kernel on every
+    frame: the same people, the same mirrored detections, distances within float32's."""
+    scene = scale_scenes[name]
+    config = PipelineConfig(fit_smpl=False, use_pose_prior=False)
+    j2d = select_2d(scene, config, None)
+    runs, shipped = {}, ray_affinity.COMPILED_MIN_DETECTIONS
+    for mode, least in (("compiled", 0), ("numpy", sys.maxsize)):
+        monkeypatch.setattr(ray_affinity, "COMPILED_MIN_DETECTIONS", least)
+        runs[mode] = run_frames(scene, config, j2d, progress=False)
+    if name == "dome":  # frames the product sends through the compiled pass
+        assert min(len(f.rows) for f in runs["numpy"]) >= shipped
+    for a, b in zip(runs["compiled"], runs["numpy"], strict=True):
+        np.testing.assert_array_equal(a.association.cluster, b.association.cluster)
+        np.testing.assert_array_equal(a.association.flipped, b.association.flipped)
+        np.testing.assert_allclose(a.association.ray_distance, b.association.ray_distance,
+                                   atol=1.0, equal_nan=True)  # fmt: skip
+        np.testing.assert_allclose(a.triangulation.points, b.triangulation.points,
+                                   atol=1e-6, equal_nan=True)  # fmt: skip

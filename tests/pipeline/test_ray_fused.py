@@ -1,0 +1,84 @@
+"""The compiled screen and kernel (pipeline.ray_fused) against the NumPy path it replaces
+on big frames (pipeline.ray_affinity.screened_distances with COMPILED_MIN_DETECTIONS out
+of reach)."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import pipeline.ray_affinity as ray_affinity
+from pipeline.associate import AssociationParams
+from pipeline.ray_affinity import part_groups, ray_distances, screen_distances, shared_joints
+from pipeline.ray_fused import fused_screened_distances
+from tests.pipeline.test_ray_affinity import _detections
+
+FLIP = np.array([0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15])  # COCO-17's
+
+
+def _both(monkeypatch, o, d, w, views, flip, p):
+    """(compiled, NumPy) screened_distances of one frame."""
+    monkeypatch.setattr(ray_affinity, "COMPILED_MIN_DETECTIONS", 0)
+    fused = ray_affinity.screened_distances(o, d, w, views, flip, p)
+    monkeypatch.setattr(ray_affinity, "COMPILED_MIN_DETECTIONS", sys.maxsize)
+    numpy = ray_affinity.screened_distances(o, d, w, views, flip, p)
+    return fused, numpy
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fused_equals_the_numpy_screen_and_kernel(monkeypatch, seed):
+    o, d, w, views = _detections(np.random.default_rng(seed), n_people=10, n_views=12)
+    o[views == 3] = o[views == 2][0]  # two views from one camera centre: the clip
+    d[5, 2:], w[5, 2:] = np.nan, 0.0  # too few joints: NaN
+    d[9], w[9] = np.nan, 0.0  # nothing seen
+    p = AssociationParams()
+    (dist, mirrored), (want, want_m) = _both(monkeypatch, o, d, w, views, FLIP, p)
+    for got, ref in ((dist, want), (mirrored, want_m)):
+        assert got.shape == ref.shape == (len(o), len(o))
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+        # NumPy's float32 is off by up to ~0.6 mm where a joint's rays are near parallel
+        # (the float64 kernel matches the dense float64 distance: the test below)
+        err = np.abs(got - ref)[np.isfinite(ref)]
+        assert np.median(err) < 1e-3 and np.mean(err < 0.02) > 0.999 and err.max() < 1.0
+    # the cases the comparison is about are all there
+    near = np.isfinite(mirrored)
+    assert near.sum() > 100 and (np.isfinite(dist) & ~near).sum() > 100  # kept and pruned
+    assert np.isclose(dist, p.joint_clip_mm).any() and (dist < 50).sum() > 100
+    assert np.isnan(dist[9]).all() and np.isnan(np.diag(dist)).all()
+    assert np.isnan(dist[views[:, None] == views[None]]).all()
+
+
+def test_fused_kernel_equals_the_float64_dense_distance_on_the_pairs_it_keeps():
+    o, d, w, views = _detections(np.random.default_rng(7), n_people=8, n_views=10)
+    p = AssociationParams()
+    shared = shared_joints(np.isfinite(d).all(-1) & (w > 0)) >= p.min_shared_joints
+    groups = part_groups(FLIP, 17)
+    dist, mirrored = fused_screened_distances(o, d, w, views, FLIP, groups, shared, p)
+    dense = ray_distances(o, d, w, p)
+    dense_m = ray_distances(o, d, w, p, other=(o, d[:, FLIP], w[:, FLIP]))
+    kept = np.isfinite(mirrored)
+    assert kept.sum() > 100
+    np.testing.assert_allclose(dist[kept], dense[kept], atol=1e-6)  # both float64
+    np.testing.assert_allclose(mirrored[kept], dense_m[kept], atol=1e-6)
+    pruned = np.isfinite(dist) & ~kept  # the screen's own distance, at or past prune_mm
+    screen = screen_distances(o, d, w, groups, p.joint_clip_mm)
+    assert (dist[pruned] >= p.prune_mm).all()
+    np.testing.assert_allclose(dist[pruned], screen[pruned], atol=0.05)  # float32 screen
+
+
+def test_fused_without_a_flip_and_on_tiny_frames(monkeypatch):
+    o, d, w, views = _detections(np.random.default_rng(3), n_people=5, n_views=10)
+    p = AssociationParams()
+    (dist, mirrored), (want, _) = _both(monkeypatch, o, d, w, views, None, p)
+    assert np.isnan(mirrored).all()
+    np.testing.assert_allclose(dist, want, atol=0.05, equal_nan=True)
+    everything = replace(p, prune_mm=np.inf)  # no screen: every pair's kernel
+    (dist, _), (want, _) = _both(monkeypatch, o, d, w, views, None, everything)
+    np.testing.assert_allclose(dist, want, atol=0.05, equal_nan=True)
+    monkeypatch.setattr(ray_affinity, "COMPILED_MIN_DETECTIONS", 0)
+    for n in (0, 1):
+        dist, mirrored = ray_affinity.screened_distances(o[:n], d[:n], w[:n], views[:n], FLIP, p)
+        assert dist.shape == mirrored.shape == (n, n) and np.isnan(dist).all()
