@@ -66,7 +66,10 @@ def test_load_errors_name_file_and_field(tmp_path):
     root = _write_small(tmp_path)
     bad = tmp_path / "bad"
     for mutate, pattern in [
-        (lambda d: d.update(joint_set="blaze33"), r"scene\.json: field 'joint_set': expected one of"),
+        (
+            lambda d: d.update(joint_set="blaze33"),
+            r"scene\.json: field 'joint_set': expected one of",
+        ),
         (lambda d: d.update(units="m"), r"scene\.json: field 'units'"),
         (lambda d: d.update(fps=-1), r"scene\.json: field 'fps'"),
     ]:
