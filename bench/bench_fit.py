@@ -4,7 +4,8 @@ On the shipped sample scene (sample_data/shelf_synth; the pipeline is run first 
 results file is missing or stale), fits every track of the configured Kalman output
 (``results.track_smoothed``, COCO-17, as ``fit_bodies``) with
 :func:`pipeline.smpl_fit.fit_sequence`: step I and the VAE-corrected fit with the
-shipped prior. Reports person-frames fitted per second and the mean joint residual (mm), then, in the same run, the baseline on
+shipped prior. Reports person-frames fitted per second and the mean joint residual
+(mm), then, in the same run, the baseline on
 ``--baseline-frames`` person-frames spread over the sequence: one frame at a time, the
 full mesh model (``BodyModel.forward``: LBS of all 13,348 vertices, then the COCO
 regressor), pose / betas / translation from the closed-form root alignment and the rest
