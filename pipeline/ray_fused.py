@@ -186,7 +186,7 @@ def fused_screened_distances(
     )  # fmt: skip
     perm = np.arange(J) if flip is None else np.asarray(flip, dtype=np.int64)
     return _fused(
-        U, M, PW, d, o, w, np.ascontiguousarray(views, dtype=np.int64), perm.astype(np.int64),
+        U, M, PW, d, o, w, np.ascontiguousarray(views, dtype=np.int64), perm,
         flip is not None, np.ascontiguousarray(shared), float(params.prune_mm),
         float(params.joint_clip_mm), int(params.min_shared_joints),
     )  # fmt: skip
