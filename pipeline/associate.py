@@ -51,6 +51,7 @@ from pipeline.associate_refine import (  # noqa: F401  (cluster_centers, re-expo
     CentreRays,
     centre_rays,
     cluster_centers,
+    label_counts,
     merge_duplicates,
     refine_clusters,
     split_inconsistent,
@@ -147,7 +148,8 @@ def detection_rays(
     """
     n, J = joints2d.shape[:2]
     dirs, plain = pinhole_rays(rig, views, joints2d[..., :2])  # undistorted views at once
-    conf = np.nan_to_num(joints2d[..., 2])
+    conf = joints2d[..., 2]
+    # NaN confidence compares false: not ok, weight 0
     ok = (conf >= min_confidence) & np.isfinite(joints2d[..., :2]).all(-1)
     for v in np.unique(views[~plain]):
         rows = np.flatnonzero(views == v)
@@ -388,7 +390,7 @@ def _people(
     """Keep the clusters seen by at least ``min_views`` views; number people by their first
     detection. Returns (n,) person per detection (-1: none), (num_people, V) members
     (detection row per view, -1) and (num_people,) mean affinity within each person."""
-    _, label, size = np.unique(cluster, return_inverse=True, return_counts=True)
+    _, label, size = label_counts(cluster)
     keep = size >= min_views
     out = np.where(keep[label], (np.cumsum(keep) - 1)[label], -1)  # clusters in label order
     P = int(keep.sum())

@@ -41,16 +41,19 @@ def resolve_flips(
         bool per detection; see the module docstring for the rule.
     """
     flipped = np.zeros(len(views), bool)
-    clip = np.nanmax(np.concatenate([dist.ravel(), mirrored.ravel(), [0.0]]))
+    # unknown distances count as the largest known one (and >= 0)
+    clip = max(np.fmax.reduce(d, axis=None, initial=0.0) for d in (dist, mirrored))
     same = np.where(np.isfinite(dist), dist, clip)
-    cross = np.where(np.isfinite(mirrored), mirrored, clip)
     # Only a cluster with a pair closer mirrored by more than FLIP_MIN_MM can flip: the
     # gain of any assignment is a mean of such differences over the pairs it splits
-    # (at most FLIP_MIN_MM else), and the greedy build compares the same means.
-    gainful = (same - cross > FLIP_MIN_MM) & (cluster[:, None] == cluster[None, :])
+    # (at most FLIP_MIN_MM else), and the greedy build compares the same means. An
+    # unknown mirrored distance (clip) gains nothing: NaN compares false.
+    with np.errstate(invalid="ignore"):
+        gainful = (same - mirrored > FLIP_MIN_MM) & (cluster[:, None] == cluster[None, :])
     for c in np.unique(cluster[gainful.any(1)]):
         rows = np.flatnonzero(cluster == c)
-        bits = _orient(same[np.ix_(rows, rows)], cross[np.ix_(rows, rows)])
+        cross = mirrored[np.ix_(rows, rows)]
+        bits = _orient(same[np.ix_(rows, rows)], np.where(np.isfinite(cross), cross, clip))
         if not bits.any():
             continue  # every view agrees: nothing for association to decide
         # The views split into two mirrored camps: which camp has the labels right?

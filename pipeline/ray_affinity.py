@@ -122,7 +122,8 @@ def average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -
     n = len(views)
     if n < 2:
         return np.arange(n)
-    dist = 1.0 - np.nan_to_num(np.asarray(affinity, float), nan=0.0)
+    affinity = np.asarray(affinity, float)
+    dist = np.where(np.isnan(affinity), 1.0, 1.0 - affinity)  # unknown counts as 0
     # a cannot-link outweighs the rest of any mean it enters: n^2 pairs of distance <= 3
     dist[np.asarray(views)[:, None] == np.asarray(views)[None, :]] = 4.0 * n * n + 10.0
     np.fill_diagonal(dist, 0.0)
@@ -348,11 +349,17 @@ def pinhole_rays(
     others; and (n,) which detections those are."""
     maps, plain = _pinhole_maps(rig)
     plain = plain[views]
+    if plain.all():  # the usual rig (and no detections): no gather, no scatter
+        return _map_pixels(pixels, maps[views]), plain
     rays = np.full(pixels.shape[:-1] + (3,), np.nan)
     if plain.any():
-        px = pixels[plain]
-        d = px[..., :1] * maps[views[plain], None, 0] + px[..., 1:2] * maps[views[plain], None, 1]
-        d += maps[views[plain], None, 2]
-        with np.errstate(invalid="ignore"):
-            rays[plain] = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        rays[plain] = _map_pixels(pixels[plain], maps[views[plain]])
     return rays, plain
+
+
+def _map_pixels(pixels: np.ndarray, maps: np.ndarray) -> np.ndarray:
+    """(m, J, 2) pixels, (m, 3, 3) maps -> (m, J, 3) unit rays ``[u, v, 1] @ map``."""
+    d = pixels @ maps[:, :2] + maps[:, 2:]  # a batched (J, 2) @ (2, 3) per row
+    with np.errstate(invalid="ignore"):
+        d /= np.sqrt((d * d).sum(-1, keepdims=True))
+    return d

@@ -1,0 +1,72 @@
+"""The association's geometric checks (pipeline/associate_refine.py): the fast forms
+used every frame against the plain NumPy they replace."""
+
+import numpy as np
+import pytest
+
+from pipeline.associate_refine import CentreRays, _ray_point_distance, label_counts
+
+
+@pytest.mark.parametrize(
+    "cluster",
+    [
+        np.array([3, 3, 0, 7, 0, 3, 12]),
+        np.array([5]),
+        np.zeros(0, int),
+        np.array([-1, 2, -1, 4]),  # negative labels: np.unique itself
+        np.arange(40)[::-1],
+    ],
+)
+def test_label_counts_is_np_unique(cluster):
+    want = np.unique(cluster, return_inverse=True, return_counts=True)
+    got = label_counts(cluster)
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(g, w)
+
+
+def _geometry(n: int, seed: int = 0) -> CentreRays:
+    rng = np.random.default_rng(seed)
+    views = rng.integers(0, 8, n)
+    ang = views * (2 * np.pi / 8)
+    centres = np.c_[6000 * np.cos(ang), 6000 * np.sin(ang), np.full(n, 2500.0)]  # a ring
+    target = rng.normal(0, 1500, (n, 3))
+    d = target[:, None] - centres[:, None] + rng.normal(0, 50, (n, 17, 3))
+    dirs = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    weights = rng.uniform(0.2, 1.0, (n, 17))
+    weights[0] = 0.0  # a detection without joints: a zero centre ray
+    dirs[1, :5] = np.nan
+    return CentreRays.of(centres, dirs, weights)
+
+
+def test_distances_equal_the_per_point_form_in_front_and_behind():
+    geo = _geometry(60)
+    rng = np.random.default_rng(1)
+    # points in the capture volume, and far behind the cameras (distance to the origin)
+    points = np.r_[rng.normal(0, 2000, (12, 3)), rng.normal(0, 1, (3, 3)) + [30000, 0, 0]]
+    want = _ray_point_distance(geo.origins, geo.rays, points)
+    got = geo.distances(points)
+    assert got.shape == (15, 60)
+    np.testing.assert_allclose(got, want, atol=1e-6, rtol=1e-9)  # mm
+    # the zero ray (no joints) measures to the camera centre
+    np.testing.assert_allclose(got[:, 0], np.linalg.norm(points - geo.origins[0], axis=-1))
+    assert not geo.has_ray[0] and geo.has_ray[1:].all()
+
+
+def test_centres_are_the_least_squares_points_of_their_rays():
+    geo = _geometry(40, seed=3)
+    member = np.zeros((40, 3), bool)
+    member[1:10, 0] = member[10:25, 1] = True
+    member[0, 2] = member[30, 2] = member[31, 2] = True  # row 0 has no ray: ignored
+    got = geo.centres(member)
+    for k in range(3):
+        rows = np.flatnonzero(member[:, k] & geo.has_ray)
+        o, r = geo.origins[rows], geo.rays[rows]
+        P = np.eye(3) - r[:, :, None] * r[:, None, :]
+        want = np.linalg.solve(P.sum(0), np.einsum("nab,nb->a", P, o))
+        np.testing.assert_allclose(got[k], want, atol=1e-6)
+        # the least-squares point: the mean squared distance to its rays is minimal there
+        def spread(p, o=o, r=r):
+            return (_ray_point_distance(o, r, p) ** 2).mean()
+
+        for step in np.eye(3) * 5.0:
+            assert spread(got[k]) <= min(spread(got[k] + step), spread(got[k] - step))
