@@ -397,12 +397,16 @@ def _people(
     rows = np.flatnonzero(out >= 0)
     members = np.full((P, V), -1)
     members[out[rows], views[rows]] = rows
-    # mean finite affinity within each person, from one (m, m) block of the kept rows
-    # (a loop over people with a block and a nanmean each was ~10 % of the association)
-    sub = affinity[np.ix_(rows, rows)]
-    own = np.isfinite(sub) & (out[rows][:, None] == out[rows][None, :])
-    total = np.bincount(out[rows], np.where(own, sub, 0.0).sum(1), minlength=P)
-    count = np.bincount(out[rows], own.sum(1), minlength=P)
+    # mean finite affinity within each person, from its (V, V) block of member pairs
+    # gathered at once (a (m, m) block of every kept row was ~1.4 ms at 31 x 20; a loop
+    # over people with a nanmean each ~10 % of the association). A pair of one view, and
+    # a detection with itself, has no affinity (NaN).
+    seen = members >= 0
+    rows_of = np.where(seen, members, 0)
+    sub = affinity[rows_of[:, :, None], rows_of[:, None, :]]  # (P, V, V)
+    own = np.isfinite(sub) & seen[:, :, None] & seen[:, None, :]
+    total = np.where(own, sub, 0.0).sum((1, 2))
+    count = own.sum((1, 2))
     with np.errstate(invalid="ignore", divide="ignore"):
         linkage = np.where(count > 0, total / np.maximum(count, 1), np.nan)
     return out, members, linkage
