@@ -184,6 +184,14 @@ def _pick_worst(frame_value: np.ndarray, count: int, gap: int) -> list[int]:
     return picked
 
 
+def _finite_mean(x: np.ndarray) -> np.ndarray:
+    """(..., k) -> (...) the mean of each row's finite values, NaN where it has none
+    (np.nanmean warns "Mean of empty slice" for every person-frame nobody matched)."""
+    ok = np.isfinite(x)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(ok, x, 0.0).sum(-1) / ok.sum(-1)
+
+
 def worst_moments(
     scene: Scene, results: PipelineResults, *, count: int = WORST_PER_SCENE
 ) -> list[dict]:
@@ -198,14 +206,11 @@ def worst_moments(
         measured = np.isfinite(results.track_raw).all(-1, keepdims=True)
         tracks = np.where(measured, results.track_filtered, np.nan)
         _, match = stage_metrics(to_smpl_slots(tracks, results.joint_set), gt_dense)
-        with np.errstate(invalid="ignore"):
-            err = np.nanmean(np.linalg.norm(match.pred - match.gt, axis=-1), axis=-1)
-        err = np.where(np.isfinite(err), err, np.nan)
+        err = _finite_mean(np.linalg.norm(match.pred - match.gt, axis=-1))
         frames, who, metric = match.frame, match.pred_index, "mpjpe_mm"
     else:
         reproj = np.where(results.person_used, results.person_reproj, np.nan)
-        with np.errstate(invalid="ignore"):
-            err = np.nanmean(reproj.reshape(len(reproj), -1), axis=1) if len(reproj) else reproj
+        err = _finite_mean(reproj.reshape(len(reproj), -1))
         frames, who, metric = results.person_frame, results.person_track, "reprojection_px"
     per_frame = np.full(F, np.nan)
     best_row = np.full(F, -1)

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
 
 from pipeline.batch.jobs import (
+    _finite_mean,
     chunk_bounds,
     join_chunks,
     run_chunk,
@@ -130,6 +132,15 @@ def test_worst_moments_without_ground_truth_rank_reprojection(tiny):
     assert top["value"] == pytest.approx(np.nanmax(err[rows]))
     assert top["value"] == pytest.approx(np.nanmax(err))  # the first is the scene's worst
     assert top["track"] == results.person_track[rows[np.nanargmax(err[rows])]]
+
+
+def test_finite_mean_skips_nan_rows_without_a_warning():
+    x = np.array([[1.0, np.nan, 3.0], [np.nan, np.nan, np.nan], [np.inf, 4.0, 8.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # np.nanmean warned "Mean of empty slice" here
+        got = _finite_mean(x)
+    np.testing.assert_array_equal(got, [2.0, np.nan, 6.0])
+    assert _finite_mean(np.zeros((0, 5))).shape == (0,)
 
 
 def test_sweep_grid_is_the_product_in_order():
