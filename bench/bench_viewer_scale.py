@@ -75,7 +75,7 @@ def dome_scene(out: Path, cams: int, people: int, frames: int, seed: int, video:
         t0 = time.perf_counter()
         cfg = SynthConfig(
             num_people=people, num_frames=frames, seed=seed, render_video=video > 0,
-            video_scale=video or 1.0, area_radius_mm=AREA_MM, occlusion="proxy",
+            video_scale=video or 1.0, area_radius_mm=AREA_MM, occlusion="auto",
         )  # fmt: skip
         write_synth_scene(out, dome_rig(cams, radius_mm=DOME_MM), load_body_model(), cfg,
                           progress=False)  # fmt: skip
