@@ -40,31 +40,27 @@ def centre_rays(dirs: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 
 def cluster_centers(
-    origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray, cluster: np.ndarray, labels
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
+    cluster: np.ndarray,
+    labels,
+    *,
+    geometry: CentreRays | None = None,
 ) -> np.ndarray:
     """(len(labels), 3) each cluster's body centre, mm: the point nearest (least squares)
     the centre rays (:func:`centre_rays`) of its detections; NaN for fewer than two.
 
     Args:
         origins: (n, 3) camera centres; dirs: (n, J, 3) unit rays (NaN if missing);
-        weights: (n, J) confidences (0 if missing).
+        weights: (n, J) confidences (0 if missing); geometry: their
+        :class:`CentreRays`, if already made.
     """
-    index = {c: i for i, c in enumerate(labels)}
-    rows = np.flatnonzero(np.isin(cluster, labels))
-    which = np.array([index[c] for c in cluster[rows]], int)
-    c = centre_rays(dirs[rows], weights[rows])  # (m, 3)
-    ok = np.linalg.norm(c, axis=-1) > 0.5
-    P = np.eye(3) - c[:, :, None] * c[:, None, :]  # (m, 3, 3) projector off the ray
-    A = np.zeros((len(labels), 3, 3))
-    b = np.zeros((len(labels), 3))
-    np.add.at(A, which[ok], P[ok])
-    np.add.at(b, which[ok], np.einsum("mab,mb->ma", P[ok], origins[rows][ok]))
-    count = np.bincount(which[ok], minlength=len(labels))
-    out = np.full((len(labels), 3), np.nan)
-    seen = count >= 2
-    if seen.any():
-        out[seen] = np.linalg.solve(A[seen] + 1e-9 * np.eye(3), b[seen][..., None])[..., 0]
-    return out
+    geo = CentreRays.of(origins, dirs, weights) if geometry is None else geometry
+    member = (cluster[:, None] == np.asarray(labels)[None, :]) & geo.has_ray[:, None]
+    centres = geo.centres(member)
+    centres[member.sum(0) < 2] = np.nan
+    return centres
 
 
 def merge_duplicates(
@@ -91,9 +87,7 @@ def merge_duplicates(
         labels = labels[counts >= params.min_views]
         if len(labels) < 2:
             return cluster
-        member = (cluster[:, None] == labels[None, :]) & geo.has_ray[:, None]
-        centers = geo.centres(member)  # as cluster_centers, NaN for fewer than two rays
-        centers[member.sum(0) < 2] = np.nan
+        centers = cluster_centers(origins, dirs, weights, cluster, labels, geometry=geo)
         gap = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
         gap[~np.isfinite(gap)] = np.inf
         np.fill_diagonal(gap, np.inf)
@@ -206,19 +200,17 @@ def split_inconsistent(
     cluster = cluster.copy()
     geo = CentreRays.of(origins, dirs, weights) if geometry is None else geometry
     rays = geo.rays
-    checked = np.zeros(0, bool)  # by label: found consistent (its members never change)
+    checked: set[int] = set()  # labels found consistent (their members never change)
     for _ in range(len(views)):
         labels, col, counts = label_counts(cluster)
-        seen = np.zeros(max(labels.max() + 1, len(checked)), bool)
-        seen[: len(checked)] = checked
-        checked = seen
-        todo = (counts >= 3) & ~checked[labels]  # 2 rays always meet
+        fresh = np.array([int(x) not in checked for x in labels], bool)  # ~20 labels
+        todo = (counts >= 3) & fresh  # 2 rays always meet
         if not todo.any():
             return cluster
         member = (col[:, None] == np.flatnonzero(todo)[None]) & geo.has_ray[:, None]  # (n, C)
         far = geo.distances(geo.centres(member)) > max_mm  # (C, n)
         far &= member.T
-        checked[labels[todo]] = True
+        checked.update(int(x) for x in labels[todo])
         for k in np.flatnonzero(far.any(1)):
             rows = np.flatnonzero(member[:, k])
             rest = rows[~_consistent_core(origins[rows], rays[rows], max_mm)]

@@ -4,7 +4,12 @@ used every frame against the plain NumPy they replace."""
 import numpy as np
 import pytest
 
-from pipeline.associate_refine import CentreRays, _ray_point_distance, label_counts
+from pipeline.associate_refine import (
+    CentreRays,
+    _ray_point_distance,
+    cluster_centers,
+    label_counts,
+)
 
 
 @pytest.mark.parametrize(
@@ -70,3 +75,14 @@ def test_centres_are_the_least_squares_points_of_their_rays():
 
         for step in np.eye(3) * 5.0:
             assert spread(got[k]) <= min(spread(got[k] + step), spread(got[k] - step))
+
+
+def test_cluster_centers_are_nan_for_fewer_than_two_rays():
+    geo = _geometry(30, seed=5)
+    cluster = np.zeros(30, int)
+    cluster[1:12], cluster[12:], cluster[0] = 1, 2, 3  # row 0 has no ray: label 3 none
+    cluster[29] = 4  # one ray only
+    got = cluster_centers(geo.origins, None, None, cluster, [1, 2, 3, 4], geometry=geo)
+    assert np.isfinite(got[:2]).all() and np.isnan(got[2:]).all()
+    member = np.stack([cluster == k for k in (1, 2)], 1)
+    np.testing.assert_array_equal(got[:2], geo.centres(member))
