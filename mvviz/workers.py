@@ -3,14 +3,54 @@ and :class:`PageAcks`, which waits until the open pages have applied what was se
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import viser
 
 ACK_KEY = "mvviz-ack"  # a localStorage key that is only ever read
+
+
+YIELD_MAX_WAIT_S = 0.5  # a job waits at most this long at one call (a stuck render)
+
+
+@contextmanager
+def yielding_to(
+    busy: Callable[[], bool], *, max_wait_s: float = YIELD_MAX_WAIT_S
+) -> Iterator[None]:
+    """While the block runs, this thread waits (sleeping, so without the GIL) at each
+    Python function call for as long as ``busy()`` is true.
+
+    Why: a background job in the same process as the render thread takes the GIL each
+    time the render thread lets it go (a socket write, a large NumPy operation) and keeps
+    it for the interpreter's switch interval (5 ms); a frame change that lets go of the
+    GIL a hundred times then waits half a second on 30 ms of CPU. The job cannot see
+    that from its own code, which is plain array functions; a per-thread trace hook of
+    call events only (no line events: the hook returns None) is the cheapest place that
+    runs often (every NumPy wrapper is a Python call). ``sys.settrace`` acts on the
+    calling thread only; the previous hook (a debugger, coverage) is restored after.
+
+    Wrap only pure computation: code that holds a lock the render thread takes (a panel's
+    own lock, viser's GUI writes) would make the frame wait for the job instead.
+    """
+
+    def hook(frame, event, arg):  # noqa: ARG001 - sys.settrace's signature
+        if busy():
+            end = time.monotonic() + max_wait_s
+            while busy() and time.monotonic() < end:
+                time.sleep(0.001)
+        return None
+
+    previous = sys.gettrace()
+    sys.settrace(hook)
+    try:
+        yield
+    finally:
+        sys.settrace(previous)
 
 
 class LatestWins:

@@ -45,7 +45,7 @@ from mvviz.analysis.failures import (
 from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import MM, ViewerData
 from mvviz.state import ViewerState
-from mvviz.workers import LatestWins
+from mvviz.workers import LatestWins, yielding_to
 from pipeline.files import SceneFormatError
 
 MAX_ENTRIES = 15
@@ -346,7 +346,8 @@ class FailurePanel:
                         self.gui.criterion.value = CRITERION_LABELS[current]
         criterion = self.criterion
         t0 = time.perf_counter()
-        found = self._all(data, criterion)
+        with yielding_to(lambda: self.host.rendering):  # frame changes go first
+            found = self._all(data, criterion)
         ms = (time.perf_counter() - t0) * 1e3
         with self._lock:
             if data is not self._data or criterion != self.criterion:
@@ -356,7 +357,8 @@ class FailurePanel:
             self.kinds = kind_counts(found)
             self.selected_failure = None
             self._show_failures(criterion, ms)
-        every = {c: self._all(data, c) for c in self.criteria}  # the others, once
+        with yielding_to(lambda: self.host.rendering):
+            every = {c: self._all(data, c) for c in self.criteria}  # the others, once
         with self._lock:
             if data is self._data:
                 self.counts = {c: len(found) for c, found in every.items()}

@@ -48,7 +48,7 @@ from mvviz.analysis.trace_plot import (
 )
 from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import MM, OFFSET_FILTERED_M, ViewerData, bone_segments, track_color
-from mvviz.workers import LatestWins
+from mvviz.workers import LatestWins, yielding_to
 from pipeline import metrics
 from pipeline.config import CONFIG_FILE, PipelineConfig, load_config, save_config
 from pipeline.evaluate import ground_truth_slots, gt_per_frame, stage_metrics, to_smpl_slots
@@ -300,6 +300,7 @@ class FilterPanel:
         self._bind()
         # the host's stop flag ends the worker and skips GUI writes
         self._halted = host.stopped.is_set
+        self._rendering = lambda: host.rendering  # noqa: E731 - read at each call
         self._worker = LatestWins(self._work, name="mvviz-filter-ab", halted=self._halted)
         self._unsubscribe = host.subscribe(self._on_state_changed)
         self._worker.request()
@@ -490,7 +491,8 @@ class FilterPanel:
         if run_b is None or params != run_b.params:  # 1. re-filter the whole sequence
             t0 = time.perf_counter()
             same = params == self.run_a.params  # reset to A: A's run, nothing to filter
-            run = self.run_a if same else run_filter(data.results.track_raw, params)
+            with yielding_to(self._rendering):  # the frame changes first
+                run = self.run_a if same else run_filter(data.results.track_raw, params)
             self.timings["filter_ms"] = (time.perf_counter() - t0) * 1e3
             with self._lock:
                 if data is not self._data:
@@ -525,8 +527,9 @@ class FilterPanel:
             t0 = time.perf_counter()
             if self._plot is None:
                 self._plot = TracePlot()
-            self._plot.render(joint_trace(data, run_a, run_b, sel.track, sel.joint), lo, hi)
-            img = self._plot.image()
+            with yielding_to(self._rendering):
+                self._plot.render(joint_trace(data, run_a, run_b, sel.track, sel.joint), lo, hi)
+                img = self._plot.image()
             self.timings["plot_ms"] = (time.perf_counter() - t0) * 1e3
             if self._halted():
                 return
@@ -545,7 +548,8 @@ class FilterPanel:
         key = (data, what)
         if key not in self._score_cache:
             res = data.results
-            self._score_cache[key] = score(track, res.track_raw, res.joint_set, self._gt)
+            with yielding_to(self._rendering):  # seconds on long scenes: frames first
+                self._score_cache[key] = score(track, res.track_raw, res.joint_set, self._gt)
         return self._score_cache[key]
 
     def _update_metrics(self) -> None:

@@ -51,14 +51,18 @@ def reprojection_failures(
     out = []
     with np.errstate(invalid="ignore"):
         hits = np.argwhere(ratio >= level)
-    for q, j, v in hits:
-        f, k = int(results.person_frame[q]), track_or_none(results.person_track[q])
-        e, r = float(reproj[q, j, v]), float(ratio[q, j, v])
-        detail = f"{e:.1f} px, {r:.1f}× its usual {usual[j, v]:.1f} px"
+    q, j, v = hits.T  # gathered at once: ~100,000 hits on a 31-camera scene
+    columns = (
+        np.asarray(results.person_frame)[q], np.asarray(results.person_track)[q],
+        reproj[q, j, v], ratio[q, j, v], usual[j, v], j, v,
+    )  # fmt: skip
+    for f, track, e, r, u, j, v in zip(*(c.tolist() for c in columns), strict=True):
+        k = track_or_none(track)
+        detail = f"{e:.1f} px, {r:.1f}× its usual {u:.1f} px"
         detail += " (untracked person)" if k is None else ""
         out.append(
             Failure(
-                "reprojection", r, f, k, int(j), int(v), where_label(k, names[j], cams[v]),
+                "reprojection", r, f, k, j, v, where_label(k, names[j], cams[v]),
                 detail, kind="reprojection", value=e,
             )
         )  # fmt: skip

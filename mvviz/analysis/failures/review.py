@@ -149,13 +149,14 @@ def merge_spans(failures: list[Failure], *, max_gap: int = MERGE_GAP) -> list[Fa
     out = []
     for entries in groups.values():
         entries.sort(key=lambda f: (f.first, f.last))
-        run = [entries[0]]
+        run, run_last = [entries[0]], entries[0].last  # the run's last frame so far
         for f in entries[1:]:
-            if f.first - max(r.last for r in run) <= max_gap + 1:
+            if f.first - run_last <= max_gap + 1:
                 run.append(f)
+                run_last = max(run_last, f.last)
             else:
                 out.append(_merged(run))
-                run = [f]
+                run, run_last = [f], f.last
         out.append(_merged(run))
     return out
 

@@ -689,3 +689,17 @@ def test_clicking_a_failure_in_the_page_moves_the_timeline(browser, app, tiny, n
         keep_screenshot(shot, "failures.png")
     finally:
         page.close()
+
+
+def test_merge_spans_joins_entries_near_any_earlier_entry_of_the_run() -> None:
+    """A long entry (f 0-100) keeps its run open past shorter ones inside it: f 103 is
+    within MERGE_GAP + 1 of f 100, though not of f 51, the entry just before it."""
+    from mvviz.analysis.failures.review import merge_spans
+
+    def entry(first: int, last: int, score: float) -> Failure:
+        return Failure("kalman", score, first, 1, 2, None, kind="gap", first=first, last=last)
+
+    merged = merge_spans([entry(50, 51, 3.0), entry(0, 100, 1.0), entry(103, 103, 2.0),
+                          entry(107, 108, 5.0), entry(200, 200, 4.0)])  # fmt: skip
+    spans = sorted((f.first, f.last, f.frames, f.score) for f in merged)
+    assert spans == [(0, 103, 102, 3.0), (107, 108, 1, 5.0), (200, 200, 1, 4.0)]
