@@ -37,8 +37,14 @@ def write_array_dir(path: str | os.PathLike, meta: dict, arrays: dict[str, np.nd
     with atomic_directory(path, overwrite=True) as tmp:
         for name, a in arrays.items():
             np.save(tmp / f"{name}.npy", np.ascontiguousarray(a), allow_pickle=False)
-        full = {**meta, "arrays": sorted(arrays)}
-        (tmp / META_FILE).write_text(json.dumps(full, indent=1) + "\n")
+        write_meta(tmp, meta, arrays)
+
+
+def write_meta(path: str | os.PathLike, meta: dict, names) -> None:
+    """``meta`` and the sorted array ``names`` as directory ``path``'s ``meta.json`` (the
+    last file a writer puts in its temporary directory)."""
+    full = {**meta, "arrays": sorted(names)}
+    (Path(path) / META_FILE).write_text(json.dumps(full, indent=1) + "\n")
 
 
 def read_meta(path: str | os.PathLike) -> dict:
@@ -57,7 +63,8 @@ def read_meta(path: str | os.PathLike) -> dict:
 
 
 def open_array_dir(path: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
-    """(meta, name -> read-only memory-mapped array) of results directory ``path``.
+    """(meta, name -> read-only memory-mapped array: an ndarray view of an np.memmap)
+    of results directory ``path``.
     Nothing but the ``.npy`` headers is read here."""
     path = Path(path)
     meta = read_meta(path)
@@ -67,7 +74,11 @@ def open_array_dir(path: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]
         if not p.is_file():
             raise SceneFormatError(path, name, f"missing array file {p.name}")
         try:
-            arrays[name] = np.load(p, mmap_mode="r", allow_pickle=False)
+            mapped = np.load(p, mmap_mode="r", allow_pickle=False)
         except (OSError, ValueError) as exc:  # a truncated file, a bad header
             raise SceneFormatError(p, None, f"not a readable .npy file ({exc})") from None
+        # A plain ndarray view of the map: still paged in lazily, but without np.memmap's
+        # Python-level __array_finalize__ / __array_wrap__ / __getitem__ on every slice and
+        # result (~4.5 ms of a 31-camera frame change went there).
+        arrays[name] = mapped.view(np.ndarray)
     return meta, arrays

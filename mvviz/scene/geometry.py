@@ -424,10 +424,22 @@ def polyline_segments(points: np.ndarray) -> np.ndarray:
 
 
 def _skeletons(points: np.ndarray, ids, js: JointSet, colors) -> dict[int, Skeleton]:
+    """(P, J, 3) mm -> each person with a finite joint: joints and bones in metres. The
+    bones of all P people are gathered at once (per person it was ~50 us of NumPy calls,
+    60 people a frame at 31 cameras x 20 people)."""
+    pts = np.asarray(points, float) * MM
+    if pts.size == 0:
+        return {}
+    has = np.isfinite(pts).any((1, 2))
+    if js.bones:
+        b = np.asarray(js.bones)
+        seg = np.stack([pts[:, b[:, 0]], pts[:, b[:, 1]]], 2)  # (P, S, 2, 3)
+        ok = np.isfinite(seg).all((2, 3))
     out = {}
-    for pid, pts, col in zip(ids, points, colors, strict=True):
-        if np.isfinite(pts).any():
-            out[int(pid)] = Skeleton(pts * MM, bone_segments(pts * MM, js.bones), col)
+    for i, (pid, col) in enumerate(zip(ids, colors, strict=True)):
+        if has[i]:
+            segs = seg[i][ok[i]] if js.bones else np.zeros((0, 2, 3))
+            out[int(pid)] = Skeleton(pts[i], segs, col)
     return out
 
 

@@ -8,8 +8,10 @@ The scene tree is the layer system (hiding a parent hides its children)::
     /world/cameras/<name>/label
     /world/detections2d/<name>          2D joints drawn on that frustum's image plane
     /world/rays                         camera centre -> used 2D joint (outliers in red)
-    /world/skeletons/raw/<track>        triangulated, before filtering (thin, pale)
-    /world/skeletons/filtered/<track>   Kalman output (solid, clickable joints)
+    /world/skeletons/raw/{bones,joints} triangulated, before filtering (thin, pale; every
+                                        track in one node, coloured per track)
+    /world/skeletons/filtered/<track>   Kalman output (solid bones)
+    /world/skeletons/filtered/joints    every track's joints, clickable (one batched mesh)
     /world/skeletons/gt/<person>        ground truth (neutral colour)
     /world/skeletons/reference/<name>/{bones,joints}  another tool's result (grey)
     /world/trails/<track>/{raw,filtered}  selected joint over +-N frames
@@ -44,6 +46,7 @@ from mvviz.scene.geometry import (
     FrameGeometry,
     LayerToggles,
     Selection,
+    Skeleton,
     ViewerData,
     pale,
     track_color,
@@ -104,6 +107,15 @@ def _set_segments(
 _EMPTY_SEG = np.zeros((1, 2, 3), np.float32)  # placeholder until the first frame
 _EMPTY_COLORS = np.zeros((1, 2, 3), np.uint8)
 _NO_SEG = np.zeros((0, 2, 3))
+_NO_COLORS = np.zeros((0, 3), np.uint8)
+RAW_BONES = "/world/skeletons/raw/bones"  # every track's, one node (see _apply_raw)
+RAW_JOINTS = "/world/skeletons/raw/joints"
+FILTERED_JOINTS = "/world/skeletons/filtered/joints"  # every track's (_apply_filtered_joints)
+
+
+def raw_color(k: int) -> np.ndarray:
+    """Track ``k``'s raw skeleton colour: its colour, paler."""
+    return pale(track_color(k), 0.45)
 
 
 @dataclass
@@ -210,12 +222,13 @@ class SceneLayers:
         for h in handles:
             h.remove()
 
-    def _click_handler(self, track: int):
-        def handler(event: viser.SceneNodePointerEvent) -> None:
-            if self.on_joint_click is not None and event.instance_index is not None:
-                self.on_joint_click(track, int(event.instance_index))
-
-        return handler
+    def _click_filtered_joint(self, event: viser.SceneNodePointerEvent) -> None:
+        """A click on instance k * J + j of :data:`FILTERED_JOINTS`: track k, joint j."""
+        J = self.data.joint_set.num_joints
+        if self.on_joint_click is not None and event.instance_index is not None and J:
+            track, joint = divmod(int(event.instance_index), J)
+            if track < self.data.num_tracks:
+                self.on_joint_click(track, joint)
 
     # ------------------------------------------------------------------ updates
 
@@ -280,6 +293,50 @@ class SceneLayers:
             self._frustum_key[name] = key
             self.nodes[f"/world/cameras/{name}/frustum"].image = img
 
+    def _apply_raw(self, raw: dict[int, Skeleton]) -> None:
+        """Every track's raw skeleton in two nodes, coloured per vertex: ~40 fewer property
+        writes a frame at 20 tracks (each ~60 us in viser, more than drawing them)."""
+        bones, joints = self.nodes[RAW_BONES], self.nodes[RAW_JOINTS]
+        skeletons = sorted(raw.items())
+        segs = [s.segments for _, s in skeletons]
+        seg_cols = [np.broadcast_to(raw_color(k), (len(s.segments), 3)) for k, s in skeletons]
+        _set_segments(
+            bones,
+            np.concatenate(segs) if segs else _NO_SEG,
+            np.concatenate(seg_cols) if seg_cols else _NO_COLORS,
+        )
+        pts = [s.joints[np.isfinite(s.joints).all(1)] for _, s in skeletons]
+        cols = [
+            np.broadcast_to(raw_color(k), (len(p), 3))
+            for (k, _), p in zip(skeletons, pts, strict=True)
+        ]
+        n = sum(len(p) for p in pts)
+        if n:
+            joints.points = np.concatenate(pts).astype(np.float32)
+            joints.colors = np.ascontiguousarray(np.concatenate(cols))
+        joints.visible = n > 0
+
+    def _apply_filtered_joints(self, filtered: dict[int, Skeleton], selection: Selection) -> None:
+        """Every track's filtered joints as the instances of one batched mesh, track-major
+        (instance k * J + j; a missing joint or track at scale 0), the selected joint
+        larger: 2 property writes a frame instead of 3 per track."""
+        K, J = self.data.num_tracks, self.data.joint_set.num_joints
+        node = self.nodes[FILTERED_JOINTS]
+        if K * J == 0 or not filtered:
+            node.visible = False
+            return
+        pos = np.zeros((K, J, 3), np.float32)
+        scales = np.zeros((K, J), np.float32)
+        for k, s in filtered.items():
+            ok = np.isfinite(s.joints).all(1)
+            pos[k][ok] = s.joints[ok]
+            scales[k][ok] = 1.0
+        if selection.track is not None and 0 <= selection.track < K and 0 <= selection.joint < J:
+            scales[selection.track, selection.joint] *= 1.8
+        node.batched_positions = pos.reshape(K * J, 3)
+        node.batched_scales = scales.reshape(K * J)
+        node.visible = True
+
     def apply(self, geom: FrameGeometry, selection: Selection) -> None:
         """Assign one frame's geometry to the nodes (call inside ``server.atomic()``)."""
         data, nodes = self.data, self.nodes
@@ -300,29 +357,12 @@ class SceneLayers:
             used = ~r.outlier
             _set_segments(nodes["/world/rays/used"], r.segments[used], r.colors[used])
             _set_segments(nodes["/world/rays/outliers"], r.segments[r.outlier], OUTLIER)
-        J = data.joint_set.num_joints
+        self._apply_raw(geom.raw)
+        self._apply_filtered_joints(geom.filtered, selection)
         for k in range(data.num_tracks):
-            raw, filt = f"/world/skeletons/raw/{k}", f"/world/skeletons/filtered/{k}"
-            s = geom.raw.get(k)
-            self._update(f"{raw}/bones", s.segments if s else _NO_SEG)
-            pc = nodes[f"{raw}/joints"]
-            pts = s.joints[np.isfinite(s.joints).all(1)] if s else np.zeros((0, 3))
-            if len(pts):
-                pc.points = pts.astype(np.float32)
-            pc.visible = len(pts) > 0
+            filt = f"/world/skeletons/filtered/{k}"
             s = geom.filtered.get(k)
             self._update(f"{filt}/bones", s.segments if s else _NO_SEG)
-            jm = nodes[f"{filt}/joints"]
-            if s is None or J == 0:
-                jm.visible = False
-            else:
-                ok = np.isfinite(s.joints).all(1)
-                scales = np.where(ok, 1.0, 0.0)
-                if selection.track == k and 0 <= selection.joint < J:
-                    scales[selection.joint] *= 1.8
-                jm.batched_positions = np.where(ok[:, None], s.joints, 0.0).astype(np.float32)
-                jm.batched_scales = scales.astype(np.float32)
-                jm.visible = True
             t = geom.trails.get(k)
             for kind in ("raw", "filtered"):
                 seg = getattr(t, kind) if t is not None else _NO_SEG
@@ -368,6 +408,12 @@ def make_scene_layers(
     layers.groups["/world/rays"] = server.scene.add_frame("/world/rays", show_axes=False)
     layers._lines("/world/rays/used", UNTRACKED, 1.6)
     layers._lines("/world/rays/outliers", OUTLIER, 2.5)
+    layers._lines(RAW_BONES, UNTRACKED, 2.0)  # coloured per track (per vertex) each frame
+    layers.nodes[RAW_JOINTS] = server.scene.add_point_cloud(
+        RAW_JOINTS, np.zeros((1, 3), np.float32), UNTRACKED, point_size=0.03,
+        point_shape="circle", precision="float32", visible=False,
+    )  # fmt: skip
+    _add_filtered_joints(layers)
     for k in range(data.num_tracks):
         _add_track(layers, k)
     _add_ground_truth(layers)
@@ -437,33 +483,27 @@ def _add_camera(layers: SceneLayers, cam: CameraGeometry) -> None:
 
 
 def _add_track(layers: SceneLayers, k: int) -> None:
-    """Track ``k``'s raw and filtered skeletons (clickable joints) and its trails."""
-    scene, J = layers.server.scene, layers.data.joint_set.num_joints
-    sv, sf = icosphere(0.025)
+    """Track ``k``'s filtered bones and its trails (its joints: :data:`FILTERED_JOINTS`)."""
     col = track_color(k)
-    raw = f"/world/skeletons/raw/{k}"
-    layers._lines(f"{raw}/bones", pale(col, 0.45), 2.0)
-    layers.nodes[f"{raw}/joints"] = scene.add_point_cloud(
-        f"{raw}/joints", np.zeros((1, 3), np.float32), pale(col, 0.45),
-        point_size=0.03, point_shape="circle", precision="float32", visible=False,
-    )  # fmt: skip
-    filt = f"/world/skeletons/filtered/{k}"
-    layers._lines(f"{filt}/bones", col, 0.022, "world")
-    joints = scene.add_batched_meshes_simple(
-        f"{filt}/joints",
-        sv,
-        sf,
-        batched_wxyzs=np.tile([1.0, 0, 0, 0], (max(J, 1), 1)),
-        batched_positions=np.zeros((max(J, 1), 3)),
-        batched_colors=col,
-        lod="off",
-        cast_shadow=False,
-        visible=False,
-    )
-    layers.nodes[f"{filt}/joints"] = joints
-    joints.on_click(layers._click_handler(k))
+    layers._lines(f"/world/skeletons/filtered/{k}/bones", col, 0.022, "world")
     layers._lines(f"/world/trails/{k}/raw", pale(col, 0.45), 2.0)
     layers._lines(f"/world/trails/{k}/filtered", col, 3.5)
+
+
+def _add_filtered_joints(layers: SceneLayers) -> None:
+    """One clickable batched mesh of small spheres: K x J instances, coloured per track."""
+    K, J = layers.data.num_tracks, layers.data.joint_set.num_joints
+    n = max(K * J, 1)
+    sv, sf = icosphere(0.025)
+    colors = np.repeat(track_color(np.arange(K)), J, axis=0) if K * J else UNTRACKED[None]
+    joints = layers.server.scene.add_batched_meshes_simple(
+        FILTERED_JOINTS, sv, sf, batched_wxyzs=np.tile([1.0, 0, 0, 0], (n, 1)),
+        batched_positions=np.zeros((n, 3)), batched_scales=np.zeros(n),
+        batched_colors=np.asarray(colors, np.uint8), lod="off", cast_shadow=False,
+        visible=False,
+    )  # fmt: skip
+    layers.nodes[FILTERED_JOINTS] = joints
+    joints.on_click(layers._click_filtered_joint)
 
 
 def _add_ground_truth(layers: SceneLayers) -> None:

@@ -519,3 +519,54 @@ def test_past_the_camera_limit_the_frustum_video_is_narrower(
     # the pre-decoded frame resized: the same picture, within a grey level or two on average
     want = cv2.resize(wide, small.shape[1::-1], interpolation=cv2.INTER_AREA)
     assert np.abs(small.astype(int) - want).mean() < 2.0
+
+
+def test_merged_skeleton_nodes_show_every_track_and_clicks_map_to_track_and_joint(
+    viewer_scene, frame_store
+):
+    """Raw skeletons of all tracks are one line node and one point cloud, filtered joints
+    one batched mesh (instance k * J + j): what they hold is each track's geometry of the
+    frame, coloured per track, and a click on an instance selects that track and joint."""
+    from mvviz.scene.layers import FILTERED_JOINTS, RAW_BONES, RAW_JOINTS, raw_color
+
+    scene, results, model = viewer_scene
+    state = ViewerState.create(scene, results, model)
+    app = ViewerApp(state, port=free_port(), frames=frame_store)
+    try:
+        assert app.wait_idle(10)
+        app.set_frame(3)
+        assert app.wait_idle(10)
+        geom = frame_geometry(state)
+        K, J = state.data.num_tracks, scene.joint_set.num_joints
+        assert K >= 2 and len(geom.raw) >= 2
+        bones = app.layers.nodes[RAW_BONES]
+        segs = np.concatenate([geom.raw[k].segments for k in sorted(geom.raw)])
+        np.testing.assert_allclose(bones.points, segs.astype(np.float32))
+        want = np.concatenate(
+            [np.tile(raw_color(k), (len(geom.raw[k].segments), 1)) for k in sorted(geom.raw)]
+        )
+        np.testing.assert_array_equal(bones.colors[:, 0], want)
+        np.testing.assert_array_equal(bones.colors[:, 1], want)
+        cloud = app.layers.nodes[RAW_JOINTS]
+        n = sum(int(np.isfinite(s.joints).all(1).sum()) for s in geom.raw.values())
+        assert cloud.points.shape == (n, 3) and cloud.colors.shape == (n, 3)
+        mesh = app.layers.nodes[FILTERED_JOINTS]
+        pos = mesh.batched_positions.reshape(K, J, 3)
+        scales = mesh.batched_scales.reshape(K, J)
+        for k in range(K):
+            s = geom.filtered.get(k)
+            ok = np.isfinite(s.joints).all(1) if s is not None else np.zeros(J, bool)
+            np.testing.assert_allclose(
+                pos[k][ok], s.joints[ok].astype(np.float32) if ok.any() else pos[k][ok]
+            )
+            assert (scales[k][ok] > 0).all() and (scales[k][~ok] == 0).all()
+        clicked = []
+        app.layers.on_joint_click = lambda track, joint: clicked.append((track, joint))
+
+        class Click:
+            instance_index = 1 * J + 4
+
+        app.layers._click_filtered_joint(Click())
+        assert clicked == [(1, 4)]
+    finally:
+        app.stop()
