@@ -103,6 +103,111 @@ def tiled_scene(base, num_frames: int):
     return dataclasses.replace(base, detections=tiled, num_frames=num_frames, gt=None)
 
 
+def write_tiled_scene(base_dir: Path, num_frames: int, out: Path) -> Path:
+    """:func:`tiled_scene` of ``base_dir`` written as a scene whose detections are a
+    directory of ``.npy`` columns (read lazily by ``load_scene``), the keypoints copied
+    one tile at a time: the scene a ``stream`` run reads is never whole in any memory."""
+    from pipeline.npy_stream import open_npy_for_writing, release_pages
+    from pipeline.scene import load_scene
+
+    if (out / "scene.json").exists():
+        return out
+    base = load_scene(base_dir)
+    det, f0 = base.detections, base.num_frames
+    reps = -(-num_frames // f0)
+    tmp = out.with_name(out.name + ".tmp")
+    if tmp.exists():
+        import shutil
+
+        shutil.rmtree(tmp)
+    (tmp / "detections").mkdir(parents=True)
+    frames = [k * f0 + (det.frame if k % 2 == 0 else f0 - 1 - det.frame) for k in range(reps)]
+    keep = [f < num_frames for f in frames]
+    n = int(sum(k.sum() for k in keep))
+    np.save(
+        tmp / "detections" / "frame.npy",
+        np.concatenate([f[k] for f, k in zip(frames, keep, strict=True)]),
+    )
+    np.save(tmp / "detections" / "view.npy", np.concatenate([det.view[k] for k in keep]))
+    kp = open_npy_for_writing(tmp / "detections" / "keypoints.npy", np.float64,
+                              (n, *det.keypoints.shape[1:]))  # fmt: skip
+    i = 0
+    for k in keep:
+        kp[i : i + k.sum()] = det.keypoints[k]
+        i += int(k.sum())
+        release_pages(kp)
+    kp.flush()
+    del kp
+    meta = json.loads((base_dir / "scene.json").read_text())
+    meta.update(num_frames=num_frames, detections="detections", gt=None, videos=None)
+    meta.pop("references", None)
+    (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
+    (tmp / "cameras.json").write_bytes(
+        (base_dir / meta.get("cameras", "cameras.json")).read_bytes()
+    )
+    tmp.rename(out)
+    return out
+
+
+def child_streamed(scene_dir: str, mode: str, chunk: int) -> dict:
+    """A ``stream`` / ``streamfit`` measurement: the lazily read scene, the stages
+    streamed into a results directory, then (``streamfit``) the chunked SMPL fit."""
+    import tempfile
+
+    from pipeline.config import PipelineConfig
+    from pipeline.run import select_2d
+    from pipeline.scene import load_scene
+    from pipeline.stages_streamed import DEFAULT_CHUNK_FRAMES, run_stages_streamed
+
+    config = PipelineConfig()
+    model = None
+    if mode == "streamfit":
+        from pipeline.body_model import load_body_model
+
+        model = load_body_model()
+    sampler = PeakSampler()
+    sampler.stage("before")
+    scene = load_scene(scene_dir)
+    j2d = select_2d(scene, config, None)
+    t0 = time.process_time()
+    sampler.stage("stages")
+    with tempfile.TemporaryDirectory(dir=Path(scene_dir).parent) as tmp:
+        res = run_stages_streamed(
+            scene, config, j2d, Path(tmp) / "results", restored=None,
+            chunk_frames=chunk or DEFAULT_CHUNK_FRAMES, keep_edges=False, progress=False,
+        )  # fmt: skip
+        t_stages = time.process_time() - t0
+        fit = _fit(sampler, model, res)
+        out = {
+            "frames": scene.num_frames, "mode": mode, "rows": len(scene.detections),
+            "person_frames_found": len(res.person_frame), "edges": len(res.edge_a),
+            "tracks": res.num_tracks, "rss_before_mb": sampler.peaks["before"],
+            "stages_cpu_s": t_stages, **fit,
+        }  # fmt: skip
+        del res
+    peaks = sampler.stop()
+    return {
+        **out, "peak_stages_mb": peaks["stages"], "peak_fit_mb": peaks.get("fit", float("nan")),
+        "ru_maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+    }  # fmt: skip
+
+
+def _fit(sampler: PeakSampler, model, res) -> dict:
+    """The chunked SMPL fit (step I) of ``res``'s smoothed tracks, if ``model``."""
+    if model is None:
+        return {}
+    from pipeline.smpl_fit_chunks import fit_in_chunks
+
+    sampler.stage("fit")
+    t1 = time.process_time()
+    f1, _ = fit_in_chunks(res.track_smoothed, res.joint_set, model, progress=False)
+    return {
+        "fit_cpu_s": time.process_time() - t1,
+        "person_frames": int(f1.present.sum()),
+        "fit_residual_mm": float(np.nanmean(f1.residual)),
+    }
+
+
 def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
     """One measurement (run in its own process)."""
     from pipeline.config import PipelineConfig
@@ -129,22 +234,12 @@ def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
         del frames_kept
     else:
         res = run_stages_chunked(
-            scene, config, j2d, restored=None, chunk_frames=chunk, keep_edges=mode == "chunked",
+            scene, config, j2d, restored=None, chunk_frames=chunk or 256,
+            keep_edges=mode == "chunked",
             progress=False,
         )  # fmt: skip
     t_stages = time.process_time() - t0
-    fit = {}
-    if model is not None:
-        from pipeline.smpl_fit_chunks import fit_in_chunks
-
-        sampler.stage("fit")
-        t1 = time.process_time()
-        f1, _ = fit_in_chunks(res.track_smoothed, res.joint_set, model, progress=False)
-        fit = {
-            "fit_cpu_s": time.process_time() - t1,
-            "person_frames": int(f1.present.sum()),
-            "fit_residual_mm": float(np.nanmean(f1.residual)),
-        }
+    fit = _fit(sampler, model, res)
     peaks = sampler.stop()
     return {
         "frames": frames, "mode": mode, "rows": len(scene.detections),
@@ -177,9 +272,14 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--frames", type=int, nargs="+", default=[1000, 2500, 5000, 10000])
-    parser.add_argument("--modes", nargs="+", default=["keep", "chunked", "lean"],
-                        choices=["keep", "chunked", "lean", "fit"])  # fmt: skip
-    parser.add_argument("--chunk", type=int, default=256)
+    modes = ["keep", "chunked", "lean", "fit", "stream", "streamfit"]
+    parser.add_argument("--modes", nargs="+", default=["keep", "chunked", "lean"], choices=modes)
+    parser.add_argument(
+        "--chunk",
+        type=int,
+        default=0,
+        help="frames per chunk (0: each mode's default, 256 / 64 streamed)",
+    )
     parser.add_argument("--dome", action="store_true", help="tile a synthesised dome scene")
     parser.add_argument("--dome-frames", type=int, default=10)
     parser.add_argument("--cameras", type=int, default=31)
@@ -191,18 +291,26 @@ def main() -> None:
     args = parser.parse_args()
     if args.child:
         scene_dir, frames, mode, chunk = args.child
-        print(json.dumps(child(scene_dir, int(frames), mode, int(chunk))))
+        if mode.startswith("stream"):
+            print(json.dumps(child_streamed(scene_dir, mode, int(chunk))))
+        else:
+            print(json.dumps(child(scene_dir, int(frames), mode, int(chunk))))
         return
     scene_dir = (
         dome_dir(args.cache, args.cameras, args.people, args.dome_frames)
         if args.dome
         else REPO / "sample_data" / "shelf_synth"
     )
-    print(f"base scene {scene_dir}; chunk {args.chunk} frames", flush=True)
+    print(f"base scene {scene_dir}; chunk {args.chunk or 'default'} frames", flush=True)
     runs = []
     for frames in args.frames:
         for mode in args.modes:  # alternated per frame count
-            cmd = [sys.executable, __file__, "--child", str(scene_dir), str(frames), mode,
+            src = scene_dir
+            if mode.startswith("stream"):  # the tiled scene on disk, read lazily
+                src = write_tiled_scene(
+                    scene_dir, frames, args.cache / f"{scene_dir.name}_x{frames}"
+                )
+            cmd = [sys.executable, __file__, "--child", str(src), str(frames), mode,
                    str(args.chunk)]  # fmt: skip
             out = subprocess.run(cmd, capture_output=True, text=True, check=True)
             r = json.loads(out.stdout.strip().splitlines()[-1])
@@ -211,8 +319,12 @@ def main() -> None:
                 f"{frames:6d} frames {mode:8s} rows {r['rows']:9d} edges {r['edges']:10d}  "
                 f"before {r['rss_before_mb']:7.1f} MB  stages peak {r['peak_stages_mb']:7.1f} MB"
                 f"  fit peak {r['peak_fit_mb']:7.1f} MB  ({r['stages_cpu_s']:.1f} CPU s"
-                + (f", fit {r['fit_cpu_s']:.1f} CPU s, {r['person_frames']} pf" if "fit_cpu_s"
-                   in r else "") + ")",  # fmt: skip
+                + (
+                    f", fit {r['fit_cpu_s']:.1f} CPU s, {r['person_frames']} pf"
+                    if "fit_cpu_s" in r
+                    else ""
+                )
+                + ")",  # fmt: skip
                 flush=True,
             )
     slopes = {}

@@ -161,18 +161,23 @@ def pack_frame(fr: FrameResult, num_views: int, num_joints: int) -> FrameColumns
 
 def join_columns(cols: list[FrameColumns], num_views: int, num_joints: int) -> FrameColumns:
     """One FrameColumns of many frames' (in order); an empty one for no frames."""
-    V, J = num_views, num_joints
-    empty = FrameColumns(
-        np.zeros(0, int), np.zeros((0, J, 3)), np.zeros((0, J, V)), np.zeros((0, J, V), bool),
-        np.zeros((0, V), int), np.zeros(0), np.zeros(0, np.int32), np.zeros(0, np.int32),
-        np.zeros(0, np.float32), np.zeros(0, np.float32),
-    )  # fmt: skip
+    empty = empty_columns(num_views, num_joints)
     return FrameColumns(
         **{
             f.name: np.concatenate([getattr(c, f.name) for c in [empty, *cols]])
             for f in dataclasses.fields(FrameColumns)
         }
     )
+
+
+def empty_columns(num_views: int, num_joints: int) -> FrameColumns:
+    """No rows, with the dtypes and row shapes every :class:`FrameColumns` has."""
+    V, J = num_views, num_joints
+    return FrameColumns(
+        np.zeros(0, int), np.zeros((0, J, 3)), np.zeros((0, J, V)), np.zeros((0, J, V), bool),
+        np.zeros((0, V), int), np.zeros(0), np.zeros(0, np.int32), np.zeros(0, np.int32),
+        np.zeros(0, np.float32), np.zeros(0, np.float32),
+    )  # fmt: skip
 
 
 class DetectionLabels:
@@ -297,12 +302,16 @@ def scene_fingerprint(scene: Scene) -> str:
         if p.is_file():
             h.update(name.encode())
             h.update(p.read_bytes())
+        elif p.is_dir():  # a detections directory: every column file, read in pieces
+            for f in sorted(p.glob("*.npy")):
+                h.update(f"{name}/{f.name}".encode())
+                with open(f, "rb") as fh:
+                    for piece in iter(lambda fh=fh: fh.read(1 << 20), b""):
+                        h.update(piece)
     return h.hexdigest()
 
 
-def cache_key(
-    scene: Scene, config: PipelineConfig, model: BodyModel | BodyModelData
-) -> str:
+def cache_key(scene: Scene, config: PipelineConfig, model: BodyModel | BodyModelData) -> str:
     h = hashlib.sha256()
     h.update(scene_fingerprint(scene).encode())
     h.update(dataclasses.replace(config, pose_prior="").to_json().encode())  # its content below
@@ -417,26 +426,50 @@ _ARRAY_FIELDS = [
 _FIT_PREFIXES = {"smpl": "smpl_", "smpl_vae": "smplvae_"}
 
 
+def results_meta(
+    config: PipelineConfig,
+    *,
+    joint_set: str,
+    num_frames: int,
+    num_views: int,
+    cache_key: str,
+    body_model: str | None,
+) -> dict:
+    """What a results file holds besides its arrays (``meta`` of either layout)."""
+    return {
+        "version": RESULTS_VERSION,
+        "config": config.to_dict(),
+        "joint_set": joint_set,
+        "num_frames": num_frames,
+        "num_views": num_views,
+        "cache_key": cache_key,
+        "body_model": body_model,
+    }
+
+
 def _file_contents(results: PipelineResults) -> tuple[dict, dict[str, np.ndarray]]:
     """(meta, arrays) of ``results`` as either layout stores them."""
-    meta = {
-        "version": RESULTS_VERSION,
-        "config": results.config.to_dict(),
-        "joint_set": results.joint_set,
-        "num_frames": results.num_frames,
-        "num_views": results.num_views,
-        "cache_key": results.cache_key,
-        "body_model": str(results.smpl.model.source) if results.smpl is not None else None,
-    }
+    meta = results_meta(
+        results.config, joint_set=results.joint_set, num_frames=results.num_frames,
+        num_views=results.num_views, cache_key=results.cache_key,
+        body_model=str(results.smpl.model.source) if results.smpl is not None else None,
+    )  # fmt: skip
     arrays = {k: getattr(results, k) for k in _ARRAY_FIELDS}
     for optional in ("det_restored", "det_flipped"):
         if getattr(results, optional) is not None:
             arrays[optional] = getattr(results, optional)
+    arrays.update(fit_arrays(results))
+    return meta, arrays
+
+
+def fit_arrays(results: PipelineResults) -> dict[str, np.ndarray]:
+    """The arrays a results file stores of ``results``' SMPL fits (none without fits)."""
+    arrays: dict[str, np.ndarray] = {}
     for name, prefix in _FIT_PREFIXES.items():
         fit = getattr(results, name)
         if fit is not None:
             arrays.update(fit.arrays(prefix))
-    return meta, arrays
+    return arrays
 
 
 def is_npz_path(path: str | os.PathLike) -> bool:
@@ -524,6 +557,11 @@ def run_or_load(
                 return res, True
         except SceneFormatError:
             pass  # stale or foreign file: recompute and replace it
+    if not is_npz_path(path):
+        # a directory: the stages write into it as they go, nothing whole in memory
+        from pipeline.stages_streamed import run_pipeline_to_directory  # imports this module
+
+        return run_pipeline_to_directory(scene, config, model, path, progress=progress), False
     res = run_pipeline(scene, config, model, progress=progress)
     save_results(res, path)
     return res, False

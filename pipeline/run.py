@@ -269,14 +269,33 @@ def sequence_of_people(
     tracks = track_people(
         person_frame, person_joints, num_frames, config.tracking, bones=np.array(joint_set.bones)
     )
-    measurements = np.moveaxis(tracks.joints, 1, 0)  # (F, K, J, 3)
+    filtered = filter_tracks(tracks.joints, tracks.last_frame, config)
+    return SequenceResult(person_track=tracks.track_of, tracks=tracks, filtered=filtered)
+
+
+def filter_tracks(
+    joints: np.ndarray, last_frame: np.ndarray, config: PipelineConfig
+) -> FilterResult:
+    """The Kalman forward filter and RTS smoother of tracks, each ending at its last frame.
+
+    Every joint of every track is its own trajectory, so any subset of the tracks filters
+    to the same numbers as the whole (what :mod:`pipeline.stages_streamed` does in blocks).
+
+    Args:
+        joints: (K, F, J, 3) the tracks' raw joints, mm, NaN where absent.
+        last_frame: (K,) the frame each track was last seen.
+
+    Returns:
+        FilterResult over (F, K, J, ...).
+    """
+    measurements = np.moveaxis(joints, 1, 0)  # (F, K, J, 3)
     # Always smooth too: the forward and RTS outputs are both in the result, and the
     # configured ``smoother`` flag only picks which one is "the" filtered trajectory.
     filtered = kalman_filter(measurements, dataclasses.replace(config.kalman, smoother=True))
     # A track that has died does not coast on: its filter output ends at its last
     # measurement (coasting through gaps inside a track's life is kept).
-    frames_idx = np.arange(num_frames)[:, None]
-    after = frames_idx > tracks.last_frame[None, :]  # (F, K)
+    frames_idx = np.arange(joints.shape[1])[:, None]
+    after = frames_idx > np.asarray(last_frame)[None, :]  # (F, K)
     if after.any():
         # In place: the arrays are the filter's own, made for this call, and a copy of
         # each of its 11 float (F, K, J[, 3]) arrays doubled the stage's peak on long runs.
@@ -284,4 +303,4 @@ def sequence_of_people(
             a = getattr(filtered, f.name)
             if a.dtype.kind == "f":
                 a[after] = np.nan
-    return SequenceResult(person_track=tracks.track_of, tracks=tracks, filtered=filtered)
+    return filtered

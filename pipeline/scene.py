@@ -25,6 +25,7 @@ from pipeline.files import (
     save_npz_atomic,
 )
 from pipeline.joint_sets import JOINT_SETS, SMPL24, JointSet, get_joint_set
+from pipeline.npy_stream import is_mapped, release_pages
 from pipeline.references import (
     ReferenceTrack,
     check_joints,
@@ -203,7 +204,33 @@ def _check_array(
             if not (np.isfinite(a).all() and (a == np.round(a)).all()):
                 raise SceneFormatError(source, name, "expected integers")
         return a.astype(np.int64)
+    if a.dtype == np.float64 and is_mapped(a):
+        return a  # a column of a detections directory stays mapped (read as indexed)
     return a.astype(np.float64)
+
+
+def _check_keypoint_values(source, kp: np.ndarray) -> None:
+    """Confidences finite in [0, 1], coordinates finite where confidence > 0; in blocks
+    of rows, a mapped array's pages released after each (a long scene's keypoints are
+    not held in memory for the check)."""
+    step = 1 << 16
+    for i in range(0, len(kp), step):
+        block = kp[i : i + step]
+        conf = block[..., 2]
+        if not np.isfinite(conf).all():
+            raise SceneFormatError(source, "keypoints[..., 2]", "confidence is NaN or infinite")
+        if (conf < 0).any() or (conf > 1).any():
+            raise SceneFormatError(
+                source,
+                "keypoints[..., 2]",
+                f"expected confidence in [0, 1], got range [{conf.min():.3g}, {conf.max():.3g}]"
+                + (f" in rows {i}..{i + len(block) - 1}" if len(kp) > step else ""),
+            )
+        if not np.isfinite(block[..., :2][conf > 0]).all():
+            raise SceneFormatError(
+                source, "keypoints[..., :2]", "NaN coordinates on a joint with confidence > 0"
+            )
+        release_pages(kp)
 
 
 def check_detections(
@@ -228,19 +255,7 @@ def check_detections(
         raise SceneFormatError(
             source, "view", f"expected view indices in [0, {num_views}), got {bad.tolist()}"
         )
-    conf = kp[..., 2]
-    if not np.isfinite(conf).all():
-        raise SceneFormatError(source, "keypoints[..., 2]", "confidence is NaN or infinite")
-    if (conf < 0).any() or (conf > 1).any():
-        raise SceneFormatError(
-            source,
-            "keypoints[..., 2]",
-            f"expected confidence in [0, 1], got range [{conf.min():.3g}, {conf.max():.3g}]",
-        )
-    if not np.isfinite(kp[..., :2][conf > 0]).all():
-        raise SceneFormatError(
-            source, "keypoints[..., :2]", "NaN coordinates on a joint with confidence > 0"
-        )
+    _check_keypoint_values(source, kp)
     smpl = _check_monocular(arrays, source=source, n=n)
     gt_person = None
     if "gt_person_id" in arrays:
@@ -357,9 +372,30 @@ def _read_scene_json(root: Path) -> tuple[dict, dict]:
     return meta, check_object(meta, SCENE_JSON, meta_path)
 
 
+def open_detection_columns(path: Path) -> dict[str, np.ndarray]:
+    """A detections directory: one ``COLUMN.npy`` per column of ``detections.npz``,
+    memory-mapped (a float64 ``keypoints`` stays mapped: rows are read as the stages
+    index them, so a scene of 10,000 frames x 31 cameras need not fit in memory)."""
+    arrays = {}
+    for p in sorted(path.glob("*.npy")):
+        try:
+            arrays[p.stem] = np.load(p, mmap_mode="r", allow_pickle=False)
+        except (OSError, ValueError) as exc:  # a truncated file, a bad header
+            raise SceneFormatError(p, None, f"not a readable .npy file ({exc})") from None
+    return arrays
+
+
+def save_detection_columns(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """``arrays`` as a new detections directory (see :func:`open_detection_columns`)."""
+    path.mkdir()
+    for name, a in arrays.items():
+        np.save(path / f"{name}.npy", np.ascontiguousarray(a), allow_pickle=False)
+
+
 def _load_detections(det_path: Path, rig: CameraRig, joint_set: JointSet) -> Detections:
-    """The detections file, its views mapped onto the rig's order if it names them."""
-    det_arrays = load_npz(det_path)
+    """The detections file (or directory), its views mapped onto the rig's order if it
+    names them."""
+    det_arrays = open_detection_columns(det_path) if det_path.is_dir() else load_npz(det_path)
     if "view_names" in det_arrays:
         # Detections may name their views; map them onto the rig's order.
         names = [str(s) for s in det_arrays.pop("view_names")]
@@ -475,8 +511,12 @@ def write_scene(
     extra_meta: dict | None = None,
     overwrite: bool = False,
     references: dict[str, ReferenceTrack] | None = None,
+    detections_file: str = "detections.npz",
 ) -> Path:
     """Write a complete scene directory atomically.
+
+    ``detections_file`` not ending in ``.npz`` writes the detections as a directory of
+    ``.npy`` columns (:func:`open_detection_columns`: read lazily; long scenes).
 
     ``videos`` (camera name -> mp4 path) are copied into ``videos/<camera>.mp4``;
     ``references`` (each (num_frames, J, 3) mm) into ``references/<name>.npz``.
@@ -486,7 +526,7 @@ def write_scene(
     out_dir = Path(out_dir)
     check_detections(
         detections.arrays(),
-        source=out_dir / "detections.npz",
+        source=out_dir / detections_file,
         num_joints=joint_set.num_joints,
         num_views=len(rig),
     )
@@ -505,12 +545,15 @@ def write_scene(
         "joint_set": joint_set.name,
         "num_frames": int(num_frames),
         "cameras": "cameras.json",
-        "detections": "detections.npz",
+        "detections": detections_file,
         "gt": "gt.npz" if gt is not None else None,
     }
     with atomic_directory(out_dir, overwrite=overwrite) as tmp:
         save_cameras(rig, tmp / "cameras.json")
-        save_npz_atomic(tmp / "detections.npz", **detections.arrays())
+        if detections_file.lower().endswith(".npz"):
+            save_npz_atomic(tmp / detections_file, **detections.arrays())
+        else:
+            save_detection_columns(tmp / detections_file, detections.arrays())
         if gt is not None:
             save_npz_atomic(tmp / "gt.npz", **gt.arrays())
         if videos:
