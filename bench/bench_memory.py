@@ -21,13 +21,20 @@ seconds. Modes, measured alternately per frame count:
   once), same results;
 * ``lean``: the same without the affinity edges (``keep_edges=False``);
 * ``fit``: ``lean``, then the chunked SMPL fit of the RTS tracks
-  (:func:`pipeline.smpl_fit_chunks.fit_in_chunks`, step I).
+  (:func:`pipeline.smpl_fit_chunks.fit_in_chunks`, step I);
+* ``stream``: the tiled scene written once as a scene whose detections are a directory of
+  ``.npy`` columns (:func:`write_tiled_scene`), read lazily by ``load_scene``, and
+  :func:`pipeline.stages_streamed.run_stages_streamed` writing the results directory as
+  it goes (no edges; "before" is then the peak while the scene loads);
+* ``streamedges``: the same with the affinity edges (what ``mvviz run`` keeps);
+* ``streamfit``: ``stream``, then the chunked SMPL fit as in ``fit``.
 
 Growth per frame is the least-squares slope of peak RSS over the frame counts measured;
 nothing is extrapolated.
 
 Usage:
-    python bench/bench_memory.py [--frames 1000 2500 5000 10000] [--modes keep chunked lean]
+    python bench/bench_memory.py [--frames 1000 2500 5000 10000] [--modes keep chunked lean
+        stream streamedges streamfit]
         [--dome] [--dome-frames 10] [--cameras 31] [--people 20] [--json FILE]
 """
 
@@ -150,8 +157,9 @@ def write_tiled_scene(base_dir: Path, num_frames: int, out: Path) -> Path:
 
 
 def child_streamed(scene_dir: str, mode: str, chunk: int) -> dict:
-    """A ``stream`` / ``streamfit`` measurement: the lazily read scene, the stages
-    streamed into a results directory, then (``streamfit``) the chunked SMPL fit."""
+    """A ``stream`` / ``streamfit`` / ``streamedges`` measurement: the lazily read scene,
+    the stages streamed into a results directory (``streamedges``: with the affinity
+    edges, as ``mvviz run`` keeps them), then (``streamfit``) the chunked SMPL fit."""
     import tempfile
 
     from pipeline.config import PipelineConfig
@@ -174,7 +182,8 @@ def child_streamed(scene_dir: str, mode: str, chunk: int) -> dict:
     with tempfile.TemporaryDirectory(dir=Path(scene_dir).parent) as tmp:
         res = run_stages_streamed(
             scene, config, j2d, Path(tmp) / "results", restored=None,
-            chunk_frames=chunk or DEFAULT_CHUNK_FRAMES, keep_edges=False, progress=False,
+            chunk_frames=chunk or DEFAULT_CHUNK_FRAMES, keep_edges=mode == "streamedges",
+            progress=False,
         )  # fmt: skip
         t_stages = time.process_time() - t0
         fit = _fit(sampler, model, res)
@@ -272,7 +281,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--frames", type=int, nargs="+", default=[1000, 2500, 5000, 10000])
-    modes = ["keep", "chunked", "lean", "fit", "stream", "streamfit"]
+    modes = ["keep", "chunked", "lean", "fit", "stream", "streamfit", "streamedges"]
     parser.add_argument("--modes", nargs="+", default=["keep", "chunked", "lean"], choices=modes)
     parser.add_argument(
         "--chunk",

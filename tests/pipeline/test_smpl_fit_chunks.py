@@ -59,3 +59,40 @@ def test_chunk_arguments_are_checked(case):
     model, _, tracks = case
     with pytest.raises(ValueError, match="overlap"):
         fit_in_chunks(tracks, "coco17", model, chunk_frames=4, overlap=4, progress=False)
+
+
+def test_fit_bodies_fits_a_long_sequence_in_chunks(monkeypatch):
+    """Past ``LONG_FIT_FRAMES`` the pipeline's fit is :func:`fit_in_chunks` (a 10,000-frame
+    batch fit would not fit in memory); up to it, the batch fit as before."""
+    import dataclasses as dc
+    from pathlib import Path
+
+    import pipeline.results as results_mod
+    from pipeline.body_model import load_body_model, torch_body_model
+    from pipeline.config import PipelineConfig
+    from pipeline.results import fit_bodies, run_stages
+    from pipeline.run import select_2d
+    from pipeline.scene import load_scene
+    from pipeline.smpl_fit import fit_sequence
+
+    scene = load_scene(Path(__file__).resolve().parents[2] / "sample_data" / "shelf_synth")
+    config = dc.replace(PipelineConfig(), use_pose_prior=False)
+    model = load_body_model()
+    staged = run_stages(scene, config, select_2d(scene, config, None), restored=None,
+                        progress=False)  # fmt: skip
+    monkeypatch.setattr(results_mod, "LONG_FIT_FRAMES", 100)
+    monkeypatch.setattr(results_mod, "LONG_FIT_CHUNK_FRAMES", 100)
+    got = fit_bodies(staged, config, model, progress=False)
+    want, _ = fit_in_chunks(staged.track_smoothed, staged.joint_set, torch_body_model(model),
+                            params=config.smpl_fit, chunk_frames=100, progress=False)  # fmt: skip
+    whole, _ = fit_sequence(staged.track_smoothed, staged.joint_set, torch_body_model(model),
+                            params=config.smpl_fit, progress=False)  # fmt: skip
+    assert got.smpl_vae is None and got.smpl.pose_rotvecs.shape == whole.pose_rotvecs.shape
+    np.testing.assert_array_equal(got.smpl.pose_rotvecs, want.pose_rotvecs)
+    np.testing.assert_array_equal(got.smpl.transl, want.transl)
+    assert not np.array_equal(got.smpl.pose_rotvecs, whole.pose_rotvecs, equal_nan=True)
+    ok = got.smpl.present  # the chunked fit is the same body within a few mm of the batch one
+    assert np.nanmean(np.linalg.norm(got.smpl.joints - whole.joints, axis=-1)[ok]) < 5.0
+    monkeypatch.setattr(results_mod, "LONG_FIT_FRAMES", 250)  # 250 frames: the batch fit
+    again = fit_bodies(staged, config, model, progress=False)
+    np.testing.assert_array_equal(again.smpl.pose_rotvecs, whole.pose_rotvecs)
