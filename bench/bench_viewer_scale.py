@@ -22,6 +22,10 @@ With --video-frames F (default 20; 0: skip) a twin scene of the same rig and peo
 videos (``--video-scale``) is synthesised over F frames: the same frame-change figures
 with the 31 frusta showing video, which is what the frustum images cost on the wire.
 
+With --scene DIR (and --config FILE) the same start and frame-change figures on an
+existing scene, results directory only (e.g. bench_memory.py's tiled 10,000-frame dome,
+whose ``results.npz`` would take longer to write than the rest).
+
 Nothing is extrapolated: the figures are those of the frames synthesised.
 
 Usage:
@@ -49,7 +53,7 @@ from bench.bench_viewer import measure, report, start_app  # noqa: E402
 from bench.common import free_port, write_json  # noqa: E402
 from mvviz.scene.images import FrameStore  # noqa: E402
 from pipeline.body_model import load_body_model  # noqa: E402
-from pipeline.config import PipelineConfig  # noqa: E402
+from pipeline.config import PipelineConfig, load_config  # noqa: E402
 from pipeline.files import CACHE_DIR  # noqa: E402
 from pipeline.results import load_results, run_or_load, save_results  # noqa: E402
 from pipeline.scene import Scene, load_scene  # noqa: E402
@@ -83,15 +87,19 @@ def dome_scene(out: Path, cams: int, people: int, frames: int, seed: int, video:
     return load_scene(out)
 
 
-def results_in_both_layouts(scene: Scene, model) -> dict[str, Path]:
-    """Run the pipeline once (or reuse its results) and write both layouts."""
-    paths = {k: scene.root / CACHE_DIR / v for k, v in LAYOUTS.items()}
+def results_in_both_layouts(
+    scene: Scene, model, config: PipelineConfig | None = None, layouts: dict = LAYOUTS
+) -> dict[str, Path]:
+    """Run the pipeline once (or reuse its results) and write ``layouts`` (default both)."""
+    paths = {k: scene.root / CACHE_DIR / v for k, v in layouts.items()}
     t0 = time.perf_counter()
-    results, cached = run_or_load(scene, PipelineConfig(), model, out=paths["directory"])
+    config = PipelineConfig() if config is None else config
+    results, cached = run_or_load(scene, config, model, out=paths["directory"])
     print(f"pipeline: {'cached' if cached else 'ran'} in {time.perf_counter() - t0:.0f} s; "
           f"{len(results.det_person)} detections, {len(results.person_frame)} person-frames, "
           f"{len(results.edge_a)} edges, {results.num_tracks} tracks", flush=True)  # fmt: skip
-    save_results(results, paths["npz"])
+    if "npz" in paths:
+        save_results(results, paths["npz"])
     for k, p in paths.items():
         size = sum(f.stat().st_size for f in p.iterdir()) if p.is_dir() else p.stat().st_size
         print(f"  {k}: {p} {size / 2**20:.1f} MB", flush=True)
@@ -112,7 +120,7 @@ def proc_figures(pid: int) -> dict[str, float]:
     }
 
 
-def time_app_start(scene: Path, results: Path) -> dict[str, float]:
+def time_app_start(scene: Path, results: Path, extra: tuple = ()) -> dict[str, float]:
     """``python app.py SCENE --out RESULTS``: seconds to the first HTTP answer and to the
     ready line, and the process's CPU and memory then."""
     port = free_port()
@@ -123,7 +131,8 @@ def time_app_start(scene: Path, results: Path) -> dict[str, float]:
         target=poll_http, args=(f"http://127.0.0.1:{port}", t0, out, stop), daemon=True
     )
     poller.start()
-    cmd = [sys.executable, "app.py", str(scene), "--out", str(results), "--port", str(port)]
+    cmd = [sys.executable, "app.py", str(scene), "--out", str(results), "--port", str(port),
+           *extra]  # fmt: skip
     proc = subprocess.Popen(
         cmd, cwd=REPO, env=repo_env(REPO), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         text=True,
@@ -184,23 +193,34 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--video-scale", type=float, default=0.34)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/mvviz_bench_viewer_scale"))
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--scene", type=Path, default=None,
+                    help="an existing scene instead of the synthesised dome (results directory "
+                         "only; e.g. bench_memory.py's tiled 10,000-frame scene)")  # fmt: skip
+    ap.add_argument("--config", type=Path, default=None,
+                    help="pipeline config JSON for the run and app.py")  # fmt: skip
     args = ap.parse_args(argv)
     model = load_body_model()
-    name = f"dome{args.cameras}_p{args.people}"
-    scene = dome_scene(
-        args.cache / f"{name}_f{args.frames}", args.cameras, args.people, args.frames,
-        args.seed, 0.0,
-    )  # fmt: skip
+    config, extra, layouts = PipelineConfig(), (), LAYOUTS
+    if args.config is not None:
+        config, extra = load_config(args.config), ("--config", str(args.config))
+    if args.scene is not None:
+        scene, layouts = load_scene(args.scene), {"directory": LAYOUTS["directory"]}
+    else:
+        name = f"dome{args.cameras}_p{args.people}"
+        scene = dome_scene(
+            args.cache / f"{name}_f{args.frames}", args.cameras, args.people, args.frames,
+            args.seed, 0.0,
+        )  # fmt: skip
     print(f"scene {scene.root}: {len(scene.rig)} cameras, {scene.num_frames} frames, "
           f"{len(scene.detections)} detections", flush=True)  # fmt: skip
-    paths = results_in_both_layouts(scene, model)
+    paths = results_in_both_layouts(scene, model, config, layouts)
     rng = np.random.default_rng(0)
     changes = rng.integers(0, scene.num_frames, args.changes + 3)
-    starts: dict[str, list[dict]] = {k: [] for k in LAYOUTS}
-    changed: dict[str, list[dict]] = {k: [] for k in (*LAYOUTS, "every layer")}
+    starts: dict[str, list[dict]] = {k: [] for k in layouts}
+    changed: dict[str, list[dict]] = {k: [] for k in (*layouts, "every layer")}
     for run in range(args.runs):
-        for layout in LAYOUTS:
-            s = time_app_start(scene.root, paths[layout])
+        for layout in layouts:
+            s = time_app_start(scene.root, paths[layout], extra)
             starts[layout].append(s)
             print(f"run {run} {layout}: app.py first HTTP answer {s.get('http_s', np.nan):.2f} s, "
                   f"ready {s['ready_s']:.2f} s (CPU {s['cpu_s']:.1f} s), RSS "
@@ -213,7 +233,7 @@ def main(argv: list[str] | None = None) -> dict:
         report(f"run {run} directory: frame change, every layer", c)
     out: dict = {"scene": str(scene.root), "frames": scene.num_frames,
                  "detections": len(scene.detections), "layouts": {}}  # fmt: skip
-    for layout in LAYOUTS:
+    for layout in layouts:
         st, ch = starts[layout], changed[layout]
         out["layouts"][layout] = {
             **{k: median_of(st, k) for k in START_KEYS},
@@ -266,10 +286,11 @@ def summary(out: dict) -> None:
     e = out["every_layer"]
     print(f"  every layer (directory): frame change {e['median_ms']:.1f} ms (CPU "
           f"{e['median_cpu_ms']:.1f}), {e['median_kb']:.1f} KB")  # fmt: skip
-    d, z = out["layouts"]["directory"], out["layouts"]["npz"]
-    print(f"  directory / npz: ready {d['ready_s'] / z['ready_s']:.2f}x, RSS "
-          f"{d['rss_mb'] / z['rss_mb']:.2f}x, frame change CPU "
-          f"{d['median_cpu_ms'] / z['median_cpu_ms']:.2f}x")  # fmt: skip
+    if "npz" in out["layouts"]:
+        d, z = out["layouts"]["directory"], out["layouts"]["npz"]
+        print(f"  directory / npz: ready {d['ready_s'] / z['ready_s']:.2f}x, RSS "
+              f"{d['rss_mb'] / z['rss_mb']:.2f}x, frame change CPU "
+              f"{d['median_cpu_ms'] / z['median_cpu_ms']:.2f}x")  # fmt: skip
     for name, v in out.get("video", {}).items():
         print(f"  video on the 31 frusta, {name}: frame change {v['median_ms']:.1f} ms (CPU "
               f"{v['median_cpu_ms']:.1f}), {v['median_kb']:.1f} KB")  # fmt: skip

@@ -62,6 +62,10 @@ class NpyRowAppender:
             self._fh.write(a.reshape(-1).view(np.uint8).data)
         self.rows += a.shape[0]
 
+    def discard(self) -> None:
+        """Close the file as it is (its header still says 0 rows)."""
+        self._fh.close()
+
     def close(self) -> None:
         """Write the final header (the row count) and close the file."""
         if self._fh.closed:

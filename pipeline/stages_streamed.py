@@ -132,6 +132,12 @@ class _FrameSink:
         release_pages(self.joints2d)
         release_pages(self.source)
 
+    def abandon(self) -> None:
+        """Close the files as they are (a failed or cancelled run: the caller discards
+        the directory)."""
+        for fh in self.files.values():
+            fh.discard()
+
     def close(self) -> list[str]:
         """Every file complete; the names of the arrays written."""
         for fh in self.files.values():
@@ -180,18 +186,21 @@ def stream_stages(
     rows = frame_rows(scene, config) if rows_per_frame is None else rows_per_frame
     V, F = len(scene.rig), scene.num_frames
     sink = _FrameSink(out, joints2d_all, V, keep_edges)
-    with StageBar(FRAMES_STAGE, F, progress, unit="frame") as bar:
-        for f in range(F):
-            if cancelled is not None and cancelled():
-                return None
-            sink.add(run_frame(scene, f, config, joints2d_all, rows=rows[f]))
-            if len(sink.pending) == chunk_frames:
-                sink.flush()
-            bar.update()
-    if cancelled is not None and cancelled():
-        return None
-    sink.flush()
-    names = sink.close()
+    try:
+        with StageBar(FRAMES_STAGE, F, progress, unit="frame") as bar:
+            for f in range(F):
+                if cancelled is not None and cancelled():
+                    return None
+                sink.add(run_frame(scene, f, config, joints2d_all, rows=rows[f]))
+                if len(sink.pending) == chunk_frames:
+                    sink.flush()
+                bar.update()
+        if cancelled is not None and cancelled():
+            return None
+        sink.flush()
+        names = sink.close()
+    finally:
+        sink.abandon()  # after close(), nothing is left open; else the files are let go
     if restored is not None:
         np.save(out / "det_restored.npy", np.ascontiguousarray(restored), allow_pickle=False)
         names.append("det_restored")
