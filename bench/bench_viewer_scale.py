@@ -164,6 +164,14 @@ def frame_changes(
     """The viewer in this process on results ``path`` with ``layers`` (start_app's
     options): ``changes`` frame changes."""
     t0 = time.process_time()
+    peak, stop = [0.0], threading.Event()
+
+    def sample() -> None:  # this process's resident memory while the viewer runs
+        while not stop.wait(0.05):
+            peak[0] = max(peak[0], proc_figures(os.getpid())["rss_mb"])
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
     results = load_results(path, model=model)
     app, tap = start_app(scene, results, model, frames, **layers)
     try:
@@ -172,7 +180,10 @@ def frame_changes(
         r = measure(app, tap, changes, None)
     finally:
         app.stop()
-    return {**r, "open_and_build_cpu_s": built_cpu}
+        stop.set()
+        sampler.join()
+    print(f"  viewer process RSS peak {peak[0]:.0f} MB", flush=True)
+    return {**r, "open_and_build_cpu_s": built_cpu, "viewer_rss_peak_mb": peak[0]}
 
 
 def median_of(runs: list[dict], key: str) -> float:

@@ -302,12 +302,13 @@ def scene_fingerprint(scene: Scene) -> str:
         if p.is_file():
             h.update(name.encode())
             h.update(p.read_bytes())
-        elif p.is_dir():  # a detections directory: every column file, read in pieces
+        elif p.is_dir():
+            # A detections directory (a long scene: 1.9 GB at 10,000 frames x 31 x 20, 2 s
+            # to hash at every start) by each column file's size and modification time:
+            # any rewrite of a file changes them.
             for f in sorted(p.glob("*.npy")):
-                h.update(f"{name}/{f.name}".encode())
-                with open(f, "rb") as fh:
-                    for piece in iter(lambda fh=fh: fh.read(1 << 20), b""):
-                        h.update(piece)
+                st = f.stat()
+                h.update(f"{name}/{f.name}:{st.st_size}:{st.st_mtime_ns}".encode())
     return h.hexdigest()
 
 

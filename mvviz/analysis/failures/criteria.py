@@ -29,6 +29,7 @@ from pipeline import metrics, pose_limits
 from pipeline.evaluate import evaluate, ground_truth_slots, gt_per_frame, to_smpl_slots
 from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
 from pipeline.label_check import check_results
+from pipeline.npy_stream import release_pages
 from pipeline.results import PipelineResults
 from pipeline.run import row_frames
 from pipeline.scene import Scene
@@ -179,19 +180,38 @@ def association_failures(
     ]
 
 
+EDGE_BLOCK = 1 << 22  # edges read at once (~4 M: ~100 MB of temporaries)
+
+
+def _edge_blocks(results: PipelineResults):
+    """(a, b, affinity, person of a, person of b) per block of the affinity edges, the
+    maps' pages released after each: at 10,000 frames x 31 x 20 there are ~200 M edges
+    (3.3 GB mapped), and whole-array temporaries of them took ~20 GB."""
+    det_person, E = results.det_person, len(results.edge_a)
+    for i in range(0, E, EDGE_BLOCK):
+        a = np.asarray(results.edge_a[i : i + EDGE_BLOCK])
+        b = np.asarray(results.edge_b[i : i + EDGE_BLOCK])
+        aff = np.asarray(results.edge_affinity[i : i + EDGE_BLOCK])
+        yield a, b, aff, det_person[a], det_person[b]
+        for arr in (results.edge_a, results.edge_b, results.edge_affinity):
+            release_pages(arr)
+
+
 def _own_affinity(results: PipelineResults) -> np.ndarray:
     """(D,) each detection's mean affinity to its own person's detections; NaN for none."""
-    det_person = results.det_person
-    a, b, aff = results.edge_a, results.edge_b, results.edge_affinity
-    pa = det_person[a] if len(a) else np.zeros(0, int)
-    pb = det_person[b] if len(b) else np.zeros(0, int)
-    same = (pa >= 0) & (pa == pb)
-    own_sum = np.zeros(len(det_person))
-    own_n = np.zeros(len(det_person))
-    np.add.at(own_sum, a[same], aff[same])
-    np.add.at(own_sum, b[same], aff[same])
-    np.add.at(own_n, a[same], 1)
-    np.add.at(own_n, b[same], 1)
+    n = len(results.det_person)
+    own_sum, own_n = np.zeros(n), np.zeros(n)
+    for a, b, aff, pa, pb in _edge_blocks(results):
+        same = (pa >= 0) & (pa == pb)
+        ends = np.concatenate([a[same], b[same]])
+        if len(ends) == 0:
+            continue
+        # a block's edges are of a few consecutive frames: count over their rows only
+        lo = int(ends.min())
+        w = np.tile(aff[same].astype(float), 2)
+        sums = np.bincount(ends - lo, w)
+        own_sum[lo : lo + len(sums)] += sums
+        own_n[lo : lo + len(sums)] += np.bincount(ends - lo)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(own_n > 0, own_sum / np.maximum(own_n, 1), np.nan)
 
@@ -207,18 +227,16 @@ def _close_to_two(
         k = int(ptrack[q])
         return f"track {k}" if k >= 0 else "an untracked person"
 
-    a, b, aff = results.edge_a, results.edge_b, results.edge_affinity
-    pa = det_person[a] if len(a) else np.zeros(0, int)
-    pb = det_person[b] if len(b) else np.zeros(0, int)
     own = _own_affinity(results)
     own_rank = np.where(np.isfinite(own), own, -np.inf)  # no own affinity: most doubtful
     worst: dict[tuple[int, int], tuple[float, int, int]] = {}
-    for e in np.flatnonzero((pa >= 0) & (pb >= 0) & (pa != pb) & (aff >= affinity_threshold)):
-        da, db = int(a[e]), int(b[e])
-        d, other = (da, db) if own_rank[da] <= own_rank[db] else (db, da)
-        key = (min(pa[e], pb[e]), max(pa[e], pb[e]))
-        if key not in worst or aff[e] > worst[key][0]:
-            worst[key] = (float(aff[e]), d, other)
+    for a, b, aff, pa, pb in _edge_blocks(results):
+        for e in np.flatnonzero((pa >= 0) & (pb >= 0) & (pa != pb) & (aff >= affinity_threshold)):
+            da, db = int(a[e]), int(b[e])
+            d, other = (da, db) if own_rank[da] <= own_rank[db] else (db, da)
+            key = (min(pa[e], pb[e]), max(pa[e], pb[e]))
+            if key not in worst or aff[e] > worst[key][0]:
+                worst[key] = (float(aff[e]), d, other)
     out = []
     for score, d, other in worst.values():
         q, q2 = int(det_person[d]), int(det_person[other])
@@ -279,13 +297,18 @@ def _unassigned(
 ) -> list[Failure]:
     """4. confident detections nobody took, per frame and camera."""
     cams, view = scene.rig.names, scene.detections.view
-    conf = results.det_joints2d[..., 2]
+    # only the unassigned rows' joints are read (a long run's are mapped, 1.9 GB at
+    # 10,000 frames x 31 x 20; those rows are a few per frame)
+    rows = np.flatnonzero(np.asarray(results.det_person) < 0)
+    conf = np.asarray(results.det_joints2d[rows, :, 2])
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        mean_conf = np.nanmean(np.where(np.isfinite(conf), conf, np.nan), axis=1)
+        mean_conf = np.full(len(results.det_person), np.nan)
+        mean_conf[rows] = np.nanmean(np.where(np.isfinite(conf), conf, np.nan), axis=1)
+    release_pages(results.det_joints2d)
     frames = row_frames(scene, results.config)  # where the stages used it (sync.offsets)
     best: dict[tuple[int, int], int] = {}
-    for d in np.flatnonzero((results.det_person < 0) & (mean_conf >= unassigned_confidence)):
+    for d in rows[mean_conf[rows] >= unassigned_confidence]:
         key = (int(frames[d]), int(view[d]))
         if key not in best or mean_conf[d] > mean_conf[best[key]]:
             best[key] = int(d)

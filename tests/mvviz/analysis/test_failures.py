@@ -703,3 +703,37 @@ def test_merge_spans_joins_entries_near_any_earlier_entry_of_the_run() -> None:
                           entry(107, 108, 5.0), entry(200, 200, 4.0)])  # fmt: skip
     spans = sorted((f.first, f.last, f.frames, f.score) for f in merged)
     assert spans == [(0, 103, 102, 3.0), (107, 108, 1, 5.0), (200, 200, 1, 4.0)]
+
+
+def test_association_failures_read_the_edges_in_blocks(monkeypatch, tmp_path):
+    """The association criterion reads the edges block by block (a 10,000-frame run has
+    ~200 M): blocks of 997 edges and the whole in one block find the same failures, with
+    the same own-affinity figures, also on a results directory (memory-mapped)."""
+    import mvviz.analysis.failures.criteria as criteria
+    from pipeline.results import load_results, save_results
+
+    scene = load_scene(REPO / "sample_data" / "shelf_synth_noisy")
+    config = PipelineConfig()
+    res = run_stages(scene, config, select_2d(scene, config, None), restored=None,
+                     progress=False)  # fmt: skip
+    save_results(res, tmp_path / "results")
+    mapped = load_results(tmp_path / "results")
+    want = find_failures(scene, res, criterion="association")
+    assert len(res.edge_a) > 10_000 and any(f.kind.startswith("close to two") for f in want)
+    monkeypatch.setattr(criteria, "EDGE_BLOCK", 997)
+    for r in (res, mapped):
+        got = find_failures(scene, r, criterion="association")
+        assert [(f.frame, f.track, f.view, f.kind, f.detail) for f in got] == [
+            (f.frame, f.track, f.view, f.kind, f.detail) for f in want
+        ]
+        np.testing.assert_allclose([f.score for f in got], [f.score for f in want], rtol=1e-12)
+    # each detection's mean affinity to its own person, as the plain definition gives it
+    own = criteria._own_affinity(res)
+    for d in np.flatnonzero(res.det_person >= 0)[:200]:
+        mine = (res.edge_a == d) | (res.edge_b == d)
+        other = np.where(res.edge_a[mine] == d, res.edge_b[mine], res.edge_a[mine])
+        same = res.det_person[other] == res.det_person[d]
+        if same.any():
+            assert own[d] == pytest.approx(res.edge_affinity[mine][same].mean(), rel=1e-6)
+        else:
+            assert np.isnan(own[d])
