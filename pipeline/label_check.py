@@ -699,15 +699,16 @@ def view_observations(results: PipelineResults) -> ViewObservations:
     as the cameras' detector gave it: detections the association un-mirrored
     (``results.det_flipped``) are mirrored back, so that a camera whose detector swaps
     left and right is still told, though the 3D no longer suffers from it."""
-    members = results.person_members  # (Q, V) detection row, -1
-    det = results.det_joints2d
-    if results.det_flipped is not None and results.det_flipped.any():
-        det = det.copy()
-        flipped = results.det_flipped
-        det[flipped] = det[flipped][:, get_joint_set(results.joint_set).flip_index]
-    kp = det[np.maximum(members, 0)]  # (Q, V, J, 3)
+    members = np.asarray(results.person_members)  # (Q, V) detection row, -1
+    rows = np.maximum(members, 0)
+    kp = results.det_joints2d[rows]  # (Q, V, J, 3), a new array (the gather copies)
+    if results.det_flipped is not None and kp.size:
+        # mirrored back in the gathered rows only: a copy of every detection's joints
+        # first was 1.9 GB at 10,000 frames x 31 cameras x 20 people
+        flipped = np.asarray(results.det_flipped)[rows] & (members >= 0)
+        if flipped.any():
+            kp[flipped] = kp[flipped][:, get_joint_set(results.joint_set).flip_index]
     if kp.size:
-        kp = kp.copy()
         kp[members < 0, :, 2] = 0.0
     return ViewObservations(
         joints2d=kp,

@@ -13,6 +13,7 @@ from mvviz.analysis.failures.entries import (
     LIMIT_SCALE_DEG,
     MAHALANOBIS_THRESHOLD,
     MATCH_GATE_MM,
+    MERGE_GAP,
     RELATIVE_LEVEL,
     RESIDUAL_FLOOR_MM,
     SWITCH_SCORE,
@@ -43,31 +44,106 @@ def reprojection_failures(
     run, at least :data:`USUAL_FLOOR_PX`); score = error / usual. Ranking by the ratio
     keeps a camera that always reprojects at 18 px (far away, blurry) from filling the
     list just under the outlier threshold, while an error twice its usual stands out."""
-    reproj = np.where(results.person_used, results.person_reproj, np.nan)  # (Q, J, V)
-    if reproj.shape[0] == 0:
+    if results.person_reproj.shape[0] == 0:
         return []
-    usual = usual_level(reproj, 0, floor=USUAL_FLOOR_PX)  # (J, V)
-    ratio = reproj / usual
+    usual = _usual_reprojection(results)  # (J, V)
     names, cams = joint_names(results), scene.rig.names
+    q, j, v, e = _reprojection_hits(results, usual, level)
+    off = set(results.config.disabled_views)
+    keep = ~np.isin(v, [i for i, name in enumerate(cams) if name in off])
+    q, j, v, e = q[keep], j[keep], v[keep], e[keep]
+    frame, track = np.asarray(results.person_frame)[q], np.asarray(results.person_track)[q]
+    ratio = e / usual[j, v]
     out = []
-    with np.errstate(invalid="ignore"):
-        hits = np.argwhere(ratio >= level)
-    q, j, v = hits.T  # gathered at once: ~100,000 hits on a 31-camera scene
-    columns = (
-        np.asarray(results.person_frame)[q], np.asarray(results.person_track)[q],
-        reproj[q, j, v], ratio[q, j, v], usual[j, v], j, v,
-    )  # fmt: skip
-    for f, track, e, r, u, j, v in zip(*(c.tolist() for c in columns), strict=True):
-        k = track_or_none(track)
-        detail = f"{e:.1f} px, {r:.1f}× its usual {u:.1f} px"
+    for i, first, last, frames in _merged_runs(frame, track, j, ratio):
+        k = track_or_none(track[i])
+        detail = f"{e[i]:.1f} px, {ratio[i]:.1f}× its usual {usual[j[i], v[i]]:.1f} px"
         detail += " (untracked person)" if k is None else ""
+        span = {} if frames == 1 else {"first": first, "last": last, "frames": frames}
         out.append(
             Failure(
-                "reprojection", r, f, k, j, v, where_label(k, names[j], cams[v]),
-                detail, kind="reprojection", value=e,
+                "reprojection", float(ratio[i]), int(frame[i]), k, int(j[i]), int(v[i]),
+                where_label(k, names[j[i]], cams[v[i]]), detail, kind="reprojection",
+                value=float(e[i]), **span,
             )
         )  # fmt: skip
     return out
+
+
+def _merged_runs(frame, track, joint, score, max_gap: int = MERGE_GAP):
+    """What :func:`~mvviz.analysis.failures.review.merge_spans` makes of one-frame
+    entries grouped by (track, joint), in arrays: per run of frames at most ``max_gap``
+    apart, (the worst entry's index: highest score, then earliest frame, then first in
+    order; first frame; last frame; distinct frames). A long run has millions of
+    reprojection hits (10,000 frames x 31 x 20); a Failure each took minutes and GBs."""
+    n = len(frame)
+    if n == 0:
+        return []
+    order = np.lexsort((np.arange(n), frame, joint, track))  # by group, then frame, stably
+    f, t, jj = frame[order], track[order], joint[order]
+    start = np.ones(n, bool)
+    start[1:] = (t[1:] != t[:-1]) | (jj[1:] != jj[:-1]) | (f[1:] - f[:-1] > max_gap + 1)
+    run = np.cumsum(start) - 1
+    pos = np.arange(n)
+    # worst per run: the first of (run, -score, frame, position) in lexicographic order
+    best = order[np.lexsort((pos, f, -score[order], run))]
+    firsts = np.flatnonzero(start)
+    worst = best[firsts]  # runs are contiguous and in order: run r's sorted block begins there
+    lasts = np.append(firsts[1:], n) - 1
+    distinct = np.ones(n, int)
+    distinct[1:] = (f[1:] != f[:-1]) | start[1:]
+    frames = np.add.reduceat(distinct, firsts)
+    return list(zip(worst.tolist(), f[firsts].tolist(), f[lasts].tolist(), frames.tolist(),
+                    strict=True))  # fmt: skip
+
+
+REPROJ_BLOCK_VALUES = 1 << 23  # person-frame x joint x view values read at once (64 MB)
+
+
+def _used_reprojection(results: PipelineResults, rows: slice, views: slice) -> np.ndarray:
+    """(q, J, v) the reprojection errors of the views used, NaN elsewhere."""
+    used = np.asarray(results.person_used[rows, :, views])
+    return np.where(used, results.person_reproj[rows, :, views], np.nan)
+
+
+def _usual_reprojection(results: PipelineResults) -> np.ndarray:
+    """(J, V) each joint's usual error in each camera (:func:`usual_level` over the run),
+    a few cameras at a time: a long run's (Q, J, V) errors are 850 MB at 10,000 frames x
+    31 x 20, and whole-array temporaries of them took GBs. The overall median (for a
+    (joint, camera) never used) from a per-column sample would differ, so the columns'
+    medians of all values are kept and the overall one is taken where it is needed."""
+    Q, J, V = results.person_reproj.shape
+    step = max(1, REPROJ_BLOCK_VALUES // max(Q * J, 1))
+    med = np.full((J, V), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
+        for v0 in range(0, V, step):
+            med[:, v0 : v0 + step] = np.nanmedian(
+                _used_reprojection(results, slice(None), slice(v0, v0 + step)), axis=0
+            )
+            release_pages(results.person_reproj)
+            release_pages(results.person_used)
+    if np.isfinite(med).all():
+        return np.maximum(med, USUAL_FLOOR_PX)
+    return usual_level(_used_reprojection(results, slice(None), slice(None)), 0,
+                       floor=USUAL_FLOOR_PX)  # fmt: skip
+
+
+def _reprojection_hits(
+    results: PipelineResults, usual: np.ndarray, level: float
+) -> tuple[np.ndarray, ...]:
+    """(q, j, v, error) of every used error at least ``level`` x usual, by blocks of rows."""
+    Q, J, V = results.person_reproj.shape
+    step = max(1, REPROJ_BLOCK_VALUES // max(J * V, 1))
+    parts = []
+    for q0 in range(0, Q, step):
+        reproj = _used_reprojection(results, slice(q0, q0 + step), slice(None))
+        with np.errstate(invalid="ignore"):
+            q, j, v = np.nonzero(reproj / usual >= level)
+        parts.append((q + q0, j, v, reproj[q, j, v]))
+        release_pages(results.person_reproj)
+        release_pages(results.person_used)
+    return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
 
 
 def _slot_to_joint(joint_set: str) -> dict[int, int]:

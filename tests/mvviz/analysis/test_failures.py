@@ -737,3 +737,56 @@ def test_association_failures_read_the_edges_in_blocks(monkeypatch, tmp_path):
             assert own[d] == pytest.approx(res.edge_affinity[mine][same].mean(), rel=1e-6)
         else:
             assert np.isnan(own[d])
+
+
+def test_reprojection_failures_read_the_errors_in_blocks(monkeypatch, tmp_path):
+    """The usual error per joint and camera and the hits over it, a few cameras / rows at
+    a time (a 10,000-frame run's errors are 850 MB): the failures of one block."""
+    import mvviz.analysis.failures.criteria as criteria
+    from pipeline.results import load_results, save_results
+
+    scene = load_scene(REPO / "sample_data" / "shelf_synth_noisy")
+    config = PipelineConfig()
+    res = run_stages(scene, config, select_2d(scene, config, None), restored=None,
+                     progress=False)  # fmt: skip
+    save_results(res, tmp_path / "results")
+    want = find_failures(scene, res, criterion="reprojection", top=10_000)
+    assert len(want) > 20
+    monkeypatch.setattr(criteria, "REPROJ_BLOCK_VALUES", 500)  # 5 rows, or 1 camera, a block
+    for r in (res, load_results(tmp_path / "results")):
+        got = find_failures(scene, r, criterion="reprojection", top=10_000)
+        assert [(f.frame, f.track, f.joint, f.view, f.detail) for f in got] == [
+            (f.frame, f.track, f.joint, f.view, f.detail) for f in want
+        ]
+        np.testing.assert_array_equal([f.score for f in got], [f.score for f in want])
+
+
+@pytest.mark.parametrize("level", [1.3, 2.0])
+def test_reprojection_runs_merged_in_arrays_are_what_merge_spans_makes(level):
+    """The reprojection criterion merges its hits into runs in arrays (millions of hits
+    on a long run): the entries are those of one entry per hit merged by merge_spans."""
+    import mvviz.analysis.failures.criteria as criteria
+    from mvviz.analysis.failures.review import merge_spans
+
+    scene = load_scene(REPO / "sample_data" / "shelf_synth_noisy")
+    config = PipelineConfig()
+    res = run_stages(scene, config, select_2d(scene, config, None), restored=None,
+                     progress=False)  # fmt: skip
+    usual = criteria._usual_reprojection(res)
+    q, j, v, e = criteria._reprojection_hits(res, usual, level)
+    names, cams = criteria.joint_names(res), scene.rig.names
+    singles = []
+    for qi, ji, vi, ei in zip(q.tolist(), j.tolist(), v.tolist(), e.tolist(), strict=True):
+        k = criteria.track_or_none(res.person_track[qi])
+        r = ei / usual[ji, vi]
+        detail = f"{ei:.1f} px, {r:.1f}× its usual {usual[ji, vi]:.1f} px"
+        detail += " (untracked person)" if k is None else ""
+        singles.append(Failure(
+            "reprojection", r, int(res.person_frame[qi]), k, ji, vi,
+            criteria.where_label(k, names[ji], cams[vi]), detail, kind="reprojection", value=ei,
+        ))  # fmt: skip
+    want = merge_spans(singles)
+    got = criteria.reprojection_failures(scene, res, level=level)
+    assert len(singles) > 2 * len(want) > 20  # runs of several hits were merged
+    key = lambda f: (f.track if f.track is not None else -1, f.joint, f.first)  # noqa: E731
+    assert sorted(got, key=key) == sorted(want, key=key)
