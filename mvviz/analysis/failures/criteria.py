@@ -305,16 +305,26 @@ def _close_to_two(
 
     own = _own_affinity(results)
     own_rank = np.where(np.isfinite(own), own, -np.inf)  # no own affinity: most doubtful
-    worst: dict[tuple[int, int], tuple[float, int, int]] = {}
+    found = []  # (a, b, affinity, person pair) of the edges across people, per block
     for a, b, aff, pa, pb in _edge_blocks(results):
-        for e in np.flatnonzero((pa >= 0) & (pb >= 0) & (pa != pb) & (aff >= affinity_threshold)):
-            da, db = int(a[e]), int(b[e])
-            d, other = (da, db) if own_rank[da] <= own_rank[db] else (db, da)
-            key = (min(pa[e], pb[e]), max(pa[e], pb[e]))
-            if key not in worst or aff[e] > worst[key][0]:
-                worst[key] = (float(aff[e]), d, other)
+        c = (pa >= 0) & (pb >= 0) & (pa != pb) & (aff >= affinity_threshold)
+        found.append((a[c], b[c], aff[c], np.minimum(pa[c], pb[c]), np.maximum(pa[c], pb[c])))
+    a, b, aff, lo, hi = (np.concatenate(x) for x in zip(*found, strict=True)) if found else (
+        np.zeros(0, int),) * 5  # fmt: skip
+    # per pair of people its edge of highest affinity (the first of ties), the pairs in
+    # the order they first appear: in arrays, a long run has millions of such edges
+    n = len(a)
+    order = np.lexsort((np.arange(n), -aff, hi, lo))
+    start = np.ones(n, bool)
+    start[1:] = (lo[order][1:] != lo[order][:-1]) | (hi[order][1:] != hi[order][:-1])
+    starts = np.flatnonzero(start)
+    winners = (
+        order[starts][np.argsort(np.minimum.reduceat(order, starts), kind="stable")] if n else order
+    )
     out = []
-    for score, d, other in worst.values():
+    for e in winners.tolist():
+        da, db, score = int(a[e]), int(b[e]), float(aff[e])
+        d, other = (da, db) if own_rank[da] <= own_rank[db] else (db, da)
         q, q2 = int(det_person[d]), int(det_person[other])
         f = int(results.person_frame[q])
         own_txt = f", own {own[d]:.2f}" if np.isfinite(own[d]) else ""

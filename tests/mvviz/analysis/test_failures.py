@@ -790,3 +790,31 @@ def test_reprojection_runs_merged_in_arrays_are_what_merge_spans_makes(level):
     assert len(singles) > 2 * len(want) > 20  # runs of several hits were merged
     key = lambda f: (f.track if f.track is not None else -1, f.joint, f.first)  # noqa: E731
     assert sorted(got, key=key) == sorted(want, key=key)
+
+
+def test_close_to_two_picks_per_pair_of_people_the_first_edge_of_highest_affinity():
+    """The "close to two" entries, found in arrays, are those of the plain loop: per pair
+    of people of a frame their edge of highest affinity (the first of ties), naming the
+    more doubtful detection, in the order the pairs first appear."""
+    import mvviz.analysis.failures.criteria as criteria
+
+    scene = load_scene(REPO / "sample_data" / "shelf_synth_noisy")
+    config = PipelineConfig()
+    res = run_stages(scene, config, select_2d(scene, config, None), restored=None,
+                     progress=False)  # fmt: skip
+    own = criteria._own_affinity(res)
+    own_rank = np.where(np.isfinite(own), own, -np.inf)
+    pa, pb = res.det_person[res.edge_a], res.det_person[res.edge_b]
+    worst: dict = {}
+    cand = (pa >= 0) & (pb >= 0) & (pa != pb) & (res.edge_affinity >= criteria.AFFINITY_THRESHOLD)
+    for e in np.flatnonzero(cand):
+        da, db = int(res.edge_a[e]), int(res.edge_b[e])
+        d, other = (da, db) if own_rank[da] <= own_rank[db] else (db, da)
+        key = (min(pa[e], pb[e]), max(pa[e], pb[e]))
+        if key not in worst or res.edge_affinity[e] > worst[key][0]:
+            worst[key] = (float(res.edge_affinity[e]), d, other)
+    got = criteria._close_to_two(scene, res, criteria.AFFINITY_THRESHOLD)
+    assert len(got) == len(worst) > 5
+    for f, (score, d, _other) in zip(got, worst.values(), strict=True):
+        assert f.score == score and f.view == int(scene.detections.view[d])
+        assert f.frame == int(res.person_frame[res.det_person[d]])
