@@ -305,22 +305,20 @@ def _close_to_two(
 
     own = _own_affinity(results)
     own_rank = np.where(np.isfinite(own), own, -np.inf)  # no own affinity: most doubtful
-    found = []  # (a, b, affinity, person pair) of the edges across people, per block
+    # per pair of people (of a frame) its edge of highest affinity (the first of ties),
+    # the pairs in the order they first appear; in arrays, each block reduced before the
+    # next (a long run has ~10^8 edges across people), then the blocks' winners together
+    # (a frame's pairs may straddle two blocks)
+    kept, offset = [], 0
     for a, b, aff, pa, pb in _edge_blocks(results):
-        c = (pa >= 0) & (pb >= 0) & (pa != pb) & (aff >= affinity_threshold)
-        found.append((a[c], b[c], aff[c], np.minimum(pa[c], pb[c]), np.maximum(pa[c], pb[c])))
-    a, b, aff, lo, hi = (np.concatenate(x) for x in zip(*found, strict=True)) if found else (
-        np.zeros(0, int),) * 5  # fmt: skip
-    # per pair of people its edge of highest affinity (the first of ties), the pairs in
-    # the order they first appear: in arrays, a long run has millions of such edges
-    n = len(a)
-    order = np.lexsort((np.arange(n), -aff, hi, lo))
-    start = np.ones(n, bool)
-    start[1:] = (lo[order][1:] != lo[order][:-1]) | (hi[order][1:] != hi[order][:-1])
-    starts = np.flatnonzero(start)
-    winners = (
-        order[starts][np.argsort(np.minimum.reduceat(order, starts), kind="stable")] if n else order
-    )
+        c = np.flatnonzero((pa >= 0) & (pb >= 0) & (pa != pb) & (aff >= affinity_threshold))
+        cols = (a[c], b[c], aff[c], np.minimum(pa[c], pb[c]), np.maximum(pa[c], pb[c]),
+                c + offset)  # fmt: skip
+        kept.append(_pair_winners(*cols, first=c + offset))
+        offset += len(a)
+    cols = [np.concatenate(x) for x in zip(*kept, strict=True)] if kept else [np.zeros(0)] * 7
+    a, b, aff, _, _, _, first = _pair_winners(*cols[:6], first=cols[6])
+    winners = np.argsort(first, kind="stable")
     out = []
     for e in winners.tolist():
         da, db, score = int(a[e]), int(b[e]), float(aff[e])
@@ -338,6 +336,21 @@ def _close_to_two(
             )
         )  # fmt: skip
     return out
+
+
+def _pair_winners(a, b, aff, lo, hi, idx, *, first):
+    """Of edges (a, b, aff) between people (lo, hi) at positions ``idx``, per (lo, hi) the
+    one of highest affinity, the lowest ``idx`` of ties; ``first``: the lowest position
+    any edge of the pair had (kept through the reductions)."""
+    n = len(a)
+    if n == 0:
+        return a, b, aff, lo, hi, idx, first
+    order = np.lexsort((idx, -aff, hi, lo))
+    start = np.ones(n, bool)
+    start[1:] = (lo[order][1:] != lo[order][:-1]) | (hi[order][1:] != hi[order][:-1])
+    starts = np.flatnonzero(start)
+    w = order[starts]
+    return a[w], b[w], aff[w], lo[w], hi[w], idx[w], np.minimum.reduceat(first[order], starts)
 
 
 def _one_view(scene: Scene, results: PipelineResults) -> list[Failure]:
