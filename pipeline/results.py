@@ -183,14 +183,15 @@ def empty_columns(num_views: int, num_joints: int) -> FrameColumns:
 class DetectionLabels:
     """Per detection row, filled frame by frame in order: the person-frame it was
     associated to (-1: none), whether the association flipped its left/right, and its 2D
-    joints (``joints2d_all`` until the first flip, then a copy holding the flipped rows)."""
+    joints (``joints2d_all`` until the first flip, then a copy holding the flipped rows;
+    with ``writable``, ``joints2d_all`` is the caller's own copy, written into)."""
 
-    def __init__(self, joints2d_all: np.ndarray):
+    def __init__(self, joints2d_all: np.ndarray, *, writable: bool = False):
         n = len(joints2d_all)
         self.person = np.full(n, -1)
         self.flipped = np.zeros(n, bool)
         self.joints2d = joints2d_all
-        self._given = joints2d_all
+        self._given = None if writable else joints2d_all
         self.num_people = 0  # person-frames so far: the next frame's first index
 
     def add(self, fr: FrameResult) -> None:

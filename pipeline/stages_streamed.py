@@ -38,6 +38,7 @@ from pipeline.progress import Progress, StageBar
 from pipeline.results import (
     EDGE_FIELDS,
     PERSON_FIELDS,
+    DetectionLabels,
     FrameColumns,
     PipelineResults,
     cache_key,
@@ -95,8 +96,7 @@ class _FrameSink:
         self.out, self.source, self.V, self.J = out, joints2d_all, num_views, J
         self.joints2d = open_npy_for_writing(out / "det_joints2d.npy", np.float64, (N, J, 3))
         _copy_rows(self.joints2d, joints2d_all)  # flipped rows are written over as they come
-        self.person, self.flipped = np.full(N, -1), np.zeros(N, bool)
-        self.num_people = 0
+        self.labels = DetectionLabels(self.joints2d, writable=True)
         empty = empty_columns(num_views, J)
         names = PERSON_FIELDS + (EDGE_FIELDS if keep_edges else ())
         self.files = {}
@@ -111,13 +111,7 @@ class _FrameSink:
     def add(self, fr: FrameResult) -> None:
         """One frame's results (as :class:`pipeline.results.DetectionLabels` and
         :func:`pipeline.results.pack_frame` take them)."""
-        a = fr.association
-        assigned = a.cluster >= 0
-        self.person[fr.rows[assigned]] = self.num_people + a.cluster[assigned]
-        self.num_people += a.num_people
-        if a.flipped.any():
-            self.flipped[fr.rows[a.flipped]] = True
-            self.joints2d[fr.rows[a.flipped]] = fr.joints2d[a.flipped]
+        self.labels.add(fr)
         cols = pack_frame(fr, self.V, self.J)
         self.pending.append(dataclasses.replace(cols, **self.no_edges))
 
@@ -145,8 +139,8 @@ class _FrameSink:
         for name, a in self.no_edges.items():
             np.save(self.out / f"{name}.npy", a, allow_pickle=False)
         self.joints2d.flush()
-        np.save(self.out / "det_person.npy", self.person, allow_pickle=False)
-        np.save(self.out / "det_flipped.npy", self.flipped, allow_pickle=False)
+        np.save(self.out / "det_person.npy", self.labels.person, allow_pickle=False)
+        np.save(self.out / "det_flipped.npy", self.labels.flipped, allow_pickle=False)
         return ["det_joints2d", "det_person", "det_flipped", *self.files, *self.no_edges]
 
 
