@@ -431,28 +431,38 @@ def _pixels(p: np.ndarray, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
     return np.where(ok[:, None], np.round(np.nan_to_num(p)), 0).astype(int), ok
 
 
-def _draw_skeleton(
-    out: np.ndarray, p: np.ndarray, ok: np.ndarray, bones, color, *, thickness: int,
+def _draw_skeletons(
+    out: np.ndarray, p: np.ndarray, ok: np.ndarray, bones, colors, *, thickness: int,
     joint: str, radius: int,
 ) -> None:  # fmt: skip
+    """Draw P skeletons in order: (P, J, 2) pixels ``p``, (P, J) ``ok``, (P, 3) colours.
+    The pixels of the group are checked and rounded at once and the joints read as Python
+    ints: per skeleton that was ~40 us of NumPy calls, 51 skeletons a frame at 20 people."""
+    P, J = ok.shape
+    if P == 0:
+        return
     h, w = out.shape[:2]
     px, drawable = _pixels(p, w, h)
-    ok = ok & drawable
+    px, ok = px.reshape(P, J, 2).astype(np.int32), ok & drawable.reshape(P, J)
+    b = np.asarray(bones, int).reshape(-1, 2)
+    keep = ok[:, b[:, 0]] & ok[:, b[:, 1]]  # (P, B)
+    segs = px[:, b]  # (P, B, 2, 2)
     aa = cv2.LINE_AA
-    if len(bones):
-        b = np.asarray(bones).reshape(-1, 2)
-        keep = ok[b[:, 0]] & ok[b[:, 1]]
-        if keep.any():  # one call for every bone (a Python loop of cv2.line is ~3x slower)
-            segs = np.ascontiguousarray(px[b[keep]], np.int32)  # (S, 2, 2)
-            cv2.polylines(out, list(segs), False, color, thickness, aa)
-    for j in np.flatnonzero(ok):
-        q = tuple(px[j])
-        if joint == "cross":
-            cv2.drawMarker(out, q, color, cv2.MARKER_CROSS, 2 * radius, 1, aa)
-        elif joint == "ring":
-            cv2.circle(out, q, radius + 1, color, 1, aa)
-        else:
-            cv2.circle(out, q, radius, color, -1, aa)
+    cols = [tuple(int(x) for x in c) for c in np.asarray(colors).reshape(P, 3)]
+    pts, oks, any_bone = px.tolist(), ok.tolist(), keep.any(1).tolist()
+    for i in range(P):
+        col = cols[i]
+        if any_bone[i]:  # one call for every bone (a Python loop of cv2.line is ~3x slower)
+            cv2.polylines(out, list(segs[i][keep[i]]), False, col, thickness, aa)
+        for q, good in zip(pts[i], oks[i], strict=True):
+            if not good:
+                continue
+            if joint == "cross":
+                cv2.drawMarker(out, q, col, cv2.MARKER_CROSS, 2 * radius, 1, aa)
+            elif joint == "ring":
+                cv2.circle(out, q, radius + 1, col, 1, aa)
+            else:
+                cv2.circle(out, q, radius, col, -1, aa)
 
 
 @functools.lru_cache(maxsize=256)
@@ -477,17 +487,15 @@ def draw_overlay(image: np.ndarray, ov: Overlay2D) -> np.ndarray:
     r = max(2, round(3 * w / 640))
     if ov.bodies is not None:  # under the skeletons
         draw_bodies(out, ov.bodies, s)
-    for person in ov.gt:
-        ok = np.ones(len(person), bool)
-        _draw_skeleton(out, person * s, ok, ov.gt_bones, (30, 30, 30), thickness=1,
-                       joint="cross", radius=r)  # fmt: skip
-    for joints, col in zip(ov.reprojections, ov.reprojection_colors, strict=True):
-        ok = np.ones(len(joints), bool)
-        _draw_skeleton(out, joints * s, ok, ov.bones, tuple(int(x) for x in col),
-                       thickness=1, joint="ring", radius=r)  # fmt: skip
-    for det, col in zip(ov.detections, ov.detection_colors, strict=True):
-        _draw_skeleton(out, det[:, :2] * s, det[:, 2] > 0, ov.bones,
-                       tuple(int(x) for x in col), thickness=2, joint="dot", radius=r)  # fmt: skip
+    gt = np.asarray(ov.gt, float)
+    _draw_skeletons(out, gt * s, np.ones(gt.shape[:2], bool), ov.gt_bones,
+                    np.full((len(gt), 3), 30), thickness=1, joint="cross", radius=r)  # fmt: skip
+    rp = np.asarray(ov.reprojections, float)
+    _draw_skeletons(out, rp * s, np.ones(rp.shape[:2], bool), ov.bones,
+                    ov.reprojection_colors, thickness=1, joint="ring", radius=r)  # fmt: skip
+    det = np.asarray(ov.detections, float)
+    _draw_skeletons(out, det[..., :2] * s, det[..., 2] > 0, ov.bones,
+                    ov.detection_colors, thickness=2, joint="dot", radius=r)  # fmt: skip
     font, scale = cv2.FONT_HERSHEY_SIMPLEX, max(0.4, 0.55 * w / 640)
     tw, th = _text_size(ov.label, font, scale)
     cv2.rectangle(out, (0, 0), (tw + 10, th + 12), (0, 0, 0), -1)

@@ -12,9 +12,10 @@ The scene tree is the layer system (hiding a parent hides its children)::
                                         track in one node, coloured per track)
     /world/skeletons/filtered/<track>   Kalman output (solid bones)
     /world/skeletons/filtered/joints    every track's joints, clickable (one batched mesh)
-    /world/skeletons/gt/<person>        ground truth (neutral colour)
+    /world/skeletons/gt/bones           ground truth (neutral colour; every person, one node)
     /world/skeletons/reference/<name>/{bones,joints}  another tool's result (grey)
-    /world/trails/<track>/{raw,filtered}  selected joint over +-N frames
+    /world/trails/{raw,filtered}        selected joint over +-N frames (every track in one
+                                        node each, coloured per track)
     /world/meshes/gt/<person>           ground-truth body, skinned in the browser
     /world/meshes/fit/<track>           fitted SMPL body (SMPL + VAE), skinned likewise
 
@@ -47,6 +48,7 @@ from mvviz.scene.geometry import (
     LayerToggles,
     Selection,
     Skeleton,
+    Trail,
     ViewerData,
     pale,
     track_color,
@@ -111,6 +113,9 @@ _NO_COLORS = np.zeros((0, 3), np.uint8)
 RAW_BONES = "/world/skeletons/raw/bones"  # every track's, one node (see _apply_raw)
 RAW_JOINTS = "/world/skeletons/raw/joints"
 FILTERED_JOINTS = "/world/skeletons/filtered/joints"  # every track's (_apply_filtered_joints)
+GT_BONES = "/world/skeletons/gt/bones"  # every ground-truth person's, one uniform colour
+TRAILS_RAW = "/world/trails/raw"  # every track's trail, one node each kind (_apply_trails)
+TRAILS_FILTERED = "/world/trails/filtered"
 
 
 def raw_color(k: int) -> np.ndarray:
@@ -267,8 +272,7 @@ class SceneLayers:
         g["/world/skeletons/filtered"].position = offset
         for cam in self.data.cameras:
             self.nodes[f"/world/cameras/{cam.name}/label"].visible = lay.camera_labels
-        for k in range(self.data.num_tracks):
-            self.nodes[f"/world/trails/{k}/filtered"].position = offset
+        self.nodes[TRAILS_FILTERED].position = offset
 
     def highlight_camera(self, name: str) -> None:
         """Draw camera ``name``'s frustum (the camera panel's camera) thick and in
@@ -316,6 +320,22 @@ class SceneLayers:
             joints.colors = np.ascontiguousarray(np.concatenate(cols))
         joints.visible = n > 0
 
+    def _apply_trails(self, trails: dict[int, Trail]) -> None:
+        """Every track's raw and filtered trails in one node each, coloured per vertex
+        (two nodes of ~6 property writes instead of ~6 per track)."""
+        for path, kind, color in (
+            (TRAILS_RAW, "raw", raw_color),
+            (TRAILS_FILTERED, "filtered", track_color),
+        ):
+            parts = [(getattr(t, kind), color(k)) for k, t in sorted(trails.items())]
+            parts = [(seg, c) for seg, c in parts if len(seg)]
+            _set_segments(
+                self.nodes[path],
+                np.concatenate([seg for seg, _ in parts]) if parts else _NO_SEG,
+                np.concatenate([np.broadcast_to(c, (len(seg), 3)) for seg, c in parts])
+                if parts else _NO_COLORS,
+            )  # fmt: skip
+
     def _apply_filtered_joints(self, filtered: dict[int, Skeleton], selection: Selection) -> None:
         """Every track's filtered joints as the instances of one batched mesh, track-major
         (instance k * J + j; a missing joint or track at scale 0), the selected joint
@@ -360,16 +380,12 @@ class SceneLayers:
         self._apply_raw(geom.raw)
         self._apply_filtered_joints(geom.filtered, selection)
         for k in range(data.num_tracks):
-            filt = f"/world/skeletons/filtered/{k}"
+            # world-unit lines are uniformly coloured (see _lines): one node per track
             s = geom.filtered.get(k)
-            self._update(f"{filt}/bones", s.segments if s else _NO_SEG)
-            t = geom.trails.get(k)
-            for kind in ("raw", "filtered"):
-                seg = getattr(t, kind) if t is not None else _NO_SEG
-                self._update(f"/world/trails/{k}/{kind}", seg)
-        for pid in self.gt_ids:
-            s = geom.gt.get(pid)
-            self._update(f"/world/skeletons/gt/{pid}", s.segments if s else _NO_SEG)
+            self._update(f"/world/skeletons/filtered/{k}/bones", s.segments if s else _NO_SEG)
+        self._apply_trails(geom.trails)
+        gt = [geom.gt[p].segments for p in self.gt_ids if p in geom.gt]
+        self._update(GT_BONES, np.concatenate(gt) if gt else _NO_SEG)
         for name in data.scene.references:
             s, base = geom.references.get(name), f"/world/skeletons/reference/{name}"
             self._update(f"{base}/bones", s.segments if s else _NO_SEG)
@@ -416,6 +432,8 @@ def make_scene_layers(
     _add_filtered_joints(layers)
     for k in range(data.num_tracks):
         _add_track(layers, k)
+    layers._lines(TRAILS_RAW, UNTRACKED, 2.0)  # coloured per track (per vertex) each frame
+    layers._lines(TRAILS_FILTERED, UNTRACKED, 3.5)
     _add_ground_truth(layers)
     _add_references(layers)
     return layers
@@ -483,11 +501,9 @@ def _add_camera(layers: SceneLayers, cam: CameraGeometry) -> None:
 
 
 def _add_track(layers: SceneLayers, k: int) -> None:
-    """Track ``k``'s filtered bones and its trails (its joints: :data:`FILTERED_JOINTS`)."""
-    col = track_color(k)
-    layers._lines(f"/world/skeletons/filtered/{k}/bones", col, 0.022, "world")
-    layers._lines(f"/world/trails/{k}/raw", pale(col, 0.45), 2.0)
-    layers._lines(f"/world/trails/{k}/filtered", col, 3.5)
+    """Track ``k``'s filtered bones (its joints: :data:`FILTERED_JOINTS`; its trails:
+    :data:`TRAILS_RAW`, :data:`TRAILS_FILTERED`)."""
+    layers._lines(f"/world/skeletons/filtered/{k}/bones", track_color(k), 0.022, "world")
 
 
 def _add_filtered_joints(layers: SceneLayers) -> None:
@@ -507,12 +523,11 @@ def _add_filtered_joints(layers: SceneLayers) -> None:
 
 
 def _add_ground_truth(layers: SceneLayers) -> None:
-    """One skeleton node per ground-truth person (their meshes come when shown)."""
+    """One node of every ground-truth person's bones (their meshes come when shown)."""
     data = layers.data
     if data.gt_points is not None:
         layers.gt_ids = [int(p) for p in np.unique(data.scene.gt.person_id)]
-    for pid in layers.gt_ids:
-        layers._lines(f"/world/skeletons/gt/{pid}", GT_SKELETON, 0.012, "world")
+    layers._lines(GT_BONES, GT_SKELETON, 0.012, "world")
 
 
 def _add_references(layers: SceneLayers) -> None:
