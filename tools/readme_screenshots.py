@@ -26,7 +26,8 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     add_view_options(ap)
-    ap.add_argument("out", type=Path)
+    # not "out": the view options' --out is the results path (a directory unless .npz)
+    ap.add_argument("png", type=Path)
     ap.set_defaults(frame=60, track=0)  # the view options' --frame / --track, other defaults
     ap.add_argument("--fit-meshes", action="store_true")
     ap.add_argument("--no-rays", action="store_true")
@@ -52,10 +53,10 @@ def main() -> None:
         app.jump_to(frame=args.frame, track=args.track, view=args.camera)
         app.wait_idle(30)
         page.wait_for_timeout(6000)
-        page.screenshot(path=str(args.out))
+        page.screenshot(path=str(args.png))
         browser.close()
     app.stop()
-    print(f"wrote {args.out}")
+    print(f"wrote {args.png}")
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from mvviz.scene.geometry import (
     FRUSTUM_WIDTHS,
     MANY_CAMERAS_FRUSTUM_WIDTH,
     MM,
+    OFFSET_FILTERED_M,
     OUTLIER,
     UNASSIGNED,
     LayerToggles,
@@ -568,5 +569,49 @@ def test_merged_skeleton_nodes_show_every_track_and_clicks_map_to_track_and_join
 
         app.layers._click_filtered_joint(Click())
         assert clicked == [(1, 4)]
+    finally:
+        app.stop()
+
+
+def test_trails_and_ground_truth_are_one_node_each_with_every_track(viewer_scene, frame_store):
+    """Every track's trails (raw, filtered) and every ground-truth skeleton are one line
+    node each: each holds the frame's segments of all tracks / people, in track order,
+    the trails coloured per track (raw paler); with "offset filtered" only the filtered
+    trail moves; no segments hides the node."""
+    from mvviz.scene.layers import GT_BONES, TRAILS_FILTERED, TRAILS_RAW, raw_color
+
+    scene, results, model = viewer_scene
+    state = ViewerState.create(scene, results, model)
+    app = ViewerApp(state, port=free_port(), frames=frame_store)
+    try:
+        assert app.wait_idle(10)
+        state.selection = dataclasses.replace(state.selection, track=None, joint=3)
+        app.set_frame(NUM_FRAMES // 2)
+        assert app.wait_idle(10)
+        geom = frame_geometry(state)
+        assert len(geom.trails) >= 2  # every track's while none is selected
+        for path, kind, color in (
+            (TRAILS_RAW, "raw", raw_color),
+            (TRAILS_FILTERED, "filtered", track_color),
+        ):
+            node, ks = app.layers.nodes[path], sorted(geom.trails)
+            segs = np.concatenate([getattr(geom.trails[k], kind) for k in ks])
+            assert node.visible and len(segs) > 0
+            np.testing.assert_allclose(node.points, segs.astype(np.float32))
+            want = np.concatenate(
+                [np.tile(color(k), (len(getattr(geom.trails[k], kind)), 1)) for k in ks]
+            )
+            np.testing.assert_array_equal(node.colors[:, 0], want)
+            np.testing.assert_array_equal(node.colors[:, 1], want)
+        gt = app.layers.nodes[GT_BONES]
+        assert len(geom.gt) >= 2 and gt.visible
+        want = np.concatenate([geom.gt[p].segments for p in app.layers.gt_ids if p in geom.gt])
+        np.testing.assert_allclose(gt.points, want.astype(np.float32))
+        state.layers = dataclasses.replace(state.layers, offset_filtered=True, gt=False)
+        app.set_frame(NUM_FRAMES // 2 + 1)
+        assert app.wait_idle(10)
+        assert np.allclose(app.layers.nodes[TRAILS_FILTERED].position, OFFSET_FILTERED_M)
+        assert np.allclose(app.layers.nodes[TRAILS_RAW].position, 0.0)
+        assert not gt.visible  # the layer off: the geometry has no ground truth
     finally:
         app.stop()
