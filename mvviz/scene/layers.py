@@ -118,6 +118,16 @@ TRAILS_RAW = "/world/trails/raw"  # every track's trail, one node each kind (_ap
 TRAILS_FILTERED = "/world/trails/filtered"
 
 
+def _coloured_segments(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """[((S_i, 2, 3) segments, (3,) colour), ...] -> all segments (S, 2, 3) and (S, 3)
+    colours, one per segment: several tracks' lines as one per-vertex-coloured node."""
+    if not parts:
+        return _NO_SEG, _NO_COLORS
+    segs = np.concatenate([seg for seg, _ in parts])
+    cols = np.concatenate([np.broadcast_to(c, (len(seg), 3)) for seg, c in parts])
+    return segs, cols
+
+
 def raw_color(k: int) -> np.ndarray:
     """Track ``k``'s raw skeleton colour: its colour, paler."""
     return pale(track_color(k), 0.45)
@@ -302,12 +312,8 @@ class SceneLayers:
         writes a frame at 20 tracks (each ~60 us in viser, more than drawing them)."""
         bones, joints = self.nodes[RAW_BONES], self.nodes[RAW_JOINTS]
         skeletons = sorted(raw.items())
-        segs = [s.segments for _, s in skeletons]
-        seg_cols = [np.broadcast_to(raw_color(k), (len(s.segments), 3)) for k, s in skeletons]
         _set_segments(
-            bones,
-            np.concatenate(segs) if segs else _NO_SEG,
-            np.concatenate(seg_cols) if seg_cols else _NO_COLORS,
+            bones, *_coloured_segments([(s.segments, raw_color(k)) for k, s in skeletons])
         )
         pts = [s.joints[np.isfinite(s.joints).all(1)] for _, s in skeletons]
         cols = [
@@ -328,13 +334,7 @@ class SceneLayers:
             (TRAILS_FILTERED, "filtered", track_color),
         ):
             parts = [(getattr(t, kind), color(k)) for k, t in sorted(trails.items())]
-            parts = [(seg, c) for seg, c in parts if len(seg)]
-            _set_segments(
-                self.nodes[path],
-                np.concatenate([seg for seg, _ in parts]) if parts else _NO_SEG,
-                np.concatenate([np.broadcast_to(c, (len(seg), 3)) for seg, c in parts])
-                if parts else _NO_COLORS,
-            )  # fmt: skip
+            _set_segments(self.nodes[path], *_coloured_segments(parts))
 
     def _apply_filtered_joints(self, filtered: dict[int, Skeleton], selection: Selection) -> None:
         """Every track's filtered joints as the instances of one batched mesh, track-major
