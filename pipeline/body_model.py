@@ -73,26 +73,43 @@ def forward_kinematics(
         rot_mats: (B, J, 3, 3) local joint rotations; rest_joints: (B, J, 3).
     Returns:
         global rotations (B, J, 3, 3) of the joint frames and posed joints (B, J, 3),
-        no translation (the root stays at its rest position).
+        no translation (the root stays at its rest position); views of
+        :func:`forward_kinematics_components`' arrays.
     """
-    # Joint-major (J, B, ...) inside: a level's joints are then whole contiguous blocks,
-    # so gathering them is a block copy, not a strided one per batch row. Measured on the
-    # restoration's 4,108 rows (one thread): 28 -> 13 ms, 59 -> 40 ms with the backward
-    # pass; equal or faster down to B = 1; outputs identical.
-    rot_j, rest_j = rot_mats.transpose(0, 1).contiguous(), rest_joints.transpose(0, 1).contiguous()
+    glob, posed = forward_kinematics_components(rot_mats, rest_joints, tree)
+    return glob.permute(3, 2, 0, 1), posed.permute(2, 1, 0)
+
+
+def forward_kinematics_components(
+    rot_mats: torch.Tensor, rest_joints: torch.Tensor, tree: KinematicTree
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`forward_kinematics` component-major: global rotations (3, 3, J, B) and posed
+    joints (3, J, B), contiguous (what the fit's keypoint products read directly).
+
+    Args:
+        rot_mats: (B, J, 3, 3) local joint rotations; rest_joints: (B, J, 3).
+    """
+    # Component-major inside, (3, 3, J, B) and (3, J, B): a level's joints are whole
+    # contiguous blocks, and composing a level is a broadcast multiply and a sum over rows
+    # of B (vectorised), not a batched 3 x 3 matrix product (one small GEMM per matrix).
+    # The fit's 977 rows, forward and backward, one thread: 7.3 -> 4.1 ms, the same
+    # numbers. (Joint-major (J, B, 3, 3) with bmm before: 28 -> 13 ms on the
+    # restoration's 4,108 rows against batch-major.)
+    rot_c = rot_mats.permute(2, 3, 1, 0).contiguous()
+    rest_c = rest_joints.permute(2, 1, 0).contiguous()
     rots, poss = [], []
     for d, (lv, par) in enumerate(zip(tree.level_joints, tree.level_parents, strict=True)):
-        R = rot_j[lv]
+        R = rot_c[:, :, lv]
         if d == 0:
             rots.append(R)
-            poss.append(rest_j[lv])
+            poss.append(rest_c[:, lv])
             continue
-        Rp = rots[-1][par]
-        offset = rest_j[lv] - rest_j[tree.level_joints[d - 1][par]]
-        rots.append(Rp @ R)
-        poss.append(poss[-1][par] + (Rp @ offset[..., None])[..., 0])
+        Rp = rots[-1][:, :, par]  # (3, 3, L, B)
+        offset = rest_c[:, lv] - rest_c[:, tree.level_joints[d - 1][par]]  # (3, L, B)
+        rots.append((Rp[:, :, None] * R[None]).sum(1))
+        poss.append(poss[-1][:, par] + (Rp * offset[None]).sum(1))
     order = tree.level_order
-    return torch.cat(rots, 0)[order].transpose(0, 1), torch.cat(poss, 0)[order].transpose(0, 1)
+    return torch.cat(rots, 2)[:, :, order], torch.cat(poss, 1)[:, order]
 
 
 def rigid_chain(

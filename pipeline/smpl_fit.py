@@ -134,6 +134,7 @@ class _Problem:
     weight: torch.Tensor  # (N, T)
     triples: torch.Tensor  # (M, 3) rows (t-1, t, t+1) of the same track
     track_rows: torch.Tensor  # (N,) = track, as a tensor for gathering betas
+    rows_per_track: tuple[int, ...]  # (K,) rows of each track: the rows are by track
 
 
 def _pack(
@@ -164,6 +165,7 @@ def _pack(
         weight=torch.as_tensor(w[track, frame], dtype=torch.float32),
         triples=torch.as_tensor(triples, dtype=torch.long).reshape(-1, 3),
         track_rows=torch.as_tensor(track, dtype=torch.long),
+        rows_per_track=tuple(int(c) for c in np.bincount(track, minlength=K)),
     )
 
 
@@ -406,9 +408,10 @@ def _smooth_loss(joints: torch.Tensor, prob: _Problem) -> torch.Tensor:
     return (acc * acc).sum(-1).mean()
 
 
-def _objective(R, betas_rows, transl, prob, buf, params, offsets=None) -> torch.Tensor:
-    """Data term + temporal smoothness for local rotations R (N, 24, 3, 3)."""
-    kp, joints = predict_targets(R, betas_rows, transl, buf, offsets)
+def _objective(R, betas, transl, prob, buf, params, offsets=None) -> torch.Tensor:
+    """Data term + temporal smoothness for local rotations R (N, 24, 3, 3), betas (K, B)
+    one per track."""
+    kp, joints = predict_targets(R, betas, transl, buf, offsets, rows_per_body=prob.rows_per_track)
     loss = _data_loss(kp, prob, params.smooth_l1_beta_m)
     return loss + params.w_smooth * _smooth_loss(joints, prob)
 
@@ -426,7 +429,9 @@ def _make_fit(prob, buf, model, rotmats, betas, transl, *, seconds, stage, offse
     ``offsets`` (K, T, 3) m or None."""
     with torch.no_grad():
         off = None if offsets is None else offsets[prob.track_rows]
-        kp, joints = predict_targets(rotmats, betas[prob.track_rows], transl, buf, off)
+        kp, joints = predict_targets(
+            rotmats, betas, transl, buf, off, rows_per_body=prob.rows_per_track
+        )
     err = (kp - prob.target).norm(dim=-1).double().numpy()
     kp_mm = MM_PER_M * kp.double().numpy()
     kp_mm[:, ~buf.fitted] = np.nan  # keypoints the body model cannot give
@@ -598,7 +603,7 @@ def _step_one(
         b = torch.where(held_t[:, None], betas.detach(), betas) if held.any() else betas
         o = torch.where(held_t[:, None, None], offsets.detach(), offsets) if held.any() else offsets
         off = (o * learnt)[prob.track_rows] if use_offsets else None
-        loss = _objective(R, b[prob.track_rows], transl, prob, buf, params, off)
+        loss = _objective(R, b, transl, prob, buf, params, off)
         loss = loss + params.w_betas * (b * b).mean()
         if use_offsets:
             loss = loss + params.w_offset * (o * o).sum(-1).mean()
@@ -620,15 +625,14 @@ def _step_one(
 def _prior_correction(prob, buf, prior, params, R1, betas, transl, off1, progress):
     """Step I corrected by the VAE pose prior (:func:`correct_with_prior`), the data
     term the same as step I's with its betas and offsets held."""
-    betas_rows = betas[prob.track_rows]
     off_rows = None if off1 is None else off1[prob.track_rows]
     observed = prob.weight > 0
 
     def objective(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        return _objective(R, betas_rows, t, prob, buf, params, off_rows)
+        return _objective(R, betas, t, prob, buf, params, off_rows)
 
     def row_residual(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        kp, _ = predict_targets(R, betas_rows, t, buf, off_rows)
+        kp, _ = predict_targets(R, betas, t, buf, off_rows, rows_per_body=prob.rows_per_track)
         err = (kp - prob.target).norm(dim=-1) * observed
         return err.sum(1) / observed.sum(1).clamp_min(1)
 

@@ -13,6 +13,8 @@ import torch
 from pipeline.body_model import (
     DEFAULT_MODEL_PATH,
     BodyModel,
+    forward_kinematics,
+    forward_kinematics_components,
     load_body_model,
     load_body_model_arrays,
 )
@@ -176,6 +178,38 @@ def test_open_model_zero_pose_is_template_t_pose(open_model):
     assert j[ix["head"], 1] - j[ix["left_ankle"], 1] > 1.2  # y up
     nose = open_model.coco_keypoints(out.vertices)[0, 0].numpy()
     assert nose[2] > j[ix["head"], 2] + 0.03  # facing +z
+
+
+def test_forward_kinematics_equals_the_chain_of_matrix_products(open_model):
+    # The level-by-level, component-major composition against the textbook chain: each
+    # joint's global rotation is its parent's times its own, its position the parent's
+    # plus the parent's rotation of the rest offset (float64, so the two agree to 1e-12).
+    R = axis_angle_to_matrix(random_pose(7, scale=0.8, seed=11)).double().requires_grad_(True)
+    rest = (torch.randn(7, 24, 3, dtype=torch.float64) * 0.2).requires_grad_(True)
+    parents = open_model.tree.parents
+    glob, pos = [None] * 24, [None] * 24
+    for j in range(24):  # SMPL's parents come before their children
+        p = int(parents[j])
+        if p < 0:
+            glob[j], pos[j] = R[:, j], rest[:, j]
+            continue
+        glob[j] = glob[p] @ R[:, j]
+        pos[j] = pos[p] + (glob[p] @ (rest[:, j] - rest[:, p])[..., None])[..., 0]
+    want_g, want_p = torch.stack(glob, 1), torch.stack(pos, 1)
+    got_g, got_p = forward_kinematics(R, rest, open_model.tree)
+    assert got_g.shape == (7, 24, 3, 3) and got_p.shape == (7, 24, 3)
+    assert float((got_g - want_g).abs().max()) < 1e-12
+    assert float((got_p - want_p).abs().max()) < 1e-12
+    comp_g, comp_p = forward_kinematics_components(R, rest, open_model.tree)
+    assert comp_g.is_contiguous() and comp_g.shape == (3, 3, 24, 7)
+    assert torch.equal(comp_g.permute(3, 2, 0, 1), got_g)
+    assert torch.equal(comp_p.permute(2, 1, 0), got_p)
+    # and the gradients (a weighted sum of both outputs)
+    wg, wp = torch.randn_like(want_g), torch.randn_like(want_p)
+    pairs = ((want_g, want_p), forward_kinematics(R, rest, open_model.tree))
+    grads = [torch.autograd.grad((g * wg).sum() + (q * wp).sum(), (R, rest)) for g, q in pairs]
+    for a, b in zip(*grads, strict=True):
+        assert float((a - b).abs().max()) < 1e-11
 
 
 def test_open_model_fk_close_to_regressed_posed_vertices(open_model):

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -49,3 +50,22 @@ def test_small_angle_quaternion_equals_shepperd_at_every_angle():
     Rg = R.clone().requires_grad_(True)
     limit_penalty.small_angle_quaternion(Rg).sum().backward()
     assert torch.isfinite(Rg.grad).all()
+
+
+@pytest.mark.parametrize("margin_deg", [0.0, 5.0])
+def test_penalty_is_the_squared_excess_summed_with_its_gradient(margin_deg):
+    # limit_penalty sums the squares over swing_twist_rows without the (N, 24, 3) array
+    # of limit_excess; both, values and gradients, on rotations up to pi (both quaternion
+    # branches), with some joints far outside their limits.
+    r = np.random.default_rng(3).normal(0, 1.3, (40, 24, 3))
+    R = torch.as_tensor(rotvec_to_matrix(r), dtype=torch.float32)
+    far = np.linalg.norm(r, axis=-1) > 2 * np.pi / 3
+    assert far[:, pose_limits.LIMITED].any()
+    Ra, Rb = R.clone().requires_grad_(True), R.clone().requires_grad_(True)
+    want = (limit_penalty.limit_excess(Ra, margin_deg=margin_deg) ** 2).sum((-1, -2))
+    got = limit_penalty.limit_penalty(Rb, margin_deg=margin_deg)
+    assert float(want.min()) >= 0 and float(want.max()) > 1.0  # radians^2
+    np.testing.assert_allclose(got.detach().numpy(), want.detach().numpy(), rtol=1e-5, atol=1e-6)
+    want.sum().backward()
+    got.sum().backward()
+    np.testing.assert_allclose(Rb.grad.numpy(), Ra.grad.numpy(), rtol=1e-4, atol=1e-4)

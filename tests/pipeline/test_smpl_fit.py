@@ -77,6 +77,33 @@ def test_keypoint_skinning_equals_regressor_on_full_mesh(with_posedirs):
         np.testing.assert_allclose(joints, out.joints, atol=2e-6)
 
 
+def test_keypoint_products_per_body_equal_those_per_row(model):
+    # predict_targets with one betas per body (rows_per_body: the fit's tracks) gives the
+    # numbers of every row carrying its body's betas, and the same gradients.
+    g = torch.Generator().manual_seed(7)
+    sizes = [3, 1, 0, 5]  # a body without rows is allowed (a track absent from a chunk)
+    N = sum(sizes)
+    R = rot6d_to_matrix(torch.randn(N, 24, 6, generator=g))
+    transl = torch.randn(N, 3, generator=g)
+    buf = keypoint_buffers(model, "coco17")
+    outs = []
+    for per_body in (False, True):
+        betas = torch.randn(len(sizes), 10, generator=torch.Generator().manual_seed(8))
+        betas.requires_grad_(True)
+        rows = torch.repeat_interleave(betas, torch.as_tensor(sizes), 0)
+        kp, joints = (predict_targets(R, betas, transl, buf, rows_per_body=sizes) if per_body
+                      else predict_targets(R, rows, transl, buf))  # fmt: skip
+        (kp.square().sum() + joints.sum()).backward()
+        outs.append((kp.detach(), joints.detach(), betas.grad))
+    (kp0, j0, g0), (kp1, j1, g1) = outs
+    assert kp1.shape == (N, 17, 3) and float(kp0.abs().max()) > 0.1
+    assert float((kp0 - kp1).abs().max()) < 2e-6  # metres
+    assert torch.equal(j0, j1)
+    assert float((g0 - g1).abs().max()) < 1e-4 * float(g0.abs().max())
+    with pytest.raises(ValueError, match="rows_per_body"):
+        predict_targets(R, betas.detach(), transl, buf, rows_per_body=[3, 1, 0, 4])
+
+
 def test_keypoint_skinning_on_the_open_model(model):
     g = torch.Generator().manual_seed(4)
     pose, betas = torch.randn(4, 24, 3, generator=g) * 0.4, torch.randn(4, 10, generator=g)
