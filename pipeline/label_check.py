@@ -245,36 +245,84 @@ class ViewObservations:
     Attributes:
         joints2d: (num_people, num_views, num_joints, 3) x px, y px, confidence of the
             detection associated to each person in each view; confidence 0 (x, y may
-            be NaN) where a view has none.
+            be NaN) where a view has none. None when the 2D is read per view from the
+            run's detections (:meth:`from_members`).
         joints3d: (num_people, num_joints, 3) the person's triangulated joints, world mm.
         frame: (num_people,) frame of each person.
         track: (num_people,) track of each person, -1 if untracked.
+        members: with ``joints2d`` None, (num_people, num_views) detection row of each
+            person in each view, -1 where none; ``detections`` (N, J, 3) their 2D, and
+            ``mirrored`` (N,) bool or None, the rows to read through ``flip_index``.
     """
 
-    joints2d: np.ndarray
+    joints2d: np.ndarray | None
     joints3d: np.ndarray
     frame: np.ndarray
     track: np.ndarray
+    members: np.ndarray | None = None
+    detections: np.ndarray | None = None
+    mirrored: np.ndarray | None = None
+    flip_index: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         P = self.joints3d.shape[0]
         if self.joints3d.ndim != 3 or self.joints3d.shape[-1] != 3:
             raise ValueError(f"joints3d: expected (num_people, J, 3), got {self.joints3d.shape}")
         J = self.joints3d.shape[1]
-        if (
+        if self.joints2d is None:
+            if self.members is None or self.detections is None:
+                raise ValueError("joints2d: None needs members and detections")
+            if self.members.ndim != 2 or self.members.shape[0] != P:
+                raise ValueError(f"members: expected ({P}, num_views), got {self.members.shape}")
+            if self.detections.ndim != 3 or self.detections.shape[1:] != (J, 3):
+                raise ValueError(f"detections: expected (N, {J}, 3), got {self.detections.shape}")
+        elif (
             self.joints2d.ndim != 4
             or self.joints2d.shape[0] != P
-            or self.joints2d.shape[2:]
-            != (
-                J,
-                3,
-            )
+            or self.joints2d.shape[2:] != (J, 3)
         ):
             raise ValueError(
                 f"joints2d: expected ({P}, num_views, {J}, 3), got {self.joints2d.shape}"
             )
         if self.frame.shape != (P,) or self.track.shape != (P,):
             raise ValueError(f"frame and track: expected ({P},), got {self.frame.shape}")
+
+    @classmethod
+    def from_members(
+        cls,
+        members: np.ndarray,
+        detections: np.ndarray,
+        joints3d: np.ndarray,
+        frame: np.ndarray,
+        track: np.ndarray,
+        *,
+        mirrored: np.ndarray | None = None,
+        flip_index: np.ndarray | None = None,
+    ) -> ViewObservations:
+        """The 2D of each view gathered when it is read (:meth:`view_joints2d`): the whole
+        (P, V, J, 3) array at once was 2.5 GB at 10,000 frames x 31 cameras x 20
+        people, one view's is 1/31 of it."""
+        return cls(None, joints3d, frame, track, np.asarray(members), detections,
+                   mirrored, flip_index)  # fmt: skip
+
+    @property
+    def num_views(self) -> int:
+        src = self.members if self.joints2d is None else self.joints2d
+        return int(src.shape[1])
+
+    def view_joints2d(self, v: int) -> np.ndarray:
+        """(num_people, num_joints, 3) the 2D of view ``v``: confidence 0 where the view
+        has none, a mirrored detection read back as its detector gave it."""
+        if self.joints2d is not None:
+            return self.joints2d[:, v]
+        rows = self.members[:, v]
+        kp = self.detections[np.maximum(rows, 0)]  # a new array (the gather copies)
+        if self.mirrored is not None and self.flip_index is not None and len(kp):
+            back = np.asarray(self.mirrored)[np.maximum(rows, 0)] & (rows >= 0)
+            if back.any():
+                kp[back] = kp[back][:, self.flip_index]
+        kp[rows < 0, :, 2] = 0.0
+        return kp
 
 
 # --------------------------------------------------------------------------- checks
@@ -561,7 +609,7 @@ def camera_mirror_fractions(
         [i for i, n in enumerate(joint_set.names) if n.startswith("left_") and flip[i] != i], int
     )
     right = flip[left]
-    P, V = views.joints2d.shape[:2]
+    P, V = len(views.joints3d), views.num_views
     if len(cameras) != V:
         raise ValueError(f"{len(cameras)} cameras for 2D of {V} views")
     mirrored = np.zeros((P, V), bool)
@@ -570,7 +618,8 @@ def camera_mirror_fractions(
         if P == 0 or len(left) == 0:
             break
         proj = cam.project(views.joints3d)  # (P, J, 2)
-        x, conf = views.joints2d[:, v, :, :2], views.joints2d[:, v, :, 2]
+        kp = views.view_joints2d(v)
+        x, conf = kp[..., :2], kp[..., 2]
         pl, pr, xl, xr = proj[:, left], proj[:, right], x[:, left], x[:, right]
         with np.errstate(invalid="ignore"):
             ok = (
@@ -698,23 +747,17 @@ def view_observations(results: PipelineResults) -> ViewObservations:
     """The run's per-frame people (raw triangulation) with their associated 2D per view,
     as the cameras' detector gave it: detections the association un-mirrored
     (``results.det_flipped``) are mirrored back, so that a camera whose detector swaps
-    left and right is still told, though the 3D no longer suffers from it."""
-    members = np.asarray(results.person_members)  # (Q, V) detection row, -1
-    rows = np.maximum(members, 0)
-    kp = results.det_joints2d[rows]  # (Q, V, J, 3), a new array (the gather copies)
-    if results.det_flipped is not None and kp.size:
-        # mirrored back in the gathered rows only: a copy of every detection's joints
-        # first was 1.9 GB at 10,000 frames x 31 cameras x 20 people
-        flipped = np.asarray(results.det_flipped)[rows] & (members >= 0)
-        if flipped.any():
-            kp[flipped] = kp[flipped][:, get_joint_set(results.joint_set).flip_index]
-    if kp.size:
-        kp[members < 0, :, 2] = 0.0
-    return ViewObservations(
-        joints2d=kp,
-        joints3d=results.person_joints,
-        frame=results.person_frame,
-        track=results.person_track,
+    left and right is still told, though the 3D no longer suffers from it. Each view's
+    2D is gathered when it is read (:meth:`ViewObservations.from_members`)."""
+    flipped = results.det_flipped
+    return ViewObservations.from_members(
+        results.person_members,
+        results.det_joints2d,
+        results.person_joints,
+        results.person_frame,
+        results.person_track,
+        mirrored=flipped,
+        flip_index=None if flipped is None else get_joint_set(results.joint_set).flip_index,
     )
 
 
