@@ -728,7 +728,7 @@ def test_association_failures_read_the_edges_in_blocks(monkeypatch, tmp_path):
         ]
         np.testing.assert_allclose([f.score for f in got], [f.score for f in want], rtol=1e-12)
     # each detection's mean affinity to its own person, as the plain definition gives it
-    own = criteria._own_affinity(res)
+    own, _ = criteria._edge_summary(res, criteria.AFFINITY_THRESHOLD)
     for d in np.flatnonzero(res.det_person >= 0)[:200]:
         mine = (res.edge_a == d) | (res.edge_b == d)
         other = np.where(res.edge_a[mine] == d, res.edge_b[mine], res.edge_a[mine])
@@ -802,7 +802,7 @@ def test_close_to_two_picks_per_pair_of_people_the_first_edge_of_highest_affinit
     config = PipelineConfig()
     res = run_stages(scene, config, select_2d(scene, config, None), restored=None,
                      progress=False)  # fmt: skip
-    own = criteria._own_affinity(res)
+    own, _ = criteria._edge_summary(res, criteria.AFFINITY_THRESHOLD)
     own_rank = np.where(np.isfinite(own), own, -np.inf)
     pa, pb = res.det_person[res.edge_a], res.det_person[res.edge_b]
     worst: dict = {}
