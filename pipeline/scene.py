@@ -508,18 +508,22 @@ def write_scene(
     num_frames: int,
     joint_set: JointSet,
     rig: CameraRig,
-    detections: Detections,
+    detections: Detections | None,
     gt: GroundTruth | None = None,
     videos: dict[str, Path] | None = None,
     extra_meta: dict | None = None,
     overwrite: bool = False,
     references: dict[str, ReferenceTrack] | None = None,
     detections_file: str = "detections.npz",
+    detection_columns: Path | None = None,
 ) -> Path:
     """Write a complete scene directory atomically.
 
     ``detections_file`` not ending in ``.npz`` writes the detections as a directory of
     ``.npy`` columns (:func:`open_detection_columns`: read lazily; long scenes).
+    ``detection_columns`` (with ``detections`` None): such a directory already written,
+    e.g. by a synthesis that streams its rows; checked as the reader checks it and moved
+    into the scene, not copied (the source directory is gone afterwards).
 
     ``videos`` (camera name -> mp4 path) are copied into ``videos/<camera>.mp4``;
     ``references`` (each (num_frames, J, 3) mm) into ``references/<name>.npz``.
@@ -527,12 +531,17 @@ def write_scene(
     The data is validated on the way out with the same checks the reader applies.
     """
     out_dir = Path(out_dir)
+    if (detections is None) == (detection_columns is None):
+        raise ValueError("write_scene: give detections or detection_columns, not both")
+    if detection_columns is not None and detections_file.lower().endswith(".npz"):
+        raise ValueError(f"detection_columns needs a directory name, not {detections_file!r}")
     check_detections(
-        detections.arrays(),
+        detections.arrays() if detections is not None
+        else open_detection_columns(Path(detection_columns)),
         source=out_dir / detections_file,
         num_joints=joint_set.num_joints,
         num_views=len(rig),
-    )
+    )  # fmt: skip
     if gt is not None:
         check_ground_truth(gt.arrays(), source=out_dir / "gt.npz")
     for r in (references or {}).values():
@@ -553,7 +562,9 @@ def write_scene(
     }
     with atomic_directory(out_dir, overwrite=overwrite) as tmp:
         save_cameras(rig, tmp / "cameras.json")
-        if detections_file.lower().endswith(".npz"):
+        if detection_columns is not None:
+            shutil.move(str(detection_columns), tmp / detections_file)
+        elif detections_file.lower().endswith(".npz"):
             save_npz_atomic(tmp / detections_file, **detections.arrays())
         else:
             save_detection_columns(tmp / detections_file, detections.arrays())

@@ -21,7 +21,8 @@ from pipeline.body_model import BodyModel
 from pipeline.cameras import Camera, CameraRig
 from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
 from pipeline.progress import track
-from pipeline.scene import SMPL_FIELDS, Detections, GroundTruth, write_scene
+from pipeline.scene import Detections, GroundTruth, write_scene
+from pipeline.synth.detection_rows import DetectionRows
 from pipeline.synth.detectors import DetectorNoise, simulate_keypoints, simulate_regressor
 from pipeline.synth.motion import (
     PersonMotion,
@@ -251,7 +252,7 @@ def _detect_view(
     people: SynthPeople,
     f: int,
     v: int,
-    rows: dict[str, list],
+    rows: DetectionRows,
 ) -> None:
     """Simulated detections of frame ``f`` in view ``v`` appended to ``rows``: the people
     the render shows (``coco`` (P, T, 3) mm their keypoints), then ghosts."""
@@ -276,7 +277,7 @@ def _detect_view(
         reg = simulate_regressor(
             rng, cam, people.pose[order, f], people.betas[order], smpl2d, sim.model, sim.noise
         )
-        _append(rows, f, v, kp[order], order, reg)
+        rows.append(f, v, kp[order], order, reg)
     if n_ghost:
         _detect_ghosts(rng, sim, cam, n_ghost, f, v, rows)
 
@@ -288,7 +289,7 @@ def _detect_ghosts(
     n_ghost: int,
     f: int,
     v: int,
-    rows: dict[str, list],
+    rows: DetectionRows,
 ) -> None:
     """``n_ghost`` false detections (person -1) in the view, those at least 8 of whose
     keypoints land in the image, appended to ``rows``."""
@@ -297,7 +298,7 @@ def _detect_ghosts(
         return
     g_kp, g_pose, g_betas, g_smpl = ghosts
     reg = simulate_regressor(rng, cam, g_pose, g_betas, g_smpl, sim.model, sim.noise)
-    _append(rows, f, v, g_kp, np.full(len(g_kp), -1), reg)
+    rows.append(f, v, g_kp, np.full(len(g_kp), -1), reg)
 
 
 def _ghost_keypoints(
@@ -330,22 +331,6 @@ def _ghost_keypoints(
     return g_kp, g_pose[inside], g_betas[inside], g_smpl
 
 
-def _detections(rows: dict[str, list], num_joints: int) -> Detections:
-    """The appended rows as :class:`~pipeline.scene.Detections` (empty arrays for none)."""
-    n = len(rows["frame"])
-    arrays = {k: (np.concatenate(v) if v else None) for k, v in rows.items()}
-    return Detections(
-        frame=arrays["frame"] if n else np.zeros(0, int),
-        view=arrays["view"] if n else np.zeros(0, int),
-        keypoints=arrays["keypoints"] if n else np.zeros((0, num_joints, 3)),
-        gt_person_id=arrays["gt_person_id"] if n else np.zeros(0, int),
-        smpl_pose=arrays["smpl_pose"] if n else np.zeros((0, 72)),
-        smpl_betas=arrays["smpl_betas"] if n else np.zeros((0, 10)),
-        cam_weak=arrays["cam_weak"] if n else np.zeros((0, 3)),
-        bbox=arrays["bbox"] if n else np.zeros((0, 4)),
-    )
-
-
 def synthesize(
     rig: CameraRig,
     model: BodyModel,
@@ -353,10 +338,20 @@ def synthesize(
     *,
     video_dir: Path | None = None,
     progress: bool = True,
+    detections_dir: Path | None = None,
 ) -> tuple[SynthPeople, Detections]:
-    """Plan, pose, render and detect. Writes ``video_dir/<camera>.mp4`` when given."""
-    with torch_threads(config.torch_threads):
-        return _synthesize(rig, model, config, video_dir, progress)
+    """Plan, pose, render and detect. Writes ``video_dir/<camera>.mp4`` when given;
+    with ``detections_dir`` (a new directory) the detection rows are streamed to its
+    ``.npy`` columns as they are made and come back memory-mapped
+    (:class:`~pipeline.synth.detection_rows.DetectionRows`)."""
+    rows = DetectionRows(get_joint_set(config.joint_set).num_joints, detections_dir)
+    try:
+        with torch_threads(config.torch_threads):
+            people = _synthesize(rig, model, config, video_dir, progress, rows)
+    except BaseException:
+        rows.discard()
+        raise
+    return people, rows.detections()
 
 
 def _synthesize(
@@ -365,7 +360,8 @@ def _synthesize(
     config: SynthConfig,
     video_dir: Path | None,
     progress: bool,
-) -> tuple[SynthPeople, Detections]:
+    rows: DetectionRows,
+) -> SynthPeople:
     rng = np.random.default_rng(config.seed)
     area = visible_floor_area(rig, min_views=config.min_views, within_mm=config.area_radius_mm)
     motions = plan_people(rng, area, config.num_people, config.num_frames, config.fps)
@@ -375,8 +371,6 @@ def _synthesize(
         model=model, kreg=kreg, js=get_joint_set(config.joint_set), defined=kreg.fitted,
         noise=config.noise, area=area, library=sample_pose_library(200, seed=config.seed),
     )  # fmt: skip
-    columns = ("frame", "view", "keypoints", "gt_person_id") + SMPL_FIELDS
-    rows: dict[str, list] = {k: [] for k in columns}
     if config.occlusion not in ("auto", "render", "proxy"):
         raise ValueError(f"occlusion: expected auto, render or proxy, got {config.occlusion!r}")
     use_proxy = config.occlusion == "proxy" or (
@@ -389,7 +383,7 @@ def _synthesize(
             raise ValueError(f"batch_frames: expected >= 1, got {config.batch_frames}")
         detect = _detect_proxy if config.batch_frames == 1 else _detect_proxy_batched
         detect(rng, sim, rig, people, config, progress, rows)
-        return people, _detections(rows, sim.js.num_joints)
+        return people
     faces = model.faces.numpy()
     writers = _open_writers(rig, config, video_dir)
     # the backdrop only shows in videos; detections never look at it
@@ -420,8 +414,7 @@ def _synthesize(
             _detect_view(rng, sim, cam, render, coco, people, f, v, rows)
     for w, _ in writers.values():
         w.release()
-    return people, _detections(rows, sim.js.num_joints)
-
+    return people
 
 
 def _proxy_masks(
@@ -445,6 +438,7 @@ def _proxy_masks(
         out.append((vis, other))
     return out
 
+
 def _detect_proxy(
     rng: np.random.Generator,
     sim: _Simulation,
@@ -452,7 +446,7 @@ def _detect_proxy(
     people: SynthPeople,
     config: SynthConfig,
     progress: bool,
-    rows: dict[str, list],
+    rows: DetectionRows,
 ) -> None:
     """Detections of every frame with occlusion from the proxy body: per frame, pose the
     proxies, find the surface at every keypoint's pixel in all views at once, simulate
@@ -484,7 +478,7 @@ def _detect_proxy(
         start = 0
         for v, o, kp, n_ghost in found:  # rows by view, people then ghosts, as render's
             if o.size:
-                _append(rows, f, v, kp, o, {k: x[start : start + o.size] for k, x in reg.items()})
+                rows.append(f, v, kp, o, {k: x[start : start + o.size] for k, x in reg.items()})
                 start += o.size
             if n_ghost:
                 _detect_ghosts(rng, sim, cams[v], n_ghost, f, v, rows)
@@ -497,7 +491,7 @@ def _detect_proxy_batched(
     people: SynthPeople,
     config: SynthConfig,
     progress: bool,
-    rows: dict[str, list],
+    rows: DetectionRows,
 ) -> None:
     """:func:`_detect_proxy` with the regressor run once per ``config.batch_frames``
     frames, for the people and the ghosts of all their views: the rows wait in
@@ -533,7 +527,7 @@ def _regress_pending(
     sim: _Simulation,
     R_all: np.ndarray,
     pending: list[tuple],
-    rows: dict[str, list],
+    rows: DetectionRows,
 ) -> None:
     """One regressor call for the ``pending`` rows of :func:`_detect_proxy_batched`
     (their views' rotations from ``R_all``), appended to ``rows`` in their order."""
@@ -545,20 +539,8 @@ def _regress_pending(
     start = 0
     for f, v, kp, person, *_ in pending:
         n = len(person)
-        _append(rows, f, v, kp, person, {k: x[start : start + n] for k, x in reg.items()})
+        rows.append(f, v, kp, person, {k: x[start : start + n] for k, x in reg.items()})
         start += n
-
-
-def _append(
-    rows: dict, frame: int, view: int, kp: np.ndarray, person: np.ndarray, reg: dict
-) -> None:
-    m = kp.shape[0]
-    rows["frame"].append(np.full(m, frame))
-    rows["view"].append(np.full(m, view))
-    rows["keypoints"].append(kp)
-    rows["gt_person_id"].append(np.asarray(person))
-    for k in SMPL_FIELDS:
-        rows[k].append(reg[k])
 
 
 def ground_truth(people: SynthPeople) -> GroundTruth:
@@ -574,6 +556,12 @@ def ground_truth(people: SynthPeople) -> GroundTruth:
     )
 
 
+STREAM_VIEW_FRAMES = 50_000
+"""Scenes of at least this many frames x cameras (1,613 frames of a 31-camera dome) are
+synthesised with their detections streamed to a directory of ``.npy`` columns: in memory
+a 10,000-frame dome of 20 people held ~5 GB of rows."""
+
+
 def write_synth_scene(
     out_dir: str | os.PathLike,
     rig: CameraRig,
@@ -583,15 +571,25 @@ def write_synth_scene(
     name: str | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    detections_file: str | None = None,
 ) -> Path:
-    """Synthesise and write a native scene directory atomically."""
+    """Synthesise and write a native scene directory atomically.
+
+    ``detections_file``: ``detections.npz`` (one file, read whole), a directory name
+    (``.npy`` columns, streamed while synthesising and read lazily), or None: the
+    directory for scenes of at least :data:`STREAM_VIEW_FRAMES` view-frames."""
     out_dir = Path(out_dir)
     if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
         raise FileExistsError(f"{out_dir} exists and is not empty (pass --overwrite to replace it)")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=out_dir.parent, prefix=f".{out_dir.name}.videos.") as tmp:
         video_dir = Path(tmp) if config.render_video else None
-        people, detections = synthesize(rig, model, config, video_dir=video_dir, progress=progress)
+        if detections_file is None:
+            long = config.num_frames * len(rig) >= STREAM_VIEW_FRAMES
+            detections_file = "detections" if long else "detections.npz"
+        columns = None if detections_file.endswith(".npz") else Path(tmp) / "detections"
+        people, detections = synthesize(rig, model, config, video_dir=video_dir,
+                                        progress=progress, detections_dir=columns)  # fmt: skip
         videos = {c.name: Path(tmp) / f"{c.name}.mp4" for c in rig} if video_dir else None
         noise = {k: getattr(config.noise, k) for k in config.noise.__dataclass_fields__}
         return write_scene(
@@ -601,7 +599,9 @@ def write_synth_scene(
             num_frames=config.num_frames,
             joint_set=get_joint_set(config.joint_set),
             rig=rig,
-            detections=detections,
+            detections=None if columns else detections,
+            detection_columns=columns,
+            detections_file=detections_file,
             gt=ground_truth(people),
             videos=videos,
             extra_meta={

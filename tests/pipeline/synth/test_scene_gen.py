@@ -128,3 +128,51 @@ def test_visible_area_is_inside_the_rig():
                 and (uv[:, 1] >= 0).all() and (uv[:, 1] < cam.height).all()
             )  # fmt: skip
         assert seen >= 2
+
+
+@pytest.mark.parametrize("occlusion", ["proxy", "render"])
+def test_detections_streamed_to_columns_equal_those_kept_in_memory(
+    tmp_path, monkeypatch, occlusion
+):
+    """A long synthesis streams its detection rows to a directory of .npy columns a block
+    at a time (flushed here every 5 rows, so many blocks): the scene it writes reads back
+    array for array as the one whose rows were kept in memory and written as one file."""
+    from pipeline.synth import detection_rows
+
+    monkeypatch.setattr(detection_rows, "FLUSH_ROWS", 5)
+    rig, model = read_voxelpose_calibration(RIG), load_body_model()
+    cfg = SynthConfig(num_people=3, num_frames=8, seed=5, render_video=False, occlusion=occlusion)
+    a = write_synth_scene(tmp_path / "a", rig, model, cfg, progress=False,
+                          detections_file="detections.npz")  # fmt: skip
+    b = write_synth_scene(tmp_path / "b", rig, model, cfg, progress=False,
+                          detections_file="detections")  # fmt: skip
+    assert (a / "detections.npz").is_file() and (b / "detections" / "keypoints.npy").is_file()
+    assert not list(tmp_path.glob(".*"))  # no temporary directory left
+    da, db = load_scene(a).detections, load_scene(b).detections
+    assert len(da) > 5 * 5  # several blocks
+    for k, x in da.arrays().items():
+        y = db.arrays()[k]
+        assert y.dtype == x.dtype and y.shape == x.shape, k
+        np.testing.assert_array_equal(y, x, err_msg=k)
+    np.testing.assert_array_equal(load_scene(a).gt.joints3d, load_scene(b).gt.joints3d)
+
+
+def test_long_syntheses_stream_and_an_empty_one_writes_empty_columns(tmp_path, monkeypatch):
+    """Without a choice, scenes of STREAM_VIEW_FRAMES view-frames or more get a detections
+    directory, shorter ones one file; streamed rows of which there are none close as
+    columns of 0 rows with the dtypes and widths of the in-memory ones."""
+    import pipeline.synth.scene_gen as scene_gen
+
+    monkeypatch.setattr(scene_gen, "STREAM_VIEW_FRAMES", 3 * 6)
+    rig, model = read_voxelpose_calibration(RIG), load_body_model()
+    cfg = SynthConfig(num_people=1, num_frames=6, seed=2, render_video=False, occlusion="proxy")
+    out = write_synth_scene(tmp_path / "long", rig, model, cfg, progress=False)
+    assert (out / "detections").is_dir() and len(load_scene(out).detections) > 0
+    short = write_synth_scene(tmp_path / "short", rig, model,
+                              SynthConfig(num_people=1, num_frames=5, seed=2, render_video=False,
+                                          occlusion="proxy"), progress=False)  # fmt: skip
+    assert (short / "detections.npz").is_file()
+    rows = scene_gen.DetectionRows(17, tmp_path / "empty")
+    empty = rows.detections()
+    assert len(empty) == 0 and empty.keypoints.shape == (0, 17, 3)
+    assert empty.smpl_pose.shape == (0, 72) and empty.frame.dtype == np.int64
