@@ -3,11 +3,16 @@
 :func:`fused_screened_distances` gives the numbers of
 :func:`pipeline.ray_affinity.screened_distances` (the NumPy screen of
 :func:`pipeline.ray_pairs.screen_distances`, then :func:`pipeline.ray_pairs.pair_ray_distances`
-on the pairs it keeps) in float64, one pair at a time: the screen's four part rays, and
-only when they pass, the pair's joints straight and mirrored, with no temporary array.
+on the pairs it keeps) in float64, one row of pairs (a, b > a) at a time: the screen's four
+part rays against every b at once, then the pair's joints straight and mirrored for the b's
+it keeps, with no temporary array larger than a row.
 The NumPy kernels are ~90 whole-array operations on blocks of pairs; at 16 cameras x 10
 people every one of them costs more in NumPy's per-call overhead and memory traffic than
-its arithmetic (bench/bench_scale.py times both). Numba compiles it once per machine
+its arithmetic (bench/bench_scale.py times both). Each row's loops run over b with no
+branch and contiguous reads, so the compiler vectorises them (AVX-512: 8 pairs a square
+root); one pair at a time with a branch per joint (:func:`_fused_pairwise`, the pass before)
+was scalar and ~2.5x slower at 31 cameras x 20 people, and gives the same numbers to the
+bit (each lane sums its joints in the same order). Numba compiles it once per machine
 (cached beside this module) and loads it where a frame has
 ``pipeline.ray_affinity.COMPILED_MIN_DETECTIONS`` detections; the NumPy path stays the
 reference and tests/pipeline/test_ray_fused.py holds the two together.
@@ -28,18 +33,19 @@ from pipeline.ray_pairs import PARALLEL_SIN2
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _prepare(origins, dirs, weights, part_of, K):
     """The pass's inputs in one loop (NumPy's where / einsum / cross on these small arrays
-    cost ~0.7 ms a frame at 16 x 10 in call overhead): (n, J, 3) rays and (n, J) weights,
-    0 where a ray is missing; (n, 3) origins centred on their mean; and each detection's
-    body-part mean rays as the screen sees them, (K, 3, n) unit rays and their moments
-    ``u x o``, (K, n) weights (the part's summed joint weights, 0 where its rays cancel)."""
+    cost ~0.7 ms a frame at 16 x 10 in call overhead): (n, 4, J) each detection's rays'
+    x, y, z and weights, 0 where a ray is missing (one contiguous row per detection: the
+    kernel gathers the rows of the pairs it keeps); (n, 3) origins centred on their mean;
+    and each detection's body-part mean rays as the screen sees them, (K, 3, n) unit rays
+    and their moments ``u x o``, (K, n) weights (the part's summed joint weights, 0 where
+    its rays cancel)."""
     n, J = weights.shape
     centre = np.zeros(3)
     for i in range(n):
         for c in range(3):
             centre[c] += origins[i, c] / n
     o = np.empty((n, 3))
-    d = np.zeros((n, J, 3))
-    w = np.zeros((n, J))
+    joints = np.zeros((n, 4, J))
     U = np.zeros((K, 3, n))
     M = np.zeros((K, 3, n))
     W = np.zeros((K, n))
@@ -51,8 +57,8 @@ def _prepare(origins, dirs, weights, part_of, K):
             W[k, i] += weights[i, j]
             x, y, z = dirs[i, j, 0], dirs[i, j, 1], dirs[i, j, 2]
             if math.isfinite(x) and math.isfinite(y) and math.isfinite(z):
-                d[i, j, 0], d[i, j, 1], d[i, j, 2] = x, y, z
-                w[i, j] = weights[i, j]
+                joints[i, 0, j], joints[i, 1, j], joints[i, 2, j] = x, y, z
+                joints[i, 3, j] = weights[i, j]
                 U[k, 0, i] += x * weights[i, j]
                 U[k, 1, i] += y * weights[i, j]
                 U[k, 2, i] += z * weights[i, j]
@@ -66,38 +72,159 @@ def _prepare(origins, dirs, weights, part_of, K):
             M[k, 0, i] = uy * o[i, 2] - uz * o[i, 1]
             M[k, 1, i] = uz * o[i, 0] - ux * o[i, 2]
             M[k, 2, i] = ux * o[i, 1] - uy * o[i, 0]
-    return d, w, o, U, M, W
+    return joints, o, U, M, W
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _screen_row(U, M, W, a, clip, num, den):
     """The screen of detection a against every b > a: the clipped, weighted mean distance
-    of their part rays in ``num / den`` (den 0: no part shared; parallel part rays count
-    the clip). U, M (K, 3, n) part rays and moments, W (K, n): a loop over b, contiguous
-    in b (scalar code: the compiler does not vectorise it, checked in its assembly)."""
-    n = U.shape[2]
-    num[a + 1 :] = 0.0
-    den[a + 1 :] = 0.0
+    of their part rays in ``num[b - a - 1] / den[b - a - 1]`` (den 0: no part shared;
+    parallel part rays count the clip). U, M (K, 3, n) part rays and moments, W (K, n).
+    The loop over b runs on slices from a + 1 and selects instead of branching: indices
+    that start at 0 are known not to wrap around, so the compiler vectorises it (indexed
+    from ``a + 1`` it stayed scalar)."""
+    lo = a + 1
+    num[: U.shape[2] - lo] = 0.0
+    den[: U.shape[2] - lo] = 0.0
     for k in range(U.shape[0]):
         ux, uy, uz = U[k, 0, a], U[k, 1, a], U[k, 2, a]
         mx, my, mz = M[k, 0, a], M[k, 1, a], M[k, 2, a]
         wa = W[k, a]
-        for b in range(a + 1, n):
-            cos = ux * U[k, 0, b] + uy * U[k, 1, b] + uz * U[k, 2, b]
-            mom = (ux * M[k, 0, b] + uy * M[k, 1, b] + uz * M[k, 2, b]
-                   + U[k, 0, b] * mx + U[k, 1, b] * my + U[k, 2, b] * mz)  # fmt: skip
-            d = abs(mom) / math.sqrt(max(1.0 - cos * cos, 0.0))
+        Ux, Uy, Uz, Wb = U[k, 0, lo:], U[k, 1, lo:], U[k, 2, lo:], W[k, lo:]
+        Mx, My, Mz = M[k, 0, lo:], M[k, 1, lo:], M[k, 2, lo:]
+        for i in range(len(Wb)):
+            cos = ux * Ux[i] + uy * Uy[i] + uz * Uz[i]
+            mom = (ux * Mx[i] + uy * My[i] + uz * Mz[i]
+                   + Ux[i] * mx + Uy[i] * my + Uz[i] * mz)  # fmt: skip
+            sin2 = 1.0 - cos * cos
+            d = abs(mom) / math.sqrt(sin2 if sin2 > 0.0 else 0.0)
             d = d if d < clip else clip  # NaN or inf (parallel): the clip
-            pw = wa * W[k, b]
-            num[b] += pw * d
-            den[b] += pw
+            pw = wa * Wb[i]
+            num[i] += pw * d
+            den[i] += pw
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _add_joint(ax, ay, az, wa, C, jb, base, one_centre, clip, m, num, den, count):
+    """Add to pair k < m's ``num``, ``den``, ``count`` the term of a's joint ray (ax, ay,
+    az), weight wa, with b's joint ``jb`` (C (4 J, >= m): the pairs' columns of rays'
+    x, y, z and weights, unit or zero); base (3, >= m) ``o_b - o_a``, one_centre (>= m,)
+    both seen from one centre. Selects where :func:`_pair_mean` branches (no weight,
+    parallel rays), so the loop over pairs vectorises; adding 0.0 leaves a sum's bits as
+    skipping the term does. Inlined (Numba's IR): as a call, passing its six arrays cost
+    ~0.5 ms a frame at 31 x 20 (~16,000 calls)."""
+    J = C.shape[0] // 4
+    Cx, Cy, Cz, Cw = C[jb], C[J + jb], C[2 * J + jb], C[3 * J + jb]
+    Bx, By, Bz = base[0], base[1], base[2]
+    for k in range(m):
+        bx, by, bz = Bx[k], By[k], Bz[k]
+        cx, cy, cz = Cx[k], Cy[k], Cz[k]
+        wj = wa * Cw[k]
+        dd = ax * cx + ay * cy + az * cz
+        sin2 = 1.0 - dd * dd
+        # |(ob - oa) . (da x db)| / |da x db|
+        tri = bx * (ay * cz - az * cy) + by * (az * cx - ax * cz) + bz * (ax * cy - ay * cx)
+        dist = abs(tri) / math.sqrt(sin2)
+        dist = dist if dist < clip else clip
+        w0 = bx * ax + by * ay + bz * az  # (ob - oa) . da
+        w1 = bx * cx + by * cy + bz * cz  # (ob - oa) . db
+        # the closest points' parameters (times sin^2 > 0) must both be > 0
+        behind = one_centre[k] | (w0 - dd * w1 <= 0.0) | (dd * w0 - w1 <= 0.0)
+        dist = clip if behind else dist
+        counts = (not wj <= 0.0) & (not sin2 <= PARALLEL_SIN2)
+        num[k] += wj * dist if counts else 0.0
+        den[k] += wj if counts else 0.0
+        count[k] += 1.0 if counts else 0.0
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _pair_mean(d, o, w, a, b, perm, clip, min_shared):
-    """The per-joint kernel of :func:`pipeline.ray_pairs._block` for one pair: joint j of
-    a against joint ``perm[j]`` of b (a mirror, or the identity). NaN where fewer than
-    ``min_shared`` joints both see."""
+def _kernel_row(joints, o, a, keep, m, flip, has_flip, clip, cols, base, one_centre, sums):
+    """The per-joint means of detection a against the m detections ``keep[:m]``, straight
+    and (``has_flip``) with b mirrored: a's joint j against b's joint j, then ``flip[j]``.
+    Into ``sums`` (6, >= m): numerator, weight and count of the straight means, then of
+    the mirrored. The kept rows of ``joints`` (n, 4, J) are first copied into ``cols``
+    (4 J, >= m), one column per pair, so the joint loop reads each pair's values
+    contiguously across pairs: the compiler vectorises it over pairs, and each pair's
+    terms add up in joint order, as one pair at a time (:func:`_pair_mean`) does.
+    base (3, >= m) and one_centre (>= m,) are scratch."""
+    J = joints.shape[2]
+    rows = joints.reshape(joints.shape[0], 4 * J)
+    for k in range(m):  # one contiguous row per pair (from joint-major arrays, ~20 % slower)
+        row, col = rows[keep[k]], cols[:, k]
+        for cj in range(4 * J):
+            col[cj] = row[cj]
+    ox, oy, oz = o[a, 0], o[a, 1], o[a, 2]
+    for k in range(m):
+        b = keep[k]
+        base[0, k] = o[b, 0] - ox
+        base[1, k] = o[b, 1] - oy
+        base[2, k] = o[b, 2] - oz
+        one_centre[k] = o[b, 0] == ox and o[b, 1] == oy and o[b, 2] == oz
+    sums[:, :m] = 0.0
+    for j in range(J):
+        ax, ay, az, wa = joints[a, 0, j], joints[a, 1, j], joints[a, 2, j], joints[a, 3, j]
+        if wa <= 0.0:
+            continue  # a does not see joint j: no term with any b (weights are finite)
+        _add_joint(ax, ay, az, wa, cols, j, base, one_centre, clip, m, sums[0], sums[1], sums[2])
+        if has_flip:
+            jb = flip[j]
+            _add_joint(
+                ax, ay, az, wa, cols, jb, base, one_centre, clip, m, sums[3], sums[4], sums[5]
+            )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _fused(U, M, PW, joints, o, views, flip, has_flip, shared, prune, clip, min_shared):
+    """Every pair a < b of different views: the screen, then, where it is below
+    ``prune``, the straight (and with ``has_flip`` the mirrored) per-joint mean; else the
+    screen's own distance where the pair shares enough joints. Both (n, n), symmetric:
+    the rows fill the upper triangle, copied to the lower by blocks at the end (writing
+    both in the loop wrote a column per row, a cache line per element)."""
+    n, J = joints.shape[0], joints.shape[2]
+    dist = np.empty((n, n))
+    mirrored = np.empty((n, n))
+    num, den = np.empty(n), np.empty(n)
+    keep = np.empty(n, np.int64)
+    cols, base = np.empty((4 * J, n)), np.empty((3, n))
+    one_centre = np.empty(n, np.bool_)
+    sums = np.empty((6, n))
+    for a in range(n):
+        lo = a + 1
+        _screen_row(U, M, PW, a, clip, num, den)
+        va, vb, sh = views[a], views[lo:], shared[a, lo:]
+        drow, mrow = dist[a, lo:], mirrored[a, lo:]
+        for i in range(n - lo):  # the screen's distance where it prunes; selects: vectorised
+            s = num[i] / den[i] if den[i] > 0.0 else np.nan
+            drow[i] = s if vb[i] != va and sh[i] and not s < prune else np.nan
+            mrow[i] = np.nan
+            num[i] = s
+        m = 0
+        for i in range(n - lo):  # the pairs the screen keeps, without a branch
+            keep[m] = lo + i
+            m += (vb[i] != va) & (num[i] < prune)
+        _kernel_row(joints, o, a, keep, m, flip, has_flip, clip, cols, base, one_centre, sums)
+        for k in range(m):
+            i = keep[k] - lo
+            drow[i] = sums[0, k] / sums[1, k] if sums[2, k] >= min_shared else np.nan
+            if has_flip:
+                mrow[i] = sums[3, k] / sums[4, k] if sums[5, k] >= min_shared else np.nan
+    step = 32
+    for r0 in range(0, n, step):
+        for c0 in range(r0, n, step):
+            for r in range(r0, min(r0 + step, n)):
+                dist[r, r] = mirrored[r, r] = np.nan
+                for c in range(max(c0, r + 1), min(c0 + step, n)):
+                    dist[c, r] = dist[r, c]
+                    mirrored[c, r] = mirrored[r, c]
+    return dist, mirrored
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _pair_mean(joints, o, a, b, perm, clip, min_shared):
+    """The per-joint kernel of :func:`pipeline.ray_pairs._block` for one pair, with a
+    branch per joint: joint j of a against joint ``perm[j]`` of b (a mirror, or the
+    identity). NaN where fewer than ``min_shared`` joints both see. The pass before
+    :func:`_kernel_row`, which must give its numbers to the bit."""
     one_centre = o[a, 0] == o[b, 0] and o[a, 1] == o[b, 1] and o[a, 2] == o[b, 2]
     bx = o[b, 0] - o[a, 0]
     by = o[b, 1] - o[a, 1]
@@ -105,13 +232,13 @@ def _pair_mean(d, o, w, a, b, perm, clip, min_shared):
     num = 0.0
     den = 0.0
     shared = 0
-    for j in range(d.shape[1]):
+    for j in range(joints.shape[2]):
         jb = perm[j]
-        wj = w[a, j] * w[b, jb]
+        wj = joints[a, 3, j] * joints[b, 3, jb]
         if wj <= 0.0:
             continue
-        ax, ay, az = d[a, j, 0], d[a, j, 1], d[a, j, 2]
-        cx, cy, cz = d[b, jb, 0], d[b, jb, 1], d[b, jb, 2]
+        ax, ay, az = joints[a, 0, j], joints[a, 1, j], joints[a, 2, j]
+        cx, cy, cz = joints[b, 0, jb], joints[b, 1, jb], joints[b, 2, jb]
         dd = ax * cx + ay * cy + az * cz
         sin2 = 1.0 - dd * dd
         if sin2 <= PARALLEL_SIN2:
@@ -133,14 +260,13 @@ def _pair_mean(d, o, w, a, b, perm, clip, min_shared):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fused(U, M, PW, d, o, w, views, flip, has_flip, shared, prune, clip, min_shared):
-    """Every pair a < b of different views: the screen, then, where it is below
-    ``prune``, the straight (and with ``has_flip`` the mirrored) per-joint mean; else the
-    screen's own distance where the pair shares enough joints. Both (n, n), symmetric."""
-    n = d.shape[0]
+def _fused_pairwise(U, M, PW, joints, o, views, flip, has_flip, shared, prune, clip, min_shared):
+    """:func:`_fused` one pair at a time (the pass before it, scalar code: the reference
+    tests/pipeline/test_ray_fused.py holds it to, bit for bit)."""
+    n = joints.shape[0]
     dist = np.full((n, n), np.nan)
     mirrored = np.full((n, n), np.nan)
-    ident = np.arange(d.shape[1])
+    ident = np.arange(joints.shape[2])
     num = np.empty(n)
     den = np.empty(n)
     for a in range(n):
@@ -148,12 +274,13 @@ def _fused(U, M, PW, d, o, w, views, flip, has_flip, shared, prune, clip, min_sh
         for b in range(a + 1, n):
             if views[a] == views[b]:
                 continue
-            s = num[b] / den[b] if den[b] > 0.0 else np.nan
+            i = b - a - 1
+            s = num[i] / den[i] if den[i] > 0.0 else np.nan
             if s < prune:
-                v = _pair_mean(d, o, w, a, b, ident, clip, min_shared)
+                v = _pair_mean(joints, o, a, b, ident, clip, min_shared)
                 dist[a, b] = dist[b, a] = v
                 if has_flip:
-                    v = _pair_mean(d, o, w, a, b, flip, clip, min_shared)
+                    v = _pair_mean(joints, o, a, b, flip, clip, min_shared)
                     mirrored[a, b] = mirrored[b, a] = v
             elif shared[a, b]:
                 dist[a, b] = dist[b, a] = s
@@ -169,24 +296,27 @@ def fused_screened_distances(
     groups: list[np.ndarray],
     shared: np.ndarray,
     params,
+    *,
+    pairwise: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(n, n) straight and mirrored ray distances (mm) of
     :func:`pipeline.ray_affinity.screened_distances`, given its part ``groups`` and the
-    (n, n) bool ``shared`` (the pair sees ``min_shared_joints`` joints)."""
+    (n, n) bool ``shared`` (the pair sees ``min_shared_joints`` joints). ``pairwise``: by
+    the pass one pair at a time (:func:`_fused_pairwise`, for the tests)."""
     n, J = dirs.shape[:2]
     if n == 0:
         return np.zeros((0, 0)), np.zeros((0, 0))
     part_of = np.zeros(J, np.int64)  # the part of each joint (the groups cover them all)
     for k, g in enumerate(groups):
         part_of[g] = k
-    d, w, o, U, M, PW = _prepare(
+    joints, o, U, M, PW = _prepare(
         np.ascontiguousarray(origins, dtype=np.float64),
         np.ascontiguousarray(dirs, dtype=np.float64),
         np.ascontiguousarray(weights, dtype=np.float64), part_of, len(groups),
     )  # fmt: skip
     perm = np.arange(J) if flip is None else np.asarray(flip, dtype=np.int64)
-    return _fused(
-        U, M, PW, d, o, w, np.ascontiguousarray(views, dtype=np.int64), perm,
+    return (_fused_pairwise if pairwise else _fused)(
+        U, M, PW, joints, o, np.ascontiguousarray(views, dtype=np.int64), perm,
         flip is not None, np.ascontiguousarray(shared), float(params.prune_mm),
         float(params.joint_clip_mm), int(params.min_shared_joints),
     )  # fmt: skip

@@ -82,3 +82,39 @@ def test_fused_without_a_flip_and_on_tiny_frames(monkeypatch):
     for n in (0, 1):
         dist, mirrored = ray_affinity.screened_distances(o[:n], d[:n], w[:n], views[:n], FLIP, p)
         assert dist.shape == mirrored.shape == (n, n) and np.isnan(dist).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_rows_of_pairs_equal_one_pair_at_a_time_to_the_bit(seed):
+    """The vectorised pass (a row of kept pairs per detection, every joint's term added
+    with selects) against the scalar pass one pair at a time with a branch per joint: the
+    same numbers, bit for bit, straight and mirrored, with and without a flip and a
+    screen, on frames with every case the branches decide."""
+    rng = np.random.default_rng(seed)
+    o, d, w, views = _detections(rng, n_people=9, n_views=11)
+    o[views == 3] = o[views == 2][0]  # two views from one camera centre: the clip
+    d[5, 2:], w[5, 2:] = np.nan, 0.0  # too few joints: NaN
+    d[9], w[9] = np.nan, 0.0  # nothing seen
+    w[rng.uniform(size=w.shape) < 0.05] = 0.0  # seen with no weight
+    # parallel rays (no term): a joint of one detection along another's from elsewhere
+    a, b = np.flatnonzero(views == 0)[0], np.flatnonzero(views == 1)[0]
+    d[b, :4] = d[a, :4]
+    shared = shared_joints(np.isfinite(d).all(-1) & (w > 0))
+    n = len(o)
+    for flip, p in (
+        (FLIP, AssociationParams()),
+        (None, AssociationParams()),
+        (FLIP, AssociationParams(prune_mm=np.inf, min_shared_joints=5)),
+    ):
+        keep = shared >= p.min_shared_joints
+        groups = part_groups(flip, 17)
+        rows = fused_screened_distances(o, d, w, views, flip, groups, keep, p)
+        pairs = fused_screened_distances(o, d, w, views, flip, groups, keep, p, pairwise=True)
+        for got, want in zip(rows, pairs, strict=True):
+            assert got.shape == want.shape == (n, n)
+            np.testing.assert_array_equal(got, want)  # NaN where NaN; the same floats
+            assert np.array_equal(got, got.T, equal_nan=True)
+        assert np.isfinite(rows[0]).sum() > n * n / 3 and (rows[0] < 50).sum() > 100
+        if flip is not None:  # mirrored: scored, and another number than straight
+            scored = np.isfinite(rows[1])
+            assert scored.sum() > 100 and (rows[1][scored] != rows[0][scored]).mean() > 0.8
