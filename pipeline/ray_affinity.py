@@ -301,13 +301,12 @@ def screened_distances(
     miss each other. NaN on the diagonal and for pairs of one view.
     """
     n, J = dirs.shape[:2]
-    shared = shared_joints(np.isfinite(dirs).all(-1) & (weights > 0)) >= params.min_shared_joints
     if n >= COMPILED_MIN_DETECTIONS:
         from pipeline.ray_fused import fused_screened_distances  # noqa: PLC0415  (numba)
 
-        groups = part_groups(flip, J)
-        return fused_screened_distances(origins, dirs, weights, views, flip, groups, shared,
+        return fused_screened_distances(origins, dirs, weights, views, flip, part_groups(flip, J),
                                         params)  # fmt: skip
+    shared = shared_joints(np.isfinite(dirs).all(-1) & (weights > 0)) >= params.min_shared_joints
     screen = _screen(origins, dirs, weights, part_groups(flip, J), params.joint_clip_mm)
     other_view = views[:, None] != views[None, :]
     near = np.triu(other_view & (screen < params.prune_mm), 1)

@@ -27,6 +27,7 @@ import math
 import numba
 import numpy as np
 
+from pipeline.ray_affinity import shared_joints
 from pipeline.ray_pairs import PARALLEL_SIN2
 
 
@@ -174,10 +175,13 @@ def _kernel_row(joints, o, a, keep, m, flip, has_flip, clip, cols, base, one_cen
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fused(U, M, PW, joints, o, views, flip, has_flip, shared, prune, clip, min_shared):
+def _fused(U, M, PW, joints, o, views, flip, has_flip, prune, clip, min_shared):
     """Every pair a < b of different views: the screen, then, where it is below
     ``prune``, the straight (and with ``has_flip`` the mirrored) per-joint mean; else the
-    screen's own distance where the pair shares enough joints. Both (n, n), symmetric:
+    screen's own distance where the pair shares ``min_shared`` joints (counted here, a
+    row at a time over a's joints: the (n, n) popcount table of
+    :func:`pipeline.ray_affinity.shared_joints` cost ~1 ms a frame at 31 x 20, its
+    temporaries as much as its arithmetic). Both (n, n), symmetric:
     the rows fill the upper triangle, copied to the lower by blocks at the end (writing
     both in the loop wrote a column per row, a cache line per element)."""
     n, J = joints.shape[0], joints.shape[2]
@@ -188,14 +192,26 @@ def _fused(U, M, PW, joints, o, views, flip, has_flip, shared, prune, clip, min_
     cols, base = np.empty((4 * J, n)), np.empty((3, n))
     one_centre = np.empty(n, np.bool_)
     sums = np.empty((6, n))
+    seen = np.zeros((J, n), np.int32)  # joint-major: a row of b's for each of a's joints
+    for i in range(n):
+        for j in range(J):
+            seen[j, i] = joints[i, 3, j] > 0.0  # a ray with a weight
+    shared = np.empty(n, np.int32)
     for a in range(n):
         lo = a + 1
         _screen_row(U, M, PW, a, clip, num, den)
-        va, vb, sh = views[a], views[lo:], shared[a, lo:]
+        shared[: n - lo] = 0
+        for j in range(J):
+            if joints[a, 3, j] > 0.0:
+                seen_b = seen[j, lo:]
+                for i in range(n - lo):  # (an array expression here allocates, 4x slower)
+                    shared[i] += seen_b[i]
+        va, vb = views[a], views[lo:]
         drow, mrow = dist[a, lo:], mirrored[a, lo:]
         for i in range(n - lo):  # the screen's distance where it prunes; selects: vectorised
             s = num[i] / den[i] if den[i] > 0.0 else np.nan
-            drow[i] = s if vb[i] != va and sh[i] and not s < prune else np.nan
+            pruned = vb[i] != va and shared[i] >= min_shared and not s < prune
+            drow[i] = s if pruned else np.nan
             mrow[i] = np.nan
             num[i] = s
         m = 0
@@ -294,15 +310,14 @@ def fused_screened_distances(
     views: np.ndarray,
     flip: np.ndarray | None,
     groups: list[np.ndarray],
-    shared: np.ndarray,
     params,
     *,
     pairwise: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(n, n) straight and mirrored ray distances (mm) of
-    :func:`pipeline.ray_affinity.screened_distances`, given its part ``groups`` and the
-    (n, n) bool ``shared`` (the pair sees ``min_shared_joints`` joints). ``pairwise``: by
-    the pass one pair at a time (:func:`_fused_pairwise`, for the tests)."""
+    :func:`pipeline.ray_affinity.screened_distances`, given its part ``groups``.
+    ``pairwise``: by the pass one pair at a time (:func:`_fused_pairwise`, for the tests;
+    it takes the pairs' shared joints from :func:`pipeline.ray_affinity.shared_joints`)."""
     n, J = dirs.shape[:2]
     if n == 0:
         return np.zeros((0, 0)), np.zeros((0, 0))
@@ -315,8 +330,10 @@ def fused_screened_distances(
         np.ascontiguousarray(weights, dtype=np.float64), part_of, len(groups),
     )  # fmt: skip
     perm = np.arange(J) if flip is None else np.asarray(flip, dtype=np.int64)
-    return (_fused_pairwise if pairwise else _fused)(
-        U, M, PW, joints, o, np.ascontiguousarray(views, dtype=np.int64), perm,
-        flip is not None, np.ascontiguousarray(shared), float(params.prune_mm),
-        float(params.joint_clip_mm), int(params.min_shared_joints),
-    )  # fmt: skip
+    views = np.ascontiguousarray(views, dtype=np.int64)
+    scalars = float(params.prune_mm), float(params.joint_clip_mm), int(params.min_shared_joints)
+    if pairwise:
+        shared = shared_joints(joints[:, 3] > 0.0) >= params.min_shared_joints
+        return _fused_pairwise(U, M, PW, joints, o, views, perm, flip is not None, shared,
+                               *scalars)  # fmt: skip
+    return _fused(U, M, PW, joints, o, views, perm, flip is not None, *scalars)

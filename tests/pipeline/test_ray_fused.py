@@ -12,7 +12,7 @@ import pytest
 
 import pipeline.ray_affinity as ray_affinity
 from pipeline.associate import AssociationParams
-from pipeline.ray_affinity import part_groups, ray_distances, screen_distances, shared_joints
+from pipeline.ray_affinity import part_groups, ray_distances, screen_distances
 from pipeline.ray_fused import fused_screened_distances
 from tests.pipeline.test_ray_affinity import _detections
 
@@ -54,9 +54,8 @@ def test_fused_equals_the_numpy_screen_and_kernel(monkeypatch, seed):
 def test_fused_kernel_equals_the_float64_dense_distance_on_the_pairs_it_keeps():
     o, d, w, views = _detections(np.random.default_rng(7), n_people=8, n_views=10)
     p = AssociationParams()
-    shared = shared_joints(np.isfinite(d).all(-1) & (w > 0)) >= p.min_shared_joints
     groups = part_groups(FLIP, 17)
-    dist, mirrored = fused_screened_distances(o, d, w, views, FLIP, groups, shared, p)
+    dist, mirrored = fused_screened_distances(o, d, w, views, FLIP, groups, p)
     dense = ray_distances(o, d, w, p)
     dense_m = ray_distances(o, d, w, p, other=(o, d[:, FLIP], w[:, FLIP]))
     kept = np.isfinite(mirrored)
@@ -99,17 +98,15 @@ def test_rows_of_pairs_equal_one_pair_at_a_time_to_the_bit(seed):
     # parallel rays (no term): a joint of one detection along another's from elsewhere
     a, b = np.flatnonzero(views == 0)[0], np.flatnonzero(views == 1)[0]
     d[b, :4] = d[a, :4]
-    shared = shared_joints(np.isfinite(d).all(-1) & (w > 0))
     n = len(o)
     for flip, p in (
         (FLIP, AssociationParams()),
         (None, AssociationParams()),
         (FLIP, AssociationParams(prune_mm=np.inf, min_shared_joints=5)),
     ):
-        keep = shared >= p.min_shared_joints
         groups = part_groups(flip, 17)
-        rows = fused_screened_distances(o, d, w, views, flip, groups, keep, p)
-        pairs = fused_screened_distances(o, d, w, views, flip, groups, keep, p, pairwise=True)
+        rows = fused_screened_distances(o, d, w, views, flip, groups, p)
+        pairs = fused_screened_distances(o, d, w, views, flip, groups, p, pairwise=True)
         for got, want in zip(rows, pairs, strict=True):
             assert got.shape == want.shape == (n, n)
             np.testing.assert_array_equal(got, want)  # NaN where NaN; the same floats
