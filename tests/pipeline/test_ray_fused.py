@@ -11,9 +11,15 @@ import numpy as np
 import pytest
 
 import pipeline.ray_affinity as ray_affinity
-from pipeline.associate import AssociationParams
-from pipeline.ray_affinity import part_groups, ray_distances, screen_distances
-from pipeline.ray_fused import fused_screened_distances
+from pipeline.associate import AssociationParams, average_linkage_reference
+from pipeline.ray_affinity import (
+    average_linkage,
+    linkage_distances_reference,
+    part_groups,
+    ray_distances,
+    screen_distances,
+)
+from pipeline.ray_fused import fused_screened_distances, linkage_distances
 from tests.pipeline.test_ray_affinity import _detections
 
 FLIP = np.array([0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15])  # COCO-17's
@@ -115,3 +121,25 @@ def test_rows_of_pairs_equal_one_pair_at_a_time_to_the_bit(seed):
         if flip is not None:  # mirrored: scored, and another number than straight
             scored = np.isfinite(rows[1])
             assert scored.sum() > 100 and (rows[1][scored] != rows[0][scored]).mean() > 0.8
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_compiled_linkage_distances_equal_numpys_and_cluster_as_the_loop(seed):
+    """pipeline.ray_fused.linkage_distances against the NumPy steps it replaces, to the
+    bit (unknown affinities, same-view pairs, an affinity matrix not quite symmetric),
+    and average_linkage on a frame big enough to take it against the greedy loop."""
+    o, d, w, views = _detections(np.random.default_rng(seed), n_people=6, n_views=9)
+    p = AssociationParams()
+    assert len(views) >= ray_affinity.COMPILED_MIN_DETECTIONS
+    aff = 1.0 - ray_distances(o, d, w, p) / p.max_distance_mm
+    aff[views[:, None] == views[None]] = np.nan
+    lopsided = aff * (1.0 + 1e-12 * np.random.default_rng(seed).normal(size=aff.shape))
+    for a in (aff, lopsided):
+        got = linkage_distances(a, views.astype(np.int64))
+        want = linkage_distances_reference(a, views)
+        assert got.shape == (len(views) * (len(views) - 1) // 2,)
+        np.testing.assert_array_equal(got, want)
+    assert (want > 1e3).sum() > 100 and (want == 1.0).sum() + (want < 0.7).sum() > 100
+    for threshold in (0.1, 0.3, 0.6):
+        ref = average_linkage_reference(aff, views, threshold)
+        np.testing.assert_array_equal(average_linkage(aff, views, threshold), ref)
