@@ -41,6 +41,9 @@ SMPL_FIELD_WIDTH = {"smpl_pose": 72, "smpl_betas": 10, "cam_weak": 3, "bbox": 4}
 # Monocular 3D joints instead of (or beside) SMPL parameters: they share cam_weak/bbox.
 MONO_FIELDS = ("mono_joints3d", "cam_weak", "bbox")
 
+CHECK_ROWS = 1 << 16
+"""Detection rows checked at a time (a long scene's columns stay memory-mapped)."""
+
 MAX_FRAMES = 1_000_000
 """Frames per scene at most (4.6 hours at 60 fps): memory follows the frame count."""
 
@@ -213,7 +216,7 @@ def _check_keypoint_values(source, kp: np.ndarray) -> None:
     """Confidences finite in [0, 1], coordinates finite where confidence > 0; in blocks
     of rows, a mapped array's pages released after each (a long scene's keypoints are
     not held in memory for the check)."""
-    step = 1 << 16
+    step = CHECK_ROWS
     for i in range(0, len(kp), step):
         block = kp[i : i + step]
         conf = block[..., 2]
@@ -291,25 +294,30 @@ def _check_monocular(arrays: dict[str, np.ndarray], *, source, n: int) -> dict:
             out[k] = _check_array(
                 source, k, np.asarray(arrays[k]), ndim_shape=(n, SMPL_FIELD_WIDTH[k])
             )
-    valid = np.zeros(n, bool)
-    if has_smpl:
-        valid |= np.isfinite(out["smpl_pose"]).all(1)
     if has_mono:
-        mono = _check_array(
+        out["mono_joints3d"] = _check_array(
             source, "mono_joints3d", np.asarray(arrays["mono_joints3d"]), ndim_shape=(n, 24, 3)
         )
-        if np.isinf(mono).any():
-            raise SceneFormatError(source, "mono_joints3d", "infinite values (NaN marks a gap)")
-        out["mono_joints3d"] = mono
-        valid |= np.isfinite(mono).all(-1).any(-1)
-    for k in ("smpl_betas", "cam_weak", "bbox"):
-        if out[k] is not None and not np.isfinite(out[k][valid]).all():
-            raise SceneFormatError(
-                source, k, "NaN in a row whose smpl_pose or mono_joints3d is given"
-            )
-    bb = out["bbox"][valid]
-    if ((bb[:, 2] <= bb[:, 0]) | (bb[:, 3] <= bb[:, 1])).any():
-        raise SceneFormatError(source, "bbox", "expected x1 > x0 and y1 > y0")
+    # in blocks of rows: a long scene's columns stay mapped (4.6 M rows of SMPL columns
+    # checked whole made ~1 GB of temporaries)
+    step = CHECK_ROWS
+    for i in range(0, n, step):
+        valid = np.zeros(min(step, n - i), bool)
+        if has_smpl:
+            valid |= np.isfinite(out["smpl_pose"][i : i + step]).all(1)
+        if has_mono:
+            mono = out["mono_joints3d"][i : i + step]
+            if np.isinf(mono).any():
+                raise SceneFormatError(source, "mono_joints3d", "infinite values (NaN marks a gap)")
+            valid |= np.isfinite(mono).all(-1).any(-1)
+        for k in ("smpl_betas", "cam_weak", "bbox"):
+            if out[k] is not None and not np.isfinite(out[k][i : i + step][valid]).all():
+                raise SceneFormatError(
+                    source, k, "NaN in a row whose smpl_pose or mono_joints3d is given"
+                )
+        bb = out["bbox"][i : i + step][valid]
+        if ((bb[:, 2] <= bb[:, 0]) | (bb[:, 3] <= bb[:, 1])).any():
+            raise SceneFormatError(source, "bbox", "expected x1 > x0 and y1 > y0")
     return out
 
 

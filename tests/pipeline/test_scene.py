@@ -131,3 +131,42 @@ def test_overwrite_replaces_whole_scene(tmp_path):
     )
     s = load_scene(root)
     assert s.name == "again" and len(s.detections) == 0
+
+
+@pytest.mark.parametrize("layout", ["detections.npz", "detections"])
+def test_monocular_columns_are_checked_in_blocks_naming_the_field(tmp_path, monkeypatch, layout):
+    """The SMPL columns are checked a block of rows at a time (a long scene's stay mapped);
+    a bad row in a later block is still refused, naming the field, and nothing is written."""
+    import pipeline.scene as scene_mod
+
+    monkeypatch.setattr(scene_mod, "CHECK_ROWS", 3)
+    n = 8
+    kp = np.random.default_rng(1).uniform(10, 200, (n, 17, 3))
+    kp[..., 2] = 0.9
+    good = dict(
+        frame=np.repeat(np.arange(4), 2), view=np.tile([0, 1], 4), keypoints=kp,
+        smpl_pose=np.zeros((n, 72)), smpl_betas=np.zeros((n, 10)),
+        cam_weak=np.tile([1.0, 0.0, 0.0], (n, 1)), bbox=np.tile([0.0, 0.0, 50.0, 80.0], (n, 1)),
+    )  # fmt: skip
+
+    def write(name, **bad):
+        cols = {k: v.copy() for k, v in good.items()}
+        for k, (row, value) in bad.items():
+            cols[k][row] = value
+        return write_scene(
+            tmp_path / name, name="m", fps=25, num_frames=4, joint_set=COCO17, rig=campus_rig(),
+            detections=Detections(**cols), detections_file=layout,
+        )  # fmt: skip
+
+    assert len(load_scene(write("ok")).detections) == n
+    cases = [
+        ("smpl_betas", dict(smpl_betas=(7, np.nan)), "NaN in a row whose smpl_pose"),
+        ("bbox", dict(bbox=(6, [0.0, 0.0, -1.0, 80.0])), r"x1 > x0"),
+    ]
+    for field, bad, says in cases:
+        with pytest.raises(SceneFormatError, match=rf"field '{field}'.*{says}"):
+            write(f"bad_{field}", **bad)
+        assert not (tmp_path / f"bad_{field}").exists()
+    # a row without its SMPL pose may carry NaN in the rest of the group
+    out = write("gap", smpl_pose=(7, np.nan), smpl_betas=(7, np.nan))
+    assert np.isnan(load_scene(out).detections.smpl_betas[7]).all()
