@@ -251,6 +251,26 @@ def _smooth(x: np.ndarray, frames: int) -> np.ndarray:
     return np.apply_along_axis(lambda c: np.convolve(c, k, mode="valid"), 0, xp)
 
 
+@dataclass(frozen=True)
+class PathState:
+    """Where a planned path ends: the next window's plan starts there."""
+
+    position: np.ndarray  # (2,) floor mm
+    heading: float
+    phase: float  # gait phase, cycles
+
+
+@dataclass(frozen=True, eq=False)
+class _Path:
+    """One person's planned frames before the seams are blended and a body is drawn."""
+
+    params: np.ndarray  # (F, num_params)
+    heading: np.ndarray  # (F,)
+    position: np.ndarray  # (F, 2)
+    activity: np.ndarray  # (F,)
+    end: PathState
+
+
 def plan_person(
     rng: np.random.Generator,
     area: np.ndarray,
@@ -266,15 +286,49 @@ def plan_person(
         meet: positions (F, 2) of people planned before; some waypoints go next to them
             so that people stand close and occlude each other.
     """
+    path = _plan_path(rng, area, num_frames, fps, meet=meet)
+    return _person(rng, [path], fps)
+
+
+def _person(rng: np.random.Generator, paths: list[_Path], fps: float) -> PersonMotion:
+    """Consecutive paths of one person as a motion: the seams between activities (and
+    between windows) blended over 0.3 s, a body shape drawn."""
+    params = np.concatenate([p.params for p in paths])
+    # Blend the seams between activities (0.3 s); the gait itself is smooth already.
+    params = _smooth(params, max(1, int(0.3 * fps)))
+    betas = np.clip(rng.normal(0, 1, 10), -2.5, 2.5)
+    return PersonMotion(
+        params=params,
+        heading=np.concatenate([p.heading for p in paths]),
+        position=np.concatenate([p.position for p in paths]),
+        betas=betas,
+        activity=np.concatenate([p.activity for p in paths]),
+    )
+
+
+def _plan_path(
+    rng: np.random.Generator,
+    area: np.ndarray,
+    num_frames: int,
+    fps: float,
+    *,
+    meet: list[np.ndarray] | None = None,
+    start: PathState | None = None,
+) -> _Path:
+    """:func:`plan_person`'s frames, from ``start`` (None: a random place, heading and
+    gait phase, drawn first)."""
     dt = 1.0 / fps
-    pos = area[rng.integers(len(area))].astype(float)
-    heading = rng.uniform(-np.pi, np.pi)
+    if start is None:
+        pos = area[rng.integers(len(area))].astype(float)
+        heading = rng.uniform(-np.pi, np.pi)
+    else:
+        pos, heading = start.position.astype(float), start.heading
     params = np.zeros((num_frames, len(PARAM_NAMES)))
     head = np.zeros(num_frames)
     xy = np.zeros((num_frames, 2))
     act = np.empty(num_frames, dtype=object)
     f = 0
-    phase = rng.uniform()
+    phase = rng.uniform() if start is None else start.phase
     while f < num_frames:
         kind = rng.choice(
             ["walk", "reach", "crouch", "stand", "wave"], p=[0.5, 0.2, 0.13, 0.1, 0.07]
@@ -314,10 +368,13 @@ def plan_person(
             params[f : f + m] = block[:m]
             head[f : f + m], xy[f : f + m], act[f : f + m] = heading, pos, kind
             f += m
-    # Blend the seams between activities (0.3 s); the gait itself is smooth already.
-    params = _smooth(params, max(1, int(0.3 * fps)))
-    betas = np.clip(rng.normal(0, 1, 10), -2.5, 2.5)
-    return PersonMotion(params=params, heading=head, position=xy, betas=betas, activity=act)
+    return _Path(params, head, xy, act, PathState(pos, float(heading), float(phase)))
+
+
+PLAN_WINDOW_S = 3.0
+"""Seconds of the windows a long or crowded scene is planned in (see :func:`plan_people`)."""
+PLAN_WHOLE_S = 10.0
+"""Scenes up to this long are planned whole first."""
 
 
 def plan_people(
@@ -330,23 +387,66 @@ def plan_people(
     min_distance_mm: float = 650.0,
     max_tries: int = 200,
 ) -> list[PersonMotion]:
-    """Plan ``num_people`` motions that never come closer than ``min_distance_mm``."""
+    """Plan ``num_people`` motions that never come closer than ``min_distance_mm``.
+
+    Each person's path is drawn until it keeps its distance from the people planned
+    before. Over a long scene a whole random path almost never does (at 600 frames, 10
+    people on a 31-camera dome's floor failed 200 times), so scenes longer than
+    :data:`PLAN_WHOLE_S`, and shorter ones where that fails, are planned a window of
+    :data:`PLAN_WINDOW_S` at a time: every person's next window starts where their last
+    ended and is drawn until it keeps its distance in that window. Scenes planned whole
+    get the draws they always got.
+    """
+    if num_frames <= PLAN_WHOLE_S * fps:
+        try:
+            return _plan_whole(rng, area, num_people, num_frames, fps, min_distance_mm, max_tries)
+        except RuntimeError:
+            pass  # crowded: plan it by windows
+    window = max(1, int(round(PLAN_WINDOW_S * fps)))
+    paths: list[list[_Path]] = [[] for _ in range(num_people)]
+    for w0 in range(0, num_frames, window):
+        w1 = min(w0 + window, num_frames)
+        placed: list[np.ndarray] = []  # this window's positions of the people placed
+        for k in range(num_people):
+            start = paths[k][-1].end if paths[k] else None
+            # the people not planned yet keep their place free: whatever the others do in
+            # this window, staying put is a way for each of them to keep their distance
+            waiting = [p[-1].end.position[None] for p in paths[k + 1 :] if p]
+            for _try in range(max_tries):
+                cand = _plan_path(rng, area, w1 - w0, fps, meet=placed, start=start)
+                if _keeps_distance(cand.position, placed + waiting, min_distance_mm):
+                    break
+            else:
+                raise RuntimeError(_crowded(k, max_tries, f" in frames {w0}-{w1 - 1}"))
+            placed.append(cand.position)
+            paths[k].append(cand)
+    return [_person(rng, p, fps) for p in paths]
+
+
+def _plan_whole(rng, area, num_people, num_frames, fps, min_mm, max_tries) -> list[PersonMotion]:
+    """Whole paths, each candidate with its body drawn (the draws plan_people always made)."""
     people: list[PersonMotion] = []
-    for _ in range(num_people):
+    for k in range(num_people):
         for _try in range(max_tries):
             cand = plan_person(rng, area, num_frames, fps, meet=[p.position for p in people])
-            if all(
-                np.linalg.norm(cand.position - p.position, axis=1).min() >= min_distance_mm
-                for p in people
-            ):
+            if _keeps_distance(cand.position, [p.position for p in people], min_mm):
                 people.append(cand)
                 break
         else:
-            raise RuntimeError(
-                f"could not place person {len(people)} without collisions in {max_tries} tries; "
-                "the visible floor area is too small for this many people"
-            )
+            raise RuntimeError(_crowded(k, max_tries, ""))
     return people
+
+
+def _keeps_distance(path: np.ndarray, others: list[np.ndarray], min_mm: float) -> bool:
+    """Whether (F, 2) ``path`` stays ``min_mm`` from each of ``others`` at every frame."""
+    return all(np.linalg.norm(path - p, axis=1).min() >= min_mm for p in others)
+
+
+def _crowded(k: int, tries: int, where: str) -> str:
+    return (
+        f"could not place person {k} without collisions in {tries} tries{where}; "
+        "the visible floor area is too small for this many people"
+    )
 
 
 LIBRARY_ACTIVITIES = ("walk", "reach", "crouch", "stand", "wave")

@@ -99,3 +99,38 @@ def test_gait_ankles_stay_inside_the_limits_at_the_fastest_walk():
         p = walk_params(phase, np.full(len(phase), speed), gait_ankles=True)
         assert (p >= LOW).all() and (p <= HIGH).all()  # nothing for pose_from_params to clip
         assert pose_limits.limit_excess(pose_from_params(p)).max() < 1e-6
+
+
+def test_long_crowded_scenes_are_planned_by_windows_keeping_distance():
+    """20 people for 600 frames on a 31-camera dome's floor: whole random paths never
+    keep their distance there; planned by windows they do, at every frame, and walk on
+    without jumps across the windows' seams. A short scene is planned whole, as ever."""
+    from pipeline.synth import motion
+    from pipeline.synth.rigs import dome_capture_radius, dome_rig
+    from pipeline.synth.scene_gen import visible_floor_area
+
+    area = visible_floor_area(dome_rig(31, radius_mm=5000.0), min_views=2,
+                              within_mm=dome_capture_radius(5000.0))  # fmt: skip
+    people = plan_people(np.random.default_rng(7), area, 20, 600, 30.0)
+    pos = np.stack([p.position for p in people])  # (P, F, 2)
+    assert pos.shape == (20, 600, 2) and all(
+        p.params.shape == (600, len(PARAM_NAMES)) for p in people
+    )
+    gap = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
+    gap[np.arange(20), np.arange(20)] = np.inf
+    assert gap.min() >= 650.0
+    step = np.linalg.norm(np.diff(pos, axis=1), axis=-1)  # mm per frame
+    assert step.max() < 1.6 * 1000 / 30  # no faster than the fastest walk (1.5 m/s)
+    seam = int(motion.PLAN_WINDOW_S * 30)
+    assert step[:, seam - 1].max() < 1.6 * 1000 / 30  # across a seam too
+    assert len({tuple(np.round(p.betas, 6)) for p in people}) == 20
+    with pytest.raises(RuntimeError, match="could not place person"):
+        motion._plan_whole(np.random.default_rng(7), area, 20, 600, 30.0, 650.0, 5)
+    # short and roomy: whole paths, the draws plan_people always made
+    small = np.stack(np.meshgrid(np.arange(-2000, 2000, 200), np.arange(-2000, 2000, 200)), -1)
+    small = small.reshape(-1, 2).astype(float)
+    a = plan_people(np.random.default_rng(3), small, 3, 200, 25.0)
+    b = motion._plan_whole(np.random.default_rng(3), small, 3, 200, 25.0, 650.0, 200)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x.params, y.params)
+        np.testing.assert_array_equal(x.betas, y.betas)
