@@ -322,21 +322,40 @@ def _close_to_two(
     own_rank = np.where(np.isfinite(own), own, -np.inf)  # no own affinity: most doubtful
     cols = [np.concatenate(x) for x in zip(*kept, strict=True)] if kept else [np.zeros(0)] * 7
     a, b, aff, _, _, _, first = _pair_winners(*cols[:6], first=cols[6])
-    winners = np.argsort(first, kind="stable")
+    winners = np.argsort(first, kind="stable")  # the pairs in the order they first appear
+    a, b, aff = a[winners], b[winners], aff[winners]
+    # each pair names its more doubtful detection d, of person q, close to person q2
+    mine = own_rank[a] <= own_rank[b]
+    d, other = np.where(mine, a, b), np.where(mine, b, a)
+    q, q2 = det_person[d], det_person[other]
+    frame, k, k2 = results.person_frame[q], ptrack[q], ptrack[q2]
+    v = np.asarray(view)[d]
+    # merge_spans' problems (kind: the other person's name; track; camera) as one int key,
+    # their runs in arrays: a long dome run has ~2 M such pairs and a Failure each took
+    # ~20 s; only the merged entries are made (merge_spans leaves them as they are)
+    other_key = np.maximum(k2, -1) + 1  # 0: an untracked person
+    key = v.astype(np.int64) * (int(other_key.max(initial=0)) + 1) + other_key
+    runs = _merged_runs(frame, np.maximum(k, -1), key, aff)
+    if not runs:
+        return []
+    # merge_spans' order: problems as they first appear, then their runs by frame
+    _, group_first = np.unique(np.stack([np.maximum(k, -1), key], 1), axis=0, return_index=True)
+    group_of = {}
+    for g in np.sort(group_first).tolist():
+        group_of.setdefault((int(max(k[g], -1)), int(key[g])), len(group_of))
+    runs.sort(key=lambda r: (group_of[(int(max(k[r[0]], -1)), int(key[r[0]]))], r[1]))
     out = []
-    for e in winners.tolist():
-        da, db, score = int(a[e]), int(b[e]), float(aff[e])
-        d, other = (da, db) if own_rank[da] <= own_rank[db] else (db, da)
-        q, q2 = int(det_person[d]), int(det_person[other])
-        f = int(results.person_frame[q])
-        own_txt = f", own {own[d]:.2f}" if np.isfinite(own[d]) else ""
-        detail = f"close to {who(q2)} too (affinity {score:.2f}{own_txt})"
-        k = track_or_none(ptrack[q])
+    for e, first_f, last_f, frames in runs:
+        score, de = float(aff[e]), int(d[e])
+        own_txt = f", own {own[de]:.2f}" if np.isfinite(own[de]) else ""
+        detail = f"close to {who(int(q2[e]))} too (affinity {score:.2f}{own_txt})"
+        kt = track_or_none(k[e])
         out.append(
             Failure(
-                "association", score, f, k, None, int(view[d]),
-                where_label(k, None, cams[int(view[d])]), detail,
-                kind=f"close to two|{who(q2)}", value=score,
+                "association", score, int(frame[e]), kt, None, int(v[e]),
+                where_label(kt, None, cams[int(v[e])]), detail,
+                kind=f"close to two|{who(int(q2[e]))}", value=score,
+                first=first_f, last=last_f, frames=frames,
             )
         )  # fmt: skip
     return out
@@ -345,15 +364,23 @@ def _close_to_two(
 def _pair_winners(a, b, aff, lo, hi, idx, *, first):
     """Of edges (a, b, aff) between people (lo, hi) at positions ``idx``, per (lo, hi) the
     one of highest affinity, the lowest ``idx`` of ties; ``first``: the lowest position
-    any edge of the pair had (kept through the reductions)."""
+    any edge of the pair had (kept through the reductions). Sorted by (pair, idx) only
+    and the maximum found per pair by a reduction: a sort by (lo, hi, -aff, idx) was
+    ~12 s of a 10,000-frame dome run's ~10^8 edges across people."""
     n = len(a)
     if n == 0:
         return a, b, aff, lo, hi, idx, first
-    order = np.lexsort((idx, -aff, hi, lo))
+    pair = lo.astype(np.int64) * (int(hi.max()) + 1) + hi
+    order = np.lexsort((idx, pair))
+    p, s_aff = pair[order], aff[order]
     start = np.ones(n, bool)
-    start[1:] = (lo[order][1:] != lo[order][:-1]) | (hi[order][1:] != hi[order][:-1])
+    start[1:] = p[1:] != p[:-1]
     starts = np.flatnonzero(start)
-    w = order[starts]
+    group = np.cumsum(start) - 1
+    best = np.maximum.reduceat(s_aff, starts)
+    # the first edge (lowest idx) of each pair that has its maximum
+    hits = np.flatnonzero(s_aff == best[group])
+    w = order[hits[np.flatnonzero(np.r_[True, group[hits][1:] != group[hits][:-1]])]]
     return a[w], b[w], aff[w], lo[w], hi[w], idx[w], np.minimum.reduceat(first[order], starts)
 
 

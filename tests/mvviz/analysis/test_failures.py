@@ -793,10 +793,12 @@ def test_reprojection_runs_merged_in_arrays_are_what_merge_spans_makes(level):
 
 
 def test_close_to_two_picks_per_pair_of_people_the_first_edge_of_highest_affinity():
-    """The "close to two" entries, found in arrays, are those of the plain loop: per pair
-    of people of a frame their edge of highest affinity (the first of ties), naming the
-    more doubtful detection, in the order the pairs first appear."""
+    """The "close to two" entries, found and merged in arrays, are those of the plain loop
+    merged by merge_spans: per pair of people of a frame their edge of highest affinity
+    (the first of ties), naming the more doubtful detection, in the order the pairs first
+    appear; then consecutive frames of one problem (track, camera, other person) merged."""
     import mvviz.analysis.failures.criteria as criteria
+    from mvviz.analysis.failures.review import merge_spans
 
     scene = load_scene(REPO / "sample_data" / "shelf_synth_noisy")
     config = PipelineConfig()
@@ -813,8 +815,25 @@ def test_close_to_two_picks_per_pair_of_people_the_first_edge_of_highest_affinit
         key = (min(pa[e], pb[e]), max(pa[e], pb[e]))
         if key not in worst or res.edge_affinity[e] > worst[key][0]:
             worst[key] = (float(res.edge_affinity[e]), d, other)
+
+    def who(q):
+        k = int(res.person_track[q])
+        return f"track {k}" if k >= 0 else "an untracked person"
+
+    singles = []
+    for score, d, other in worst.values():
+        q, q2 = int(res.det_person[d]), int(res.det_person[other])
+        k = criteria.track_or_none(res.person_track[q])
+        v = int(scene.detections.view[d])
+        own_txt = f", own {own[d]:.2f}" if np.isfinite(own[d]) else ""
+        singles.append(Failure(
+            "association", score, int(res.person_frame[q]), k, None, v,
+            criteria.where_label(k, None, scene.rig.names[v]),
+            f"close to {who(q2)} too (affinity {score:.2f}{own_txt})",
+            kind=f"close to two|{who(q2)}", value=score,
+        ))  # fmt: skip
+    want = merge_spans(singles)
     got = criteria._close_to_two(scene, res, criteria.AFFINITY_THRESHOLD)
-    assert len(got) == len(worst) > 5
-    for f, (score, d, _other) in zip(got, worst.values(), strict=True):
-        assert f.score == score and f.view == int(scene.detections.view[d])
-        assert f.frame == int(res.person_frame[res.det_person[d]])
+    assert len(singles) > len(want) > 5  # consecutive frames were merged
+    assert got == want
+    assert merge_spans(got) == want  # all_failures merges again: nothing changes
