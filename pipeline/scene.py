@@ -318,6 +318,9 @@ def _check_monocular(arrays: dict[str, np.ndarray], *, source, n: int) -> dict:
         bb = out["bbox"][i : i + step][valid]
         if ((bb[:, 2] <= bb[:, 0]) | (bb[:, 3] <= bb[:, 1])).any():
             raise SceneFormatError(source, "bbox", "expected x1 > x0 and y1 > y0")
+        for col in out.values():  # a mapped column's pages read so far go back
+            if col is not None:
+                release_pages(col)
     return out
 
 
