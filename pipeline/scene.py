@@ -573,12 +573,7 @@ def write_scene(
     }
     with atomic_directory(out_dir, overwrite=overwrite) as tmp:
         save_cameras(rig, tmp / "cameras.json")
-        if detection_columns is not None:
-            shutil.move(str(detection_columns), tmp / detections_file)
-        elif detections_file.lower().endswith(".npz"):
-            save_npz_atomic(tmp / detections_file, **detections.arrays())
-        else:
-            save_detection_columns(tmp / detections_file, detections.arrays())
+        _save_detections(tmp / detections_file, detections, detection_columns)
         if gt is not None:
             save_npz_atomic(tmp / "gt.npz", **gt.arrays())
         if videos:
@@ -595,3 +590,14 @@ def write_scene(
         meta.update(extra_meta or {})
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1) + "\n")
     return out_dir
+
+
+def _save_detections(path: Path, detections: Detections | None, columns: Path | None) -> None:
+    """``detections`` as ``path`` (an ``.npz`` file or a directory of columns), or the
+    written ``columns`` directory moved there."""
+    if columns is not None:
+        shutil.move(str(columns), path)
+    elif path.name.lower().endswith(".npz"):
+        save_npz_atomic(path, **detections.arrays())
+    else:
+        save_detection_columns(path, detections.arrays())
