@@ -339,11 +339,10 @@ def _close_to_two(
     if not runs:
         return []
     # merge_spans' order: problems as they first appear, then their runs by frame
-    _, group_first = np.unique(np.stack([np.maximum(k, -1), key], 1), axis=0, return_index=True)
-    group_of = {}
-    for g in np.sort(group_first).tolist():
-        group_of.setdefault((int(max(k[g], -1)), int(key[g])), len(group_of))
-    runs.sort(key=lambda r: (group_of[(int(max(k[r[0]], -1)), int(key[r[0]]))], r[1]))
+    problem = (np.maximum(k, -1) + 1).astype(np.int64) * (int(key.max()) + 1) + key
+    _, first_seen, which = np.unique(problem, return_index=True, return_inverse=True)
+    rank = np.argsort(np.argsort(first_seen))  # each problem's place by first appearance
+    runs.sort(key=lambda r: (rank[which[r[0]]], r[1]))
     out = []
     for e, first_f, last_f, frames in runs:
         score, de = float(aff[e]), int(d[e])
