@@ -61,6 +61,7 @@ from pipeline.joint_sets import JointSet
 from pipeline.ray_affinity import (
     average_linkage,
     camera_centres,
+    frame_affinity,
     pinhole_rays,
     ray_distances,
     screened_distances,
@@ -297,10 +298,8 @@ def associate_frame(
         if (flip == np.arange(len(flip))).all():
             flip = None
     dist, mirrored = _frame_distances(origins, dirs, weights, views, flip, params)  # NaN: same view
-    best = np.fmin(dist, mirrored)
-    affinity = np.divide(best, -params.max_distance_mm)  # 1 - best / max_distance_mm, to the
-    affinity += 1.0  # bit, without a temporary (x / -m = -(x / m); 1 + -y = 1 - y)
-    cluster = _average_linkage(affinity, views, params.min_affinity)
+    best, affinity, condensed = frame_affinity(dist, mirrored, views, params.max_distance_mm)
+    cluster = _average_linkage(affinity, views, params.min_affinity, condensed=condensed)
     # one detection's centre ray, whatever its joints' labels: made once for every step
     geo = CentreRays.of(origins, dirs, weights)
     # Split, move, split again: a wrong cluster blocks the moves of the detections that
@@ -413,14 +412,16 @@ def _people(
     return out, members, linkage
 
 
-def _average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -> np.ndarray:
+def _average_linkage(
+    affinity: np.ndarray, views: np.ndarray, threshold: float, *, condensed=None
+) -> np.ndarray:
     """:func:`pipeline.ray_affinity.average_linkage` (SciPy's hierarchical clustering):
     the same clusters as :func:`average_linkage_reference` in O(n^2)."""
-    return average_linkage(affinity, views, threshold)
+    return average_linkage(affinity, views, threshold, condensed=condensed)
 
 
 def average_linkage_reference(
-    affinity: np.ndarray, views: np.ndarray, threshold: float
+    affinity: np.ndarray, views: np.ndarray, threshold: float, *, condensed=None
 ) -> np.ndarray:
     """Agglomerative clustering with average linkage and same-view cannot-links, as first
     written (a Python loop over merges): the reference of the tests and bench_scale.
@@ -428,6 +429,7 @@ def average_linkage_reference(
     Returns (n,) cluster labels. Merges the pair of clusters with the highest mean
     cross affinity while it is >= threshold; pairs with an unknown affinity (NaN)
     count as 0 in the mean, so a detection must agree with most of a cluster.
+    ``condensed`` is not read (the reference makes its own means).
     """
     n = len(views)
     A = np.nan_to_num(affinity, nan=0.0)

@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 __all__ = [
     "average_linkage",
     "camera_centres",
+    "frame_affinity",
     "linkage_distances_reference",
     "pair_ray_distances",
     "pair_ray_distances_unchunked",
@@ -103,7 +104,35 @@ def ray_distances(
     return mean
 
 
-def average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -> np.ndarray:
+def frame_affinity(
+    dist: np.ndarray, mirrored: np.ndarray, views: np.ndarray, max_distance_mm: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """One frame's (n, n) better of its straight and mirrored distances (a NaN loses),
+    its affinity ``1 - best / max_distance_mm``, and :func:`average_linkage`'s condensed
+    distances of it, or None where that function is to make them itself. Frames of
+    ``COMPILED_MIN_DETECTIONS`` detections get all three from one compiled pass
+    (:func:`pipeline.ray_fused.frame_affinity`, the same numbers to the bit)."""
+    if len(views) >= COMPILED_MIN_DETECTIONS:
+        from pipeline.ray_fused import frame_affinity as compiled  # noqa: PLC0415  (numba)
+
+        return compiled(
+            np.ascontiguousarray(dist, dtype=np.float64),
+            np.ascontiguousarray(mirrored, dtype=np.float64),
+            np.ascontiguousarray(views, dtype=np.int64), float(max_distance_mm),
+        )  # fmt: skip
+    best = np.fmin(dist, mirrored)
+    affinity = np.divide(best, -max_distance_mm)  # 1 - best / max_distance_mm, to the
+    affinity += 1.0  # bit, without a temporary (x / -m = -(x / m); 1 + -y = 1 - y)
+    return best, affinity, None
+
+
+def average_linkage(
+    affinity: np.ndarray,
+    views: np.ndarray,
+    threshold: float,
+    *,
+    condensed: np.ndarray | None = None,
+) -> np.ndarray:
     """Agglomerative clustering with average linkage and same-view cannot-links.
 
     Merges the pair of clusters with the highest mean cross affinity while it is
@@ -116,7 +145,8 @@ def average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -
     cutting its dendrogram at ``1 - threshold`` gives the clusters of the greedy loop.
 
     Args:
-        affinity: (n, n) symmetric pair affinities; views: (n,) view per detection.
+        affinity: (n, n) symmetric pair affinities; views: (n,) view per detection;
+        condensed: their condensed distances if already made (:func:`frame_affinity`).
     Returns:
         (n,) labels: each cluster labelled by its lowest detection index.
     """
@@ -124,7 +154,9 @@ def average_linkage(affinity: np.ndarray, views: np.ndarray, threshold: float) -
     if n < 2:
         return np.arange(n)
     affinity = np.asarray(affinity, float)
-    if n >= COMPILED_MIN_DETECTIONS:  # the same numbers in one compiled pass
+    if condensed is not None:
+        pass
+    elif n >= COMPILED_MIN_DETECTIONS:  # the same numbers in one compiled pass
         from pipeline.ray_fused import linkage_distances  # noqa: PLC0415  (numba)
 
         condensed = linkage_distances(affinity, np.asarray(views, np.int64))

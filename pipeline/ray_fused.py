@@ -340,6 +340,44 @@ def fused_screened_distances(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def frame_affinity(dist, mirrored, views, max_distance_mm):
+    """One frame's pair scores from its (n, n) symmetric straight and mirrored ray
+    distances (mm) and (n,) views, in one pass over the upper triangle: the better of the
+    two (``np.fmin``: a NaN loses), the affinity ``1 - best / max_distance_mm``, and the
+    condensed distances :func:`linkage_distances` makes of that affinity. Returns (best,
+    affinity, condensed). The same numbers to the bit as ``np.fmin``, ``np.divide(best,
+    -m) + 1`` and :func:`linkage_distances`, whose four whole-array passes (and the
+    linkage's read of the affinity) cost ~0.6 ms a frame at 31 x 20."""
+    n = dist.shape[0]
+    best = np.empty((n, n))
+    affinity = np.empty((n, n))
+    out = np.empty(n * (n - 1) // 2)
+    apart = 4.0 * n * n + 10.0
+    negm = -max_distance_mm
+    k = 0
+    for a in range(n):  # the diagonal and the upper triangle, row by row
+        for b in range(a, n):
+            d, m = dist[a, b], mirrored[a, b]
+            x = m if d != d else (d if m != m or d <= m else m)  # np.fmin
+            best[a, b] = x
+            affinity[a, b] = x / negm + 1.0
+        arow, vb = affinity[a, a + 1 :], views[a + 1 :]
+        for i in range(n - a - 1):
+            y = arow[i]
+            one = 1.0 if y != y else 1.0 - y
+            out[k + i] = 0.5 * (apart + apart) if vb[i] == views[a] else 0.5 * (one + one)
+        k += n - a - 1
+    step = 32  # the lower triangle by blocks (a column per row costs a cache line a value)
+    for r0 in range(0, n, step):
+        for c0 in range(r0, n, step):
+            for r in range(r0, min(r0 + step, n)):
+                for c in range(max(c0, r + 1), min(c0 + step, n)):
+                    best[c, r] = best[r, c]
+                    affinity[c, r] = affinity[r, c]
+    return best, affinity, out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def linkage_distances(affinity, views):
     """(n (n - 1) / 2,) the condensed distances :func:`pipeline.ray_affinity.average_linkage`
     clusters, from (n, n) affinities and (n,) views, in one pass over the upper triangle:

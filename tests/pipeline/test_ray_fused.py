@@ -143,3 +143,32 @@ def test_compiled_linkage_distances_equal_numpys_and_cluster_as_the_loop(seed):
     for threshold in (0.1, 0.3, 0.6):
         ref = average_linkage_reference(aff, views, threshold)
         np.testing.assert_array_equal(average_linkage(aff, views, threshold), ref)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_compiled_frame_affinity_equals_numpys_steps(monkeypatch, seed):
+    """pipeline.ray_fused.frame_affinity (one pass: the better distance, the affinity and
+    the linkage's condensed distances) against np.fmin, the affinity formula and
+    linkage_distances_reference, to the bit, on a frame's real screened distances (NaN on
+    the diagonal and for same-view pairs, mirrored NaN where the screen pruned) with
+    NaNs on one side only and ties; and the clusters it gives the linkage."""
+    o, d, w, views = _detections(np.random.default_rng(seed), n_people=8, n_views=10)
+    p = AssociationParams()
+    dist, mirrored = ray_affinity.screened_distances(o, d, w, views, FLIP, p)
+    mirrored = mirrored.copy()
+    tie = np.isfinite(dist) & np.isfinite(mirrored)
+    tie &= np.random.default_rng(seed).random(tie.shape) < 0.1
+    mirrored[tie | tie.T] = dist[tie | tie.T]
+    assert np.isnan(mirrored).sum() > np.isnan(dist).sum() > len(views)  # one-sided NaNs
+    monkeypatch.setattr(ray_affinity, "COMPILED_MIN_DETECTIONS", 0)
+    best, aff, condensed = ray_affinity.frame_affinity(dist, mirrored, views, p.max_distance_mm)
+    monkeypatch.setattr(ray_affinity, "COMPILED_MIN_DETECTIONS", sys.maxsize)
+    best_np, aff_np, none = ray_affinity.frame_affinity(dist, mirrored, views, p.max_distance_mm)
+    assert none is None
+    np.testing.assert_array_equal(best, best_np)
+    np.testing.assert_array_equal(aff, aff_np)
+    np.testing.assert_array_equal(condensed, linkage_distances_reference(aff_np, views))
+    assert (best < dist).sum() > 50 and np.isfinite(aff).mean() > 0.5
+    for threshold in (0.1, 0.3, 0.6):
+        got = average_linkage(aff, views, threshold, condensed=condensed)
+        np.testing.assert_array_equal(got, average_linkage(aff_np, views, threshold))
