@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pipeline import ray_affinity
 from pipeline.ray_affinity import average_linkage
 
 if TYPE_CHECKING:
@@ -270,21 +271,16 @@ def refine_clusters(
     if geometry is not None:
         dist = np.zeros((C, n))  # each cluster's body centre to each detection's ray
         _refine_geometry(geometry, member, np.arange(C), dist)
+    has_ray = geometry.has_ray if geometry is not None else np.ones(n, bool)
+    choose = _best_move
+    if n >= ray_affinity.COMPILED_MIN_DETECTIONS:  # the same move, one compiled pass
+        from pipeline.ray_fused import best_move as choose  # noqa: PLC0415  (numba)
     for _ in range(n):
-        allowed = (seen[:, views].T == 0) & (gain > 0)  # no detection of its view; agrees
-        if dist is not None:
-            solid = (member & geometry.has_ray[:, None]).sum(0) >= 2  # a centre needs two rays
-            allowed &= ~solid[None] | (dist.T <= max_mm) | ~geometry.has_ray[:, None]
-        own = gain[np.arange(n), col]
-        better = np.where(allowed, gain - own[:, None], -np.inf)
-        has_home = (better > 1e-9).any(1)
-        # stranded[k]: detections of cluster k without a better cluster of their own
-        stranded = np.bincount(col, weights=~has_home, minlength=C)
-        left = size[col] - 1  # detections left behind by a move
-        keeps = (left >= min_views) | (left == 0) | (stranded[col] - ~has_home == 0)
-        better[~keeps] = -np.inf
-        i, c = np.unravel_index(np.argmax(better), better.shape)
-        if better[i, c] <= 1e-9:
+        i, c, gained = choose(
+            gain, col, seen, views, size, dist if dist is not None else np.zeros((0, 0)),
+            has_ray, float(max_mm), int(min_views),
+        )  # fmt: skip
+        if gained <= 1e-9:
             break
         a = col[i]
         gain[:, a] -= excess[:, i]
@@ -297,6 +293,30 @@ def refine_clusters(
         if dist is not None:
             _refine_geometry(geometry, member, np.array([a, c]), dist)
     return labels[col]
+
+
+def _best_move(gain, col, seen, views, size, dist, has_ray, max_mm, min_views):
+    """The move :func:`refine_clusters` takes next: (detection i, cluster c, its gain;
+    a gain <= 1e-9: none). gain (n, C) each detection's agreement with each cluster,
+    col (n,) its cluster's column, seen (C, V) each cluster's detections per view, size
+    (C,), dist (C, n) each cluster's body centre to each detection's centre ray ((0, 0):
+    no geometry), has_ray (n,). Frames of ``COMPILED_MIN_DETECTIONS`` detections take
+    it from :func:`pipeline.ray_fused.best_move` (the same move)."""
+    n = len(col)
+    allowed = (seen[:, views].T == 0) & (gain > 0)  # no detection of its view; agrees
+    if dist.size:
+        solid = np.bincount(col[has_ray], minlength=len(size)) >= 2  # a centre needs two rays
+        allowed &= ~solid[None] | (dist.T <= max_mm) | ~has_ray[:, None]
+    own = gain[np.arange(n), col]
+    better = np.where(allowed, gain - own[:, None], -np.inf)
+    has_home = (better > 1e-9).any(1)
+    # stranded[k]: detections of cluster k without a better cluster of their own
+    stranded = np.bincount(col, weights=~has_home, minlength=len(size))
+    left = size[col] - 1  # detections left behind by a move
+    keeps = (left >= min_views) | (left == 0) | (stranded[col] - ~has_home == 0)
+    better[~keeps] = -np.inf
+    i, c = np.unravel_index(np.argmax(better), better.shape)
+    return int(i), int(c), float(better[i, c])
 
 
 def _refine_geometry(

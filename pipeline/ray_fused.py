@@ -395,3 +395,37 @@ def linkage_distances(affinity, views):
             out[k] = 0.5 * (apart + apart) if views[a] == views[b] else d
             k += 1
     return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def best_move(gain, col, seen, views, size, dist, has_ray, max_mm, min_views):
+    """:func:`pipeline.associate_refine._best_move` in two passes over (n, C), no
+    temporaries: the refinement's ~15 NumPy calls a move cost ~0.15 ms each at 31 x 20.
+    The same move: NumPy's argmax takes the first maximum in row-major order, and so does
+    this (a strict ``>`` row after row, column after column)."""
+    n, C = gain.shape
+    geometric = dist.shape[0] > 0
+    solid = np.zeros(C, np.int64)
+    if geometric:
+        for i in range(n):
+            solid[col[i]] += has_ray[i]
+    row_best = np.full(n, -np.inf)
+    row_arg = np.zeros(n, np.int64)
+    stranded = np.zeros(C, np.int64)
+    for i in range(n):
+        own, v = gain[i, col[i]], views[i]
+        for c in range(C):
+            ok = seen[c, v] == 0 and gain[i, c] > 0.0
+            if ok and geometric:
+                ok = solid[c] < 2 or dist[c, i] <= max_mm or not has_ray[i]
+            if ok and gain[i, c] - own > row_best[i]:
+                row_best[i], row_arg[i] = gain[i, c] - own, c
+        stranded[col[i]] += not row_best[i] > 1e-9
+    best, bi, bc = -np.inf, 0, 0
+    for i in range(n):
+        homeless = not row_best[i] > 1e-9
+        left = size[col[i]] - 1
+        keeps = left >= min_views or left == 0 or stranded[col[i]] - homeless == 0
+        if keeps and row_best[i] > best:
+            best, bi, bc = row_best[i], i, row_arg[i]
+    return bi, bc, best

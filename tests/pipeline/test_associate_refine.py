@@ -69,6 +69,7 @@ def test_centres_are_the_least_squares_points_of_their_rays():
         P = np.eye(3) - r[:, :, None] * r[:, None, :]
         want = np.linalg.solve(P.sum(0), np.einsum("nab,nb->a", P, o))
         np.testing.assert_allclose(got[k], want, atol=1e-6)
+
         # the least-squares point: the mean squared distance to its rays is minimal there
         def spread(p, o=o, r=r):
             return (_ray_point_distance(o, r, p) ** 2).mean()
@@ -86,3 +87,66 @@ def test_cluster_centers_are_nan_for_fewer_than_two_rays():
     assert np.isfinite(got[:2]).all() and np.isnan(got[2:]).all()
     member = np.stack([cluster == k for k in (1, 2)], 1)
     np.testing.assert_array_equal(got[:2], geo.centres(member))
+
+
+def _move_state(rng, n: int, C: int, V: int, geometric: bool):
+    """A refinement's state: (n, C) gains (ties on purpose: quantised), cluster columns
+    with their (C, V) view counts and sizes, (C, n) centre distances, rays."""
+    col = rng.integers(0, C, n)
+    views = rng.integers(0, V, n)
+    seen = np.zeros((C, V), np.int64)
+    np.add.at(seen, (col, views), 1)
+    size = np.bincount(col, minlength=C).astype(np.int64)
+    gain = np.round(rng.normal(0.0, 1.0, (n, C)), 1)  # many exact ties
+    dist = rng.uniform(0, 400, (C, n)) if geometric else np.zeros((0, 0))
+    has_ray = rng.random(n) > 0.1
+    return gain, col, seen, views, size, dist, has_ray
+
+
+@pytest.mark.parametrize("geometric", [False, True])
+def test_compiled_best_move_is_numpys(geometric):
+    """pipeline.ray_fused.best_move against the NumPy step it replaces on big frames:
+    the same (detection, cluster, gain) on random states with ties, with and without the
+    centre-ray test, and with min_views making some moves strand their clusters."""
+    from pipeline.associate_refine import _best_move
+    from pipeline.ray_fused import best_move
+
+    rng = np.random.default_rng(7)
+    kinds = set()
+    for trial in range(300):
+        n, C = int(rng.integers(2, 80)), int(rng.integers(1, 12))
+        state = _move_state(rng, n, C, int(rng.integers(1, 9)), geometric)
+        for min_views in (1, 2, 3):
+            want = _best_move(*state, 200.0, min_views)
+            got = best_move(*state, 200.0, min_views)
+            assert got[:2] == want[:2] and got[2] == want[2], (trial, min_views)
+            kinds.add(want[2] > 1e-9)
+    assert kinds == {True, False}  # moves and no move both seen
+
+
+def test_refine_takes_the_same_moves_compiled_and_not(monkeypatch):
+    """refine_clusters on a frame big enough for the compiled move, both ways: the same
+    labels after real moves (clusters cut in halves and misplaced detections)."""
+    import pipeline.ray_affinity as ray_affinity
+    from pipeline.associate import AssociationParams
+    from pipeline.associate_refine import refine_clusters
+    from tests.pipeline.test_ray_affinity import _detections
+
+    rng = np.random.default_rng(3)
+    o, d, w, views = _detections(rng, n_people=8, n_views=10)
+    p = AssociationParams()
+    aff = 1.0 - ray_affinity.ray_distances(o, d, w, p) / p.max_distance_mm
+    aff[views[:, None] == views[None]] = np.nan
+    start = ray_affinity.average_linkage(aff, views, p.min_affinity)
+    noisy = start.copy()
+    pick = rng.choice(len(views), len(views) // 4, replace=False)
+    noisy[pick] = rng.choice(np.unique(start), len(pick))  # misplaced detections
+    geo = CentreRays.of(o, d, w)
+    for cluster in (start, noisy):
+        out = {}
+        for name, low in (("compiled", 0), ("numpy", 10**9)):
+            monkeypatch.setattr(ray_affinity, "COMPILED_MIN_DETECTIONS", low)
+            out[name] = refine_clusters(aff, views, cluster.copy(), p.min_affinity,
+                                        geometry=geo, max_mm=p.joint_clip_mm)  # fmt: skip
+        np.testing.assert_array_equal(out["compiled"], out["numpy"])
+    assert (out["numpy"] != noisy).sum() >= 5  # it moved detections
