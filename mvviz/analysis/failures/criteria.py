@@ -10,6 +10,7 @@ import numpy as np
 
 from mvviz.analysis.failures.entries import (
     AFFINITY_THRESHOLD,
+    CLOSE_MARGIN,
     LIMIT_SCALE_DEG,
     MAHALANOBIS_THRESHOLD,
     MATCH_GATE_MM,
@@ -235,13 +236,16 @@ def association_failures(
     *,
     affinity_threshold: float = AFFINITY_THRESHOLD,
     unassigned_confidence: float = UNASSIGNED_CONFIDENCE,
+    close_margin: float = CLOSE_MARGIN,
 ) -> list[Failure]:
     """Association conflicts and gaps (kinds in quotes).
 
-    1. "close to two": a detection of person p whose affinity to a detection of another
-       person p' of the frame is ``>= affinity_threshold``; per (frame, p, p'), naming
-       the more doubtful detection (the one whose mean affinity to its own person's
-       detections is lower); score = that affinity.
+    1. "close to two": a detection of person p whose agreement with another person p' of
+       its frame (its mean affinity to p''s detections, an incompatible or unknown pair
+       counting 0) is ``>= affinity_threshold`` and within ``close_margin`` of its
+       agreement with p (the same mean over p's other detections; 0 where p has no
+       other): the association could have gone either way. Per (frame, {p, p'}) the
+       detection of highest agreement (the lowest row of ties); score = that agreement.
     2. "one view": a person triangulated from fewer than 2 views (score 1).
     3. "missing in raw": a track present before and after but missing from the raw
        triangulation: one entry per gap (score 1 + gap length / clip length).
@@ -249,7 +253,7 @@ def association_failures(
        ``>= unassigned_confidence`` (score = that confidence), per frame and camera.
     """
     return [
-        *_close_to_two(scene, results, affinity_threshold),
+        *_close_to_two(scene, results, affinity_threshold, close_margin),
         *_one_view(scene, results),
         *_raw_gaps(results),
         *_unassigned(scene, results, unassigned_confidence),
@@ -275,67 +279,93 @@ def _edge_blocks(results: PipelineResults):
 
 def _edge_summary(
     results: PipelineResults, affinity_threshold: float
-) -> tuple[np.ndarray, list[np.ndarray]]:
-    """One pass over the affinity edges: (D,) each detection's mean affinity to its own
-    person's detections (NaN for none), and the columns of :func:`_pair_winners` over
-    the edges between two people of ``>= affinity_threshold`` (each block reduced before
-    the next: a long run has ~10^8 edges across people; a frame's pairs may straddle two
-    blocks, so the caller reduces the blocks' winners together). Two passes, one per
-    figure, read the 3.3 GB of edges of 10,000 frames x 31 x 20 twice."""
-    n = len(results.det_person)
-    own_sum, own_n = np.zeros(n), np.zeros(n)
-    kept, offset = [], 0
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """One pass over the affinity edges: (D,) each detection's agreement with its own
+    person (the mean of its affinities to the person's other detections, a negative or
+    unknown one counting 0; NaN where the person has no other), and the (detection,
+    other person, agreement) of every agreement with another person of the frame that
+    is ``>= affinity_threshold`` (rows by frame, then detection and person). Results
+    keep only the compatible pairs across people (affinity > 0), which are the ones
+    that count. A frame's edges are contiguous but may straddle two blocks: each block's
+    last frame waits for the next. Two passes, one per figure, read the 3.3 GB of edges
+    of 10,000 frames x 31 x 20 twice."""
+    det_person, person_frame = results.det_person, results.person_frame
+    n, Q = len(det_person), len(person_frame)
+    size = np.bincount(det_person[det_person >= 0], minlength=Q)  # detections per person
+    own_sum = np.zeros(n)
+    held = [np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)]
+    found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for a, b, aff, pa, pb in _edge_blocks(results):
+        agree = np.maximum(aff.astype(float), 0.0)
         same = (pa >= 0) & (pa == pb)
         ends = np.concatenate([a[same], b[same]])
         if len(ends):
             # a block's edges are of a few consecutive frames: count over their rows only
             lo = int(ends.min())
-            w = np.tile(aff[same].astype(float), 2)
-            sums = np.bincount(ends - lo, w)
+            sums = np.bincount(ends - lo, np.tile(agree[same], 2))
             own_sum[lo : lo + len(sums)] += sums
-            own_n[lo : lo + len(sums)] += np.bincount(ends - lo)
-        c = np.flatnonzero((pa >= 0) & (pb >= 0) & ~same & (aff >= affinity_threshold))
-        cols = (a[c], b[c], aff[c], np.minimum(pa[c], pb[c]), np.maximum(pa[c], pb[c]),
-                c + offset)  # fmt: skip
-        kept.append(_pair_winners(*cols, first=c + offset))
-        offset += len(a)
+        c = np.flatnonzero((pa >= 0) & (pb >= 0) & ~same & (aff > 0))
+        rows = [np.concatenate([h, x]) for h, x in zip(held, (
+            np.concatenate([a[c], b[c]]).astype(np.int64),
+            np.concatenate([pb[c], pa[c]]).astype(np.int64),
+            np.tile(agree[c], 2)), strict=True)]  # fmt: skip
+        frame = person_frame[det_person[rows[0]]]
+        done = frame < frame.max(initial=-1)  # the last frame may go on in the next block
+        held = [r[~done] for r in rows]
+        found.append(_agreements([r[done] for r in rows], size, affinity_threshold))
+    found.append(_agreements(held, size, affinity_threshold))
     with np.errstate(invalid="ignore", divide="ignore"):
-        own = np.where(own_n > 0, own_sum / np.maximum(own_n, 1), np.nan)
-    return own, kept
+        others = size[np.maximum(det_person, 0)] - 1
+        own = np.where((det_person >= 0) & (others > 0), own_sum / np.maximum(others, 1), np.nan)
+    d, q2, agreement = (np.concatenate(x) for x in zip(*found, strict=True))
+    return own, (d, q2, agreement)
+
+
+def _agreements(rows, size: np.ndarray, threshold: float):
+    """(detection, other person, agreement >= threshold) from directed cross edges
+    (detection, other person, max(affinity, 0)) holding every edge of their frames."""
+    d, q2, w = rows
+    key = d * len(size) + q2
+    uniq, inv = np.unique(key, return_inverse=True)
+    agreement = np.bincount(inv, w, minlength=len(uniq)) / size[uniq % len(size)]
+    hit = agreement >= threshold
+    return uniq[hit] // len(size), uniq[hit] % len(size), agreement[hit]
 
 
 def _close_to_two(
-    scene: Scene, results: PipelineResults, affinity_threshold: float
+    scene: Scene, results: PipelineResults, affinity_threshold: float, close_margin: float
 ) -> list[Failure]:
     """1. conflicts, from the affinity edges of each frame."""
     cams, det_person, view = scene.rig.names, results.det_person, scene.detections.view
     ptrack = results.person_track
+    size = np.bincount(det_person[det_person >= 0], minlength=len(results.person_frame))
 
     def who(q: int) -> str:
         k = int(ptrack[q])
         return f"track {k}" if k >= 0 else "an untracked person"
 
-    # per pair of people (of a frame) its edge of highest affinity (the first of ties),
-    # the pairs in the order they first appear; in arrays, then the blocks' winners together
-    own, kept = _edge_summary(results, affinity_threshold)
-    own_rank = np.where(np.isfinite(own), own, -np.inf)  # no own affinity: most doubtful
-    cols = [np.concatenate(x) for x in zip(*kept, strict=True)] if kept else [np.zeros(0)] * 7
-    a, b, aff, _, _, _, first = _pair_winners(*cols[:6], first=cols[6])
-    winners = np.argsort(first, kind="stable")  # the pairs in the order they first appear
-    a, b, aff = a[winners], b[winners], aff[winners]
-    # each pair names its more doubtful detection d, of person q, close to person q2
-    mine = own_rank[a] <= own_rank[b]
-    d, other = np.where(mine, a, b), np.where(mine, b, a)
-    q, q2 = det_person[d], det_person[other]
-    frame, k, k2 = results.person_frame[q], ptrack[q], ptrack[q2]
+    own, (d, q2, agree) = _edge_summary(results, affinity_threshold)
+    own0 = np.nan_to_num(own, nan=0.0)  # alone in its person: any other agreement is close
+    near = agree >= own0[d] - close_margin
+    d, q2, agree = d[near], q2[near], agree[near]
+    q = det_person[d]
+    frame = results.person_frame[q]
+    lo, hi = np.minimum(q, q2), np.maximum(q, q2)
+    # per pair of people of a frame its detection of highest agreement (lowest row of ties)
+    order = np.lexsort((d, -agree, hi, lo))
+    first = np.ones(len(order), bool)
+    first[1:] = (lo[order][1:] != lo[order][:-1]) | (hi[order][1:] != hi[order][:-1])
+    w = order[first]
+    w = w[np.lexsort((d[w], frame[w]))]  # the pairs in frame order, then by detection
+    d, q, q2, agree, frame = d[w], q[w], q2[w], agree[w], frame[w]
+    k, k2 = ptrack[q], ptrack[q2]
     v = np.asarray(view)[d]
     # merge_spans' problems (kind: the other person's name; track; camera) as one int key,
-    # their runs in arrays: a long dome run has ~2 M such pairs and a Failure each took
+    # their runs in arrays: a long dome run had ~2 M such entries and a Failure each took
     # ~20 s; only the merged entries are made (merge_spans leaves them as they are)
     other_key = np.maximum(k2, -1) + 1  # 0: an untracked person
     key = v.astype(np.int64) * (int(other_key.max(initial=0)) + 1) + other_key
-    runs = _merged_runs(frame, np.maximum(k, -1), key, aff)
+    runs = _merged_runs(frame, np.maximum(k, -1), key, agree)
     if not runs:
         return []
     # merge_spans' order: problems as they first appear, then their runs by frame
@@ -345,42 +375,20 @@ def _close_to_two(
     runs.sort(key=lambda r: (rank[which[r[0]]], r[1]))
     out = []
     for e, first_f, last_f, frames in runs:
-        score, de = float(aff[e]), int(d[e])
-        own_txt = f", own {own[de]:.2f}" if np.isfinite(own[de]) else ""
-        detail = f"close to {who(int(q2[e]))} too (affinity {score:.2f}{own_txt})"
+        score, de, other = float(agree[e]), int(d[e]), int(q2[e])
+        own_txt = f", own {own[de]:.2f}" if np.isfinite(own[de]) else ", alone in its person"
+        detail = (f"close to {who(other)} too (mean affinity {score:.2f} to its "
+                  f"{size[other]} detections{own_txt})")  # fmt: skip
         kt = track_or_none(k[e])
         out.append(
             Failure(
                 "association", score, int(frame[e]), kt, None, int(v[e]),
                 where_label(kt, None, cams[int(v[e])]), detail,
-                kind=f"close to two|{who(int(q2[e]))}", value=score,
+                kind=f"close to two|{who(other)}", value=score,
                 first=first_f, last=last_f, frames=frames,
             )
         )  # fmt: skip
     return out
-
-
-def _pair_winners(a, b, aff, lo, hi, idx, *, first):
-    """Of edges (a, b, aff) between people (lo, hi) at positions ``idx``, per (lo, hi) the
-    one of highest affinity, the lowest ``idx`` of ties; ``first``: the lowest position
-    any edge of the pair had (kept through the reductions). Sorted by (pair, idx) only
-    and the maximum found per pair by a reduction: a sort by (lo, hi, -aff, idx) was
-    ~12 s of a 10,000-frame dome run's ~10^8 edges across people."""
-    n = len(a)
-    if n == 0:
-        return a, b, aff, lo, hi, idx, first
-    pair = lo.astype(np.int64) * (int(hi.max()) + 1) + hi
-    order = np.lexsort((idx, pair))
-    p, s_aff = pair[order], aff[order]
-    start = np.ones(n, bool)
-    start[1:] = p[1:] != p[:-1]
-    starts = np.flatnonzero(start)
-    group = np.cumsum(start) - 1
-    best = np.maximum.reduceat(s_aff, starts)
-    # the first edge (lowest idx) of each pair that has its maximum
-    hits = np.flatnonzero(s_aff == best[group])
-    w = order[hits[np.flatnonzero(np.r_[True, group[hits][1:] != group[hits][:-1]])]]
-    return a[w], b[w], aff[w], lo[w], hi[w], idx[w], np.minimum.reduceat(first[order], starts)
 
 
 def _one_view(scene: Scene, results: PipelineResults) -> list[Failure]:

@@ -14,7 +14,12 @@ from pipeline.results import PipelineResults
 
 CRITERIA = ("reprojection", "mpjpe", "association", "id", "kalman", "smpl", "labels")
 MAHALANOBIS_THRESHOLD = 3.0
-AFFINITY_THRESHOLD = 0.5  # a detection this close to another person's is "close to two"
+# "close to two": a detection whose mean affinity to another person's detections reaches
+# AFFINITY_THRESHOLD and comes within CLOSE_MARGIN of its mean affinity to its own person's
+# (one pair alone says little: two rays from different cameras pass near each other without
+# their people being near, which on a 31-camera dome made ~190 such pairs a frame).
+AFFINITY_THRESHOLD = 0.5
+CLOSE_MARGIN = 0.2
 UNASSIGNED_CONFIDENCE = 0.3  # mean joint confidence of an unassigned detection worth a look
 MATCH_GATE_MM = 500.0  # as pipeline.evaluate: pairs above this MPJPE never match
 LIMIT_SCALE_DEG = 10.0
