@@ -5,7 +5,10 @@ WebGL), sets a frame, selection and layers, and writes a PNG.
 
 Usage:
     python tools/readme_screenshots.py SCENE OUT.png [--frame F] [--track K]
-        [--fit-meshes] [--no-rays] [--camera NAME] [--port P]
+        [--fit-meshes] [--no-rays] [--camera NAME] [--tab NAME] [--criterion C] [--port P]
+
+--tab shows a tab of the right-hand panel ("Failures", ...); --criterion sets the
+Failures panel's criterion ("association", ...) before the picture.
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ def main() -> None:
     ap.add_argument("--fit-meshes", action="store_true")
     ap.add_argument("--no-rays", action="store_true")
     ap.add_argument("--camera", default=None)
+    ap.add_argument("--tab", default=None, help='a tab of the right-hand panel, e.g. "Failures"')
+    ap.add_argument("--criterion", default=None, help="the Failures panel's criterion")
     args = ap.parse_args()
     app = start(args, progress=False)
     if app.frames is not None:
@@ -50,8 +55,12 @@ def main() -> None:
         lp = app.layers_panel.gui.toggles
         lp["fit_meshes"].value = args.fit_meshes
         lp["rays"].value = not args.no_rays
+        if args.criterion:
+            app.failure_panel.set_criterion(args.criterion)
         app.jump_to(frame=args.frame, track=args.track, view=args.camera)
         app.wait_idle(30)
+        if args.tab:
+            page.get_by_role("tab", name=args.tab).click()
         page.wait_for_timeout(6000)
         page.screenshot(path=str(args.png))
         browser.close()
