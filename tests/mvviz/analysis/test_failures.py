@@ -911,3 +911,29 @@ def test_close_to_two_does_not_flag_people_a_pair_of_rays_links():
         got = criteria._close_to_two(scene, res, criteria.AFFINITY_THRESHOLD,
                                      criteria.CLOSE_MARGIN)  # fmt: skip
         assert len(got) <= most, name
+
+
+def test_agreements_by_place_equal_the_sorted_keys():
+    """_agreements sums (detection, other person) by the other's place among its frame's
+    people (one bincount); people out of frame order take np.unique's sorted keys: the
+    two give the same rows and numbers on the noisy twin's every cross edge."""
+    import mvviz.analysis.failures.criteria as criteria
+
+    scene = load_scene(REPO / "sample_data" / "shelf_synth_noisy")
+    config = PipelineConfig()
+    res = run_stages(scene, config, select_2d(scene, config, None), restored=None,
+                     progress=False)  # fmt: skip
+    dp = res.det_person
+    pa, pb = dp[res.edge_a], dp[res.edge_b]
+    c = np.flatnonzero((pa >= 0) & (pb >= 0) & (pa != pb) & (res.edge_affinity > 0))
+    rows = (np.r_[res.edge_a[c], res.edge_b[c]].astype(np.int64),
+            np.r_[pb[c], pa[c]].astype(np.int64),
+            np.tile(res.edge_affinity[c].astype(float), 2))  # fmt: skip
+    size = np.bincount(dp[dp >= 0], minlength=len(res.person_frame))
+    first = np.searchsorted(res.person_frame, res.person_frame)
+    for threshold in (0.05, 0.5):
+        fast = criteria._agreements(rows, dp, size, first, threshold)
+        plain = criteria._agreements(rows, dp, size, None, threshold)
+        for x, y in zip(fast, plain, strict=True):
+            np.testing.assert_array_equal(x, y)
+        assert len(fast[0]) > (100 if threshold < 0.1 else 0)
