@@ -48,6 +48,12 @@ if TYPE_CHECKING:
 
 RESULTS_VERSION = 6  # 6: edges only where a reader uses them, int32 / float32 (5: track_rejected)
 RESULTS_FILE = "results.npz"  # in the scene's CACHE_DIR
+RESULTS_DIR = "results"  # ... for a long scene: a directory of memory-mapped columns
+LONG_SCENE_VIEW_FRAMES = 50_000
+"""Frames x cameras from which a scene's default results are a directory (written by the
+stages as they go, opened lazily; :mod:`pipeline.stages_streamed`) rather than one
+compressed file: a 10,000-frame dome:31 x 20 run in memory took ~11 GB, streamed 1.8 GB,
+and its compressed file alone would take longer to write than the run."""
 FIT_JOINT_SETS = FITTABLE_JOINT_SETS  # = smpl_kinematics.SUPPORTED_JOINT_SETS, read torch-free
 """Joint sets whose tracks get SMPL bodies: every set the body-model table
 (:mod:`pipeline.body_keypoints`) ties all limbs of."""
@@ -553,6 +559,12 @@ def load_results(
 
 
 def default_results_path(scene: Scene) -> Path:
+    """Where a scene's results go unless told (``--out``): ``CACHE_DIR/results.npz``, or
+    for a long scene (:data:`LONG_SCENE_VIEW_FRAMES`), or where such a directory is
+    already, the directory ``CACHE_DIR/results``."""
+    folder = scene.root / CACHE_DIR / RESULTS_DIR
+    if folder.is_dir() or scene.num_frames * len(scene.rig) >= LONG_SCENE_VIEW_FRAMES:
+        return folder
     return scene.root / CACHE_DIR / RESULTS_FILE
 
 

@@ -142,3 +142,37 @@ def test_bad_directories_name_the_file_and_field(tmp_path):
         load_results(path)
     with pytest.raises(SceneFormatError, match="not found"):
         load_results(tmp_path / "nothing")
+
+
+def test_a_long_scene_defaults_to_a_streamed_results_directory(tmp_path, monkeypatch):
+    """default_results_path: one .npz for a short scene; for a long one (frames x cameras
+    >= LONG_SCENE_VIEW_FRAMES), or where such a directory already is, the directory that
+    run_or_load streams into and reopens memory-mapped (a 10,000-frame dome run in memory
+    took ~11 GB)."""
+    import shutil
+    from pathlib import Path
+
+    import pipeline.results as results_mod
+    from pipeline.body_arrays import load_body_model_data
+    from pipeline.results import default_results_path, run_or_load
+    from pipeline.scene import load_scene
+
+    src = Path(__file__).resolve().parents[2] / "sample_data" / "shelf_synth"
+    shutil.copytree(src, tmp_path / "s", ignore=shutil.ignore_patterns(".mvviz"))
+    scene = load_scene(tmp_path / "s")
+    assert scene.num_frames * len(scene.rig) == 1250
+    assert default_results_path(scene) == scene.root / ".mvviz" / "results.npz"
+    monkeypatch.setattr(results_mod, "LONG_SCENE_VIEW_FRAMES", 1250)
+    folder = default_results_path(scene)
+    assert folder == scene.root / ".mvviz" / "results"
+    config = dataclasses.replace(PipelineConfig(), fit_smpl=False)
+    model = load_body_model_data(None)
+    res, cached = run_or_load(scene, config, model, progress=False)
+    assert not cached and folder.is_dir() and (folder / "meta.json").is_file()
+    assert not (scene.root / ".mvviz" / "results.npz").exists()
+    again, cached = run_or_load(scene, config, model, progress=False)
+    assert cached and is_mapped(again.person_joints) and is_mapped(again.edge_a)
+    np.testing.assert_array_equal(again.person_joints, res.person_joints)
+    assert again.num_tracks == 4
+    monkeypatch.setattr(results_mod, "LONG_SCENE_VIEW_FRAMES", 10**9)
+    assert default_results_path(scene) == folder  # the directory there wins
