@@ -169,11 +169,12 @@ class BodyModel(torch.nn.Module):
             self.register_buffer(
                 "posedirs", torch.as_tensor(posedirs.reshape(-1, posedirs.shape[-1]).T, dtype=f32)
             )  # (207, V*3)
-        # Rest joints are linear in betas: precompute J_regressor @ (template, shapedirs).
-        self.register_buffer("J_template", J_reg @ self.v_template)  # (J, 3)
-        self.register_buffer(
-            "J_shapedirs", torch.einsum("jv,vcb->jcb", J_reg, self.shapedirs)
-        )  # (J, 3, nb)
+        # Rest joints are linear in betas: J_regressor @ (template, shapedirs), the numpy
+        # side's float64 products rounded once. Not a float32 product here: its sums over
+        # the V vertices split with torch's thread count (the same model built in a 1-thread
+        # task and in a 2-thread process differed in the last bits, and so every result).
+        self.register_buffer("J_template", torch.as_tensor(arrays.J_template, dtype=f32))
+        self.register_buffer("J_shapedirs", torch.as_tensor(arrays.J_shapedirs, dtype=f32))
         coco = a.get("coco_regressor")
         self.register_buffer(
             "coco_regressor", None if coco is None else torch.as_tensor(coco, dtype=f32)

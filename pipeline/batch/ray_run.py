@@ -33,6 +33,7 @@ same as ``mvviz run``'s.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -83,16 +84,44 @@ def start_ray(address: str | None = None, *, num_cpus: int | None = None) -> dic
     quiet = dict(logging_level=logging.ERROR, log_to_driver=False, namespace="mvviz")
     if address is None:
         RAY_TEMP_DIR.mkdir(parents=True, exist_ok=True)
-        ray.init(
-            num_cpus=num_cpus or os.cpu_count(),
-            include_dashboard=False,
-            _node_ip_address="127.0.0.1",
-            _temp_dir=str(RAY_TEMP_DIR),
-            **quiet,
-        )
+        with _loopback_node():
+            ray.init(
+                num_cpus=num_cpus or os.cpu_count(),
+                include_dashboard=False,
+                _node_ip_address="127.0.0.1",
+                _temp_dir=str(RAY_TEMP_DIR),
+                **quiet,
+            )
     else:
         ray.init(address=address, **quiet)
     return ray.cluster_resources()
+
+
+@contextlib.contextmanager
+def _loopback_node():
+    """The embedded Ray's node on 127.0.0.1: every server it starts (GCS, raylet, workers,
+    agents) listens on loopback only, not on all interfaces.
+
+    ``ray.init(_node_ip_address="127.0.0.1")`` alone does not do it: Ray replaces a
+    loopback address by the machine's reachable one (``services.resolve_ip_for_localhost``
+    -> ``get_node_ip_address``), and its servers then listen on every interface. Ray
+    keeps the node on loopback where clusters are off (``ENABLE_RAY_CLUSTER``, from
+    ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER``, read once when ray is imported): both are
+    set while the node starts (its processes inherit the variable), then restored, so a
+    later ``--address`` run in this process still reports its reachable address."""
+    from ray._private import ray_constants  # noqa: PLC0415
+
+    name = ray_constants.ENABLE_RAY_CLUSTERS_ENV_VAR
+    saved_env, saved_flag = os.environ.get(name), ray_constants.ENABLE_RAY_CLUSTER
+    os.environ[name], ray_constants.ENABLE_RAY_CLUSTER = "0", False
+    try:
+        yield
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = saved_flag
+        if saved_env is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = saved_env
 
 
 def stop_ray() -> None:

@@ -4,7 +4,9 @@ a sweep, and the report as a person sees it in headless chromium."""
 from __future__ import annotations
 
 import html
+import ipaddress
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -12,6 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+import ray
 
 from mvviz.cli import main
 from pipeline.batch.ray_run import start_ray, stop_ray
@@ -105,6 +108,31 @@ def test_one_task_scene_equals_mvviz_run(dataset, reference, tmp_path, ship):
     row = load_report(out)["rows"][0]
     assert row["status"] == "computed" and row["task_seconds"]["sequence_fit_s"] > 0
     assert_same_files(out / "a" / "results.npz", reference)
+
+
+def test_embedded_ray_listens_on_loopback_only():
+    """Every server of the embedded Ray (GCS, raylet, agents, workers, the driver's own)
+    on 127.0.0.1: without mvviz's loopback node Ray listens on every interface."""
+    import psutil  # noqa: PLC0415
+
+    start_ray(num_cpus=1)
+    try:
+        assert ray.get(ray.remote(lambda: 1).remote()) == 1  # a worker is up and serving
+        pids = {os.getpid(), *(p.pid for p in psutil.Process().children(recursive=True))}
+        listening = [
+            (c.laddr.ip, c.pid) for c in psutil.net_connections(kind="inet")
+            if c.status == psutil.CONN_LISTEN and c.pid in pids
+        ]  # fmt: skip
+    finally:
+        stop_ray()
+    assert len({pid for _, pid in listening}) >= 4, listening  # driver, GCS, raylet, worker
+    outside = [(ip, pid) for ip, pid in listening if not _is_loopback(ip)]
+    assert not outside, outside
+
+
+def _is_loopback(ip: str) -> bool:
+    addr = ipaddress.ip_address(ip)
+    return (getattr(addr, "ipv4_mapped", None) or addr).is_loopback
 
 
 def test_failing_scene_is_reported_while_the_others_finish(first_batch):

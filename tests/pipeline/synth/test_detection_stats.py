@@ -98,7 +98,15 @@ def test_one_thread_and_the_cell_prefilter_change_no_detection(shelf, monkeypatc
     for field in dataclasses.fields(Detections):
         a, b = getattr(new, field.name), getattr(old, field.name)
         assert (a is None) == (b is None), field.name
-        if a is not None:
+        if field.name == "keypoints":
+            # The same keypoints detected, with the same confidences; their pixels may
+            # differ in float32's last bits: torch's products split their sums by thread
+            # count on some CPUs (1.2e-4 px at most on an AVX-512 Xeon, 1 vs 2 threads;
+            # bit for bit on others).
+            np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+            np.testing.assert_array_equal(a[..., 2], b[..., 2], err_msg="confidence")
+            np.testing.assert_allclose(a[..., :2], b[..., :2], rtol=0, atol=1e-3)
+        elif a is not None:
             np.testing.assert_array_equal(a, b, err_msg=field.name)
 
 
