@@ -17,6 +17,7 @@ import pytest
 import ray
 
 from mvviz.cli import main
+from pipeline.batch import ray_run
 from pipeline.batch.ray_run import start_ray, stop_ray
 from pipeline.batch.report import load_report
 from pipeline.body_model import load_body_model
@@ -128,6 +129,32 @@ def test_embedded_ray_listens_on_loopback_only():
     assert len({pid for _, pid in listening}) >= 4, listening  # driver, GCS, raylet, worker
     outside = [(ip, pid) for ip, pid in listening if not _is_loopback(ip)]
     assert not outside, outside
+
+
+def test_embedded_ray_starts_a_lean_head_and_restores_ray():
+    """The embedded head runs without the autoscaler monitor, the log monitor and the
+    dashboard's API server (ray_run.LEAN_HEAD_SKIPS), still runs tasks and returns their
+    errors, and Ray's classes are as before once it is up (a cluster keeps its head)."""
+    from ray._private import node as ray_node  # noqa: PLC0415
+    from ray._private import parameter  # noqa: PLC0415
+
+    params_cls, api = parameter.RayParams, ray_node.Node.__dict__["start_api_server"]
+    start_ray(num_cpus=1)
+    try:
+        started = set(ray._private.worker._global_node.all_processes)
+
+        def fails():
+            raise ValueError("no such scene")
+
+        with pytest.raises(ray.exceptions.RayTaskError, match="no such scene"):
+            ray.get(ray.remote(fails).options(max_retries=0).remote())
+        assert ray.get(ray.remote(lambda: 2).remote()) == 2
+    finally:
+        stop_ray()
+    assert {"gcs_server", "raylet"} <= started, started
+    assert not started & set(ray_run.LEAN_HEAD_SKIPS), started
+    assert parameter.RayParams is params_cls
+    assert ray_node.Node.__dict__["start_api_server"] is api
 
 
 def _is_loopback(ip: str) -> bool:
