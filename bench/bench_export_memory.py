@@ -1,6 +1,8 @@
-"""Memory of ``export_rrd`` against the number of frames exported: meshes sent in chunks
-(today, ``mesh_chunk_frames`` = :data:`mvviz.export.rrd.MESH_CHUNK_FRAMES`) vs all at once
-(``mesh_chunk_frames=0``, the export before stop 28), the same run, alternated.
+"""Memory of ``export_rrd`` against the number of frames exported, three ways, the same run,
+alternated: meshes sent in chunks with the C heap trimmed after each (today: ``chunked``,
+``mesh_chunk_frames`` = :data:`mvviz.export.rrd.MESH_CHUNK_FRAMES`,
+:func:`mvviz.export.heap.release_free_heap`); in chunks without the trim (``no_trim``, the
+export of stops 28-36); all at once (``at_once``, ``mesh_chunk_frames=0``, before stop 28).
 
 Each export runs in a fresh process on the shipped sample (``sample_data/shelf_synth``:
 5 cameras, 4 people, 250 frames, ground-truth SMPL meshes and two fitted-body stages),
@@ -9,7 +11,8 @@ meshes). Memory: the process's peak resident set during the export alone (its hi
 mark ``VmHWM`` reset through ``/proc/self/clear_refs`` just before, minus ``VmRSS``
 then). Printed per mode: the medians over --repeats at each frame count, the slope in KB
 per frame exported (least squares), what that slope gives at 10,000 frames of 20 people
-(x5 the sample's people), and the ratio of the two modes' growth over the frame counts.
+(x5 the sample's people), the export's seconds, and each older mode's growth against
+``chunked``'s.
 
 Usage:
     python bench/bench_export_memory.py [--frames 64 128 250] [--repeats 3] [--json FILE]
@@ -44,6 +47,10 @@ from pipeline.results import run_or_load
 from pipeline.scene import load_scene
 
 scene_dir, frames, chunk, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+if sys.argv[5] == "0":  # the export before the heap was trimmed per chunk
+    import mvviz.export.rerun.logger, mvviz.export.rrd
+    mvviz.export.rrd.release_free_heap = mvviz.export.rerun.logger.release_free_heap = (
+        lambda: False)
 model = load_body_model()
 scene = load_scene(scene_dir)
 results, _ = run_or_load(scene, PipelineConfig(), model, progress=False)
@@ -65,9 +72,10 @@ print(json.dumps({"growth_mb": (status("VmHWM") - before) / 1024,
 """
 
 
-def run_child(frames: int, chunk: int, out: Path) -> dict:
+def run_child(frames: int, chunk: int, trim: bool, out: Path) -> dict:
     proc = subprocess.run(
-        [sys.executable, "-c", CHILD, str(SCENE), str(frames), str(chunk), str(out)],
+        [sys.executable, "-c", CHILD, str(SCENE), str(frames), str(chunk), str(out),
+         str(int(trim))],
         capture_output=True, text=True, cwd=REPO, check=False,
     )  # fmt: skip
     if proc.returncode != 0:
@@ -83,13 +91,15 @@ def main() -> int:
     args = ap.parse_args()
     from mvviz.export.rrd import MESH_CHUNK_FRAMES  # noqa: PLC0415
 
-    modes = {"chunked": MESH_CHUNK_FRAMES, "at_once": 0}
+    modes = {"chunked": (MESH_CHUNK_FRAMES, True), "no_trim": (MESH_CHUNK_FRAMES, False),
+             "at_once": (0, False)}  # fmt: skip
     runs: dict[str, dict[int, list[dict]]] = {m: {f: [] for f in args.frames} for m in modes}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.repeats):
             for f in args.frames:
-                for m, chunk in modes.items() if r % 2 == 0 else reversed(modes.items()):
-                    row = run_child(f, chunk, Path(tmp) / f"{m}_{f}.rrd")
+                order = list(modes.items()) if r % 2 == 0 else list(reversed(modes.items()))
+                for m, (chunk, trim) in order:
+                    row = run_child(f, chunk, trim, Path(tmp) / f"{m}_{f}.rrd")
                     runs[m][f].append(row)
                     print(f"repeat {r + 1}: {f:4d} frames, {m:8s}: +{row['growth_mb']:7.1f} MB "
                           f"in {row['seconds']:.1f} s, file {row['file_mb']:.1f} MB",
@@ -110,8 +120,11 @@ def main() -> int:
               f"{' / '.join(f'{s:.1f}' for s in secs)} s")  # fmt: skip
         out["modes"][m] = {"growth_mb": med, "kb_per_frame": slope_kb, "tail_kb_per_frame": tail_kb,
                            "gb_at_10k_20p": at_10k, "seconds": secs}  # fmt: skip
-    a, b = (out["modes"][m]["growth_mb"] for m in ("at_once", "chunked"))
-    print(f"growth at {args.frames[-1]} frames: at once / chunked = {a[-1] / b[-1]:.2f}x")
+    for m in ("at_once", "no_trim"):
+        a, b = (out["modes"][k]["growth_mb"] for k in (m, "chunked"))
+        print(f"growth at {args.frames[-1]} frames: {m} / chunked = {a[-1] / b[-1]:.2f}x; "
+              f"from {args.frames[0]} to {args.frames[-1]} frames: {m} +{a[-1] - a[0]:.1f} MB, "
+              f"chunked +{b[-1] - b[0]:.1f} MB")  # fmt: skip
     if args.json:
         write_json(args.json, out)
     return 0

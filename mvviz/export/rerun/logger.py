@@ -9,6 +9,7 @@ import numpy as np
 import rerun as rr
 import torch
 
+from mvviz.export.heap import release_free_heap
 from mvviz.export.rerun.frames import (
     _FrameLogger,
     _group,
@@ -342,6 +343,7 @@ class SceneLogger:
         wait in memory (measured: ~150 KB a frame of the sample kept until the end)."""
         if chunk_frames > 0:
             self.rec.flush()
+            release_free_heap()  # the chunk's freed buffers leave the heap (mvviz.export.heap)
 
     def send_plots(
         self,
