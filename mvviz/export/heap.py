@@ -4,15 +4,18 @@ The rerun export skins meshes (torch) and hands multi-MB columns to rerun's writ
 threads chunk after chunk. glibc's malloc raises its mmap threshold each time such a
 buffer is freed (the "dynamic" threshold, up to 32 MB), so the later ones are carved from
 the heap arenas instead of their own mappings, and once freed their pages stay resident
-behind whatever small allocation lands above them: the export's peak memory grew with
-the frames exported (~200 KB a frame of the sample, ~85 KB of a 20-person dome) although
-nothing was kept. ``malloc_trim(0)`` hands every whole free page of every arena back
-(``madvise``): after each chunk the export's memory is back to one chunk's.
+behind whatever small allocation lands above them: the export's memory grew with the
+frames exported although nothing was kept (after each chunk of a 10-person dome's bodies:
+145 -> 186 MB over 1,000 frames; ~200 KB a frame of the sample). ``malloc_trim(0)`` hands
+every whole free page of every arena back (``madvise``); it is called once the arenas
+hold more than :data:`KEEP_FREE_BYTES` free, so memory stays bounded (58 MB after every
+GT-mesh chunk, 78-81 after every body chunk of the same export) while the pages a chunk
+frees are mostly reused by the next without a trim and a fault each time.
 
 Measured against the other fix, a fixed mmap threshold (``mallopt(M_MMAP_THRESHOLD)``,
 which also stops the growth): that one maps and faults every big buffer anew and made
-the sample's export ~35 % slower; a trim per chunk costs a few milliseconds
-(``bench/bench_export_memory.py``).
+the sample's export ~35 % slower (``bench/bench_export_memory.py`` has the baseline
+without the trim).
 """
 
 from __future__ import annotations
@@ -21,23 +24,54 @@ import ctypes
 import functools
 import sys
 
+KEEP_FREE_BYTES = 64 << 20
+"""Free bytes the arenas may hold before :func:`release_free_heap` trims them."""
+
+
+class _MallInfo2(ctypes.Structure):
+    """glibc's ``struct mallinfo2`` (2.33+): sizes in bytes, summed over every arena."""
+
+    _fields_ = [
+        (name, ctypes.c_size_t)
+        for name in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks",
+                     "uordblks", "fordblks", "keepcost")
+    ]  # fmt: skip
+
 
 @functools.cache
-def _malloc_trim():
-    """glibc's ``malloc_trim``, or None (macOS, Windows, musl: no such call)."""
+def _glibc():
+    """(malloc_trim, mallinfo2 or None), or None where the C library has no
+    ``malloc_trim`` (macOS, Windows, musl)."""
     if not sys.platform.startswith("linux"):
         return None
     try:
-        return ctypes.CDLL(None).malloc_trim
+        libc = ctypes.CDLL(None)
+        trim = libc.malloc_trim
     except (OSError, AttributeError):
         return None
+    info = getattr(libc, "mallinfo2", None)  # glibc < 2.33: trim every time
+    if info is not None:
+        info.restype = _MallInfo2
+    return trim, info
 
 
-def release_free_heap() -> bool:
-    """Return the C heap's free pages to the system; False where the C library has no
-    ``malloc_trim`` (nothing done)."""
-    trim = _malloc_trim()
-    if trim is None:
+def free_heap_bytes() -> int | None:
+    """Bytes the C heap's arenas hold free (None where glibc cannot say)."""
+    calls = _glibc()
+    if calls is None or calls[1] is None:
+        return None
+    return int(calls[1]().fordblks)
+
+
+def release_free_heap(keep_free: int = KEEP_FREE_BYTES) -> bool:
+    """Return the C heap's free pages to the system once its arenas hold more than
+    ``keep_free`` bytes free (0: always). True if trimmed; False if not needed or where
+    the C library has no ``malloc_trim`` (nothing done)."""
+    calls = _glibc()
+    if calls is None:
+        return False
+    trim, info = calls
+    if keep_free > 0 and info is not None and info().fordblks <= keep_free:
         return False
     trim(0)
     return True

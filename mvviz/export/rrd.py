@@ -15,6 +15,7 @@ import tempfile
 import threading
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from datetime import timedelta
 from pathlib import Path
 
 import cv2
@@ -52,6 +53,17 @@ from pipeline.scene import Scene
 from pipeline.video_crop import CalibratedFrames
 
 PREFETCH_FRAMES = 16  # images read ahead per camera
+
+
+def export_batcher() -> rr.ChunkBatcherConfig:
+    """How the export's recording cuts its rows into chunks: when the export flushes (every
+    :data:`MESH_CHUNK_FRAMES` frames and after each mesh chunk) or an entity's rows reach
+    rerun's 2 MB, never on rerun's 200 ms clock. Rerun keeps a little of every chunk it
+    writes until the recording closes, and on its clock the chunks depended on how fast
+    the export ran, not on the data: with it the export's memory grew ~33 KB a frame of a
+    16-camera, 10-person scene (+25 MB from 250 to 1,000 frames before any mesh was sent);
+    flushed by the export, the same stays flat. Fewer, larger chunks load faster too."""
+    return rr.ChunkBatcherConfig(flush_tick=timedelta(hours=1))
 
 
 # --------------------------------------------------------------------------- reading back
@@ -271,7 +283,7 @@ def export_rrd(
     check_inputs(scene, results)
     frame_ids = select_frames(frames, scene.num_frames)
     tmp = _temp_beside(path)
-    rec = rr.RecordingStream(APP_ID)
+    rec = rr.RecordingStream(APP_ID, batcher_config=export_batcher())
     sources: dict[str, FrameSource] = {}
     prefetch: _Prefetcher | None = None
     # rerun encodes and writes on its own threads; torch's intra-op threads spinning
