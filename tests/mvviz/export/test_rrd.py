@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -525,3 +526,30 @@ def test_meshes_sent_in_chunks_are_the_meshes_sent_at_once(tiny, tmp_path):
         track0 = whole[f"/world/bodies/{stage}/0"]
         assert [f for f in range(3, 7) if len(track0[f])] == []
         assert all(len(track0[f]) > 0 for f in (0, 1, 2, 7, 8, 9))
+
+
+def test_chunks_follow_the_exports_flushes_not_its_speed(tiny, tmp_path, monkeypatch):
+    """Rows go into the file's chunks when the export flushes (every ``mesh_chunk_frames``
+    frames), however slowly it runs: on rerun's 200 ms clock a slow export wrote a chunk
+    per frame, and rerun keeps a little of every chunk until the recording closes."""
+    scene, results, model = tiny
+    from mvviz.export.rerun.logger import SceneLogger  # noqa: PLC0415
+
+    log_frame = SceneLogger.log_frame
+
+    def slow_log_frame(self, *args, **kwargs):
+        time.sleep(0.25)  # slower than rerun's clock
+        return log_frame(self, *args, **kwargs)
+
+    monkeypatch.setattr(SceneLogger, "log_frame", slow_log_frame)
+    path = tmp_path / "slow.rrd"
+    export_rrd(
+        scene, results, model, path, images=False, meshes=False, bodies=False,
+        mesh_chunk_frames=3, progress=False,
+    )  # fmt: skip
+    spans = [
+        np.unique(chunk.to_record_batch().column("frame").to_numpy()).tolist()
+        for chunk in RrdReader(str(path)).stream()
+        if str(chunk.entity_path) == "/world/skeletons/gt/0" and not chunk.is_static
+    ]
+    assert sorted(spans) == [[0, 1, 2], [3, 4, 5], [6, 7, 8], [9]], spans
