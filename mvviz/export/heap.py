@@ -8,8 +8,8 @@ behind whatever small allocation lands above them: the export's memory grew with
 frames exported although nothing was kept (after each chunk of a 10-person dome's bodies:
 145 -> 186 MB over 1,000 frames; ~200 KB a frame of the sample). ``malloc_trim(0)`` hands
 every whole free page of every arena back (``madvise``); it is called once the arenas
-hold more than :data:`KEEP_FREE_BYTES` free, so memory stays bounded (58 MB after every
-GT-mesh chunk, 78-81 after every body chunk of the same export) while the pages a chunk
+hold more than :data:`KEEP_FREE_BYTES` free, so memory stays bounded (84-86 MB after every
+chunk of the same export; 58 / 78-81 trimming after every chunk) while the pages a chunk
 frees are mostly reused by the next without a trim and a fault each time.
 
 Measured against the other fix, a fixed mmap threshold (``mallopt(M_MMAP_THRESHOLD)``,
