@@ -161,8 +161,8 @@ def _lean_head():
 
     params_cls = parameter.RayParams
     names = inspect.signature(params_cls.__init__).parameters
-    if not {"no_monitor", "include_log_monitor"} <= set(names) or not hasattr(
-        ray_node.Node, "start_api_server"
+    if not {"no_monitor", "include_log_monitor"} <= set(names) or (
+        "start_api_server" not in ray_node.Node.__dict__
     ):
         yield
         return
