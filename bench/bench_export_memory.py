@@ -60,8 +60,7 @@ scene_dir, frames, chunk, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]),
 if sys.argv[5] == "0":  # the export of stops 28-36: no heap trim, rerun's 200 ms clock
     import rerun as rr
     import mvviz.export.rerun.logger, mvviz.export.rrd
-    mvviz.export.rrd.release_free_heap = mvviz.export.rerun.logger.release_free_heap = (
-        lambda: False)
+    mvviz.export.rerun.logger.release_free_heap = lambda: False
     mvviz.export.rrd.export_batcher = rr.ChunkBatcherConfig.DEFAULT
 model = load_body_model()
 scene = load_scene(scene_dir)
@@ -74,12 +73,12 @@ def status(key):
 
 # What the export holds once everything is sent, just before the recording closes (what
 # accumulates shows here; the free heap is trimmed first so that only live memory counts).
-import ctypes
 import mvviz.export.rrd as R
+from mvviz.export.heap import release_free_heap
 held, complete = {}, R._complete
 def measured_complete(rec, tmp, path):
     rec.flush()
-    ctypes.CDLL(None).malloc_trim(0)
+    release_free_heap(0)
     held["mb"] = (status("RssAnon") - anon) / 1024
     complete(rec, tmp, path)
 R._complete = measured_complete

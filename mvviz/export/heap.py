@@ -55,14 +55,6 @@ def _glibc():
     return trim, info
 
 
-def free_heap_bytes() -> int | None:
-    """Bytes the C heap's arenas hold free (None where glibc cannot say)."""
-    calls = _glibc()
-    if calls is None or calls[1] is None:
-        return None
-    return int(calls[1]().fordblks)
-
-
 def release_free_heap(keep_free: int = KEEP_FREE_BYTES) -> bool:
     """Return the C heap's free pages to the system once its arenas hold more than
     ``keep_free`` bytes free (0: always). True if trimmed; False if not needed or where

@@ -24,7 +24,6 @@ import rerun as rr
 import torch
 from rerun.chunk import RrdReader
 
-from mvviz.export.heap import release_free_heap
 from mvviz.export.rerun import (  # noqa: F401  (re-exported: the names this module always had)
     APP_ID,
     DEFAULT_PLOT_JOINTS,
@@ -347,8 +346,7 @@ def _log_frames(
         imgs = prefetch.next() if prefetch is not None else None
         logger.log_frame(int(f), images=imgs, gt_meshes=False, bodies=False)
         if mesh_chunk_frames > 0 and (i + 1) % mesh_chunk_frames == 0:
-            logger.rec.flush()  # written before more is queued: memory of one chunk
-            release_free_heap()  # and its freed buffers given back (mvviz.export.heap)
+            logger.drain(mesh_chunk_frames)  # written before more is queued: one chunk's memory
     logger.send_gt_meshes(frame_ids, mesh_chunk_frames)
     logger.send_bodies(frame_ids, mesh_chunk_frames)
     logger.send_plots(frame_ids)

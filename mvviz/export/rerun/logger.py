@@ -312,7 +312,7 @@ class SceneLogger:
                 lengths = np.where(rows >= 0, len(self.mesh_keep), 0)
                 verts = self.gt_mesh_vertices(rows[rows >= 0])
                 _send_mesh_column(self.rec, f"world/meshes/gt/{p}", chunk, verts, lengths, fps)
-                self._drain(chunk_frames)
+                self.drain(chunk_frames)
 
     def send_bodies(self, frame_ids: np.ndarray, chunk_frames: int = MESH_CHUNK_FRAMES) -> None:
         """Every fitted body's vertices over ``frame_ids`` as columns per (stage, track),
@@ -335,9 +335,9 @@ class SceneLogger:
                     _send_mesh_column(self.rec, f"world/bodies/{stage}/{k}",
                                       frame_ids[start:hi], verts[ks == k], lengths,
                                       self.scene.fps)  # fmt: skip
-                self._drain(chunk_frames)
+                self.drain(chunk_frames)
 
-    def _drain(self, chunk_frames: int) -> None:
+    def drain(self, chunk_frames: int) -> None:
         """Wait until what was sent is written: rerun queues what it is given faster
         than its writer compresses and writes it, so without this a whole scene's meshes
         wait in memory (measured: ~150 KB a frame of the sample kept until the end)."""
