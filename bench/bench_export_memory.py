@@ -61,7 +61,11 @@ if sys.argv[5] == "0":  # the export of stops 28-36: no heap trim, rerun's 200 m
     import rerun as rr
     import mvviz.export.rerun.logger, mvviz.export.rrd
     mvviz.export.rerun.logger.release_free_heap = lambda: False
+    mvviz.export.rerun.logger.release_pages = lambda arr: False  # read pages kept
     mvviz.export.rrd.export_batcher = rr.ChunkBatcherConfig.DEFAULT
+    send_plots = mvviz.export.rerun.logger.SceneLogger.send_plots  # and the plots at once
+    mvviz.export.rerun.logger.SceneLogger.send_plots = (
+        lambda self, *a, **k: send_plots(self, *a, **{**k, "chunk_frames": 0}))
 model = load_body_model()
 scene = load_scene(scene_dir)
 results, _ = run_or_load(scene, PipelineConfig(), model, progress=False)
@@ -93,6 +97,7 @@ def sample():
         peak_file[0] = max(peak_file[0], status("RssFile"))
         time.sleep(0.005)
 
+release_free_heap(0)  # the baseline without what loading freed: a later trim cannot go below it
 with open("/proc/self/clear_refs", "w") as fh:
     fh.write("5")  # reset the peak resident set (VmHWM) to the current one
 before, anon, file_rss = status("VmRSS"), status("RssAnon"), status("RssFile")

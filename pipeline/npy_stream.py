@@ -14,6 +14,7 @@ Both write the standard format (version 1.0): ``np.load`` reads the files, mappe
 
 from __future__ import annotations
 
+import dataclasses
 import mmap
 import os
 from pathlib import Path
@@ -103,6 +104,34 @@ def _mapping(arr: np.ndarray) -> mmap.mmap | None:
 def is_mapped(arr: np.ndarray) -> bool:
     """Whether ``arr`` views a memory-mapped file."""
     return _mapping(arr) is not None
+
+
+def mapped_arrays(*objs, depth: int = 4) -> list[np.ndarray]:
+    """One array per distinct file map found in ``objs`` (ndarrays, dataclasses, dicts,
+    lists and tuples of them, ``depth`` levels deep): what :func:`release_pages` is given
+    to hand a scene's or its results' read pages back, however they are nested."""
+    found: dict[int, np.ndarray] = {}
+
+    def walk(obj, level: int) -> None:
+        if isinstance(obj, np.ndarray):
+            m = _mapping(obj)
+            if m is not None:
+                found.setdefault(id(m), obj)
+        elif level < depth:
+            if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+                items = (getattr(obj, f.name) for f in dataclasses.fields(obj))
+            elif isinstance(obj, dict):
+                items = obj.values()
+            elif isinstance(obj, list | tuple):
+                items = obj
+            else:
+                return
+            for item in items:
+                walk(item, level + 1)
+
+    for obj in objs:
+        walk(obj, 0)
+    return list(found.values())
 
 
 def release_pages(arr: np.ndarray) -> bool:

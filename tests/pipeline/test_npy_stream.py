@@ -7,7 +7,14 @@ import os
 import numpy as np
 import pytest
 
-from pipeline.npy_stream import NpyRowAppender, is_mapped, open_npy_for_writing, release_pages
+from pipeline.npy_stream import (
+    NpyRowAppender,
+    _mapping,
+    is_mapped,
+    mapped_arrays,
+    open_npy_for_writing,
+    release_pages,
+)
 
 PAGE = os.sysconf("SC_PAGE_SIZE")
 
@@ -74,3 +81,29 @@ def test_filled_map_has_the_fill_everywhere(tmp_path):
     out = open_npy_for_writing(tmp_path / "f.npy", np.float64, (1000, 17, 3), fill=np.nan)
     out.flush()
     assert np.isnan(np.load(tmp_path / "f.npy")).all()
+
+
+def test_mapped_arrays_finds_each_file_map_once_however_nested(tmp_path):
+    """Views of one map count once; plain arrays, scalars and strings are not maps; a
+    map inside a dataclass inside a dict inside a tuple is found."""
+    import dataclasses  # noqa: PLC0415
+
+    paths = []
+    for name in ("a", "b"):
+        np.save(tmp_path / f"{name}.npy", np.arange(12.0).reshape(4, 3))
+        paths.append(tmp_path / f"{name}.npy")
+    a, b = (np.load(p, mmap_mode="r") for p in paths)
+
+    @dataclasses.dataclass(frozen=True)
+    class Holder:
+        x: np.ndarray
+        y: np.ndarray
+        name: str = "holder"
+
+    nested = ({"h": Holder(x=a[1:], y=np.zeros(3))}, [b, b[::2]], 3.0)
+    found = mapped_arrays(nested, a)
+    assert len(found) == 2
+    assert {id(_mapping(f)) for f in found} == {id(_mapping(a)), id(_mapping(b))}
+    assert mapped_arrays(np.zeros(3), {"k": [1, 2]}, "text") == []
+    # too deep to look: a map four containers down is not searched past depth
+    assert mapped_arrays([[[[[a]]]]], depth=2) == []

@@ -41,6 +41,7 @@ from mvviz.export.rerun.meshes import display_mesh, skin_subset
 from mvviz.export.rerun.series import _log_plots
 from pipeline.body_model import BodyModel, torch_body_model
 from pipeline.joint_sets import get_joint_set
+from pipeline.npy_stream import mapped_arrays, release_pages
 from pipeline.results import PipelineResults
 from pipeline.run import row_frames
 from pipeline.scene import Scene
@@ -50,6 +51,12 @@ SKIN_BATCH = 128  # meshes skinned per torch call
 MESH_CHUNK_FRAMES = 64
 """Frames of mesh vertices sent per ``send_columns`` call: 20 people x ~1,700 kept
 vertices x 12 bytes x 64 frames is ~26 MB, whatever the scene's length."""
+
+
+PLOT_CHUNK_FRAMES = 1024
+"""Frames of the time series sent per piece: a piece's columns wait in rerun's queue
+until it is drained, and every piece cuts a chunk per series (each with an entry in
+the file's index), so pieces are longer than the meshes'."""
 
 
 def _chunks(values: np.ndarray, size: int) -> list[np.ndarray]:
@@ -149,6 +156,9 @@ class SceneLogger:
                 self.fits[stage] = fit
                 self.body_meshes[stage] = display_mesh(torch_body_model(fit.model), mesh_cell_mm)
         self._frames = _FrameLogger(self.rec, sparse=sparse, pause=pause)
+        # the memory-mapped arrays under the scene and its results (a results directory,
+        # a detections directory): what a drain hands back (see drain)
+        self._mapped = mapped_arrays(scene, results)
 
     @property
     def has_meshes(self) -> bool:
@@ -344,6 +354,11 @@ class SceneLogger:
         if chunk_frames > 0:
             self.rec.flush()
             release_free_heap()  # the chunk's freed buffers leave the heap (mvviz.export.heap)
+            # and the pages of the mapped results read so far leave the resident set: the
+            # kernel could reclaim them, but they would show as ~90 KB a frame of
+            # resident memory on a 16-camera dome (bench_export_memory's file pages)
+            for arr in self._mapped:
+                release_pages(arr)
 
     def send_plots(
         self,
@@ -352,14 +367,20 @@ class SceneLogger:
         branch: str = "",
         filtered: np.ndarray | None = None,
         mahalanobis: np.ndarray | None = None,
+        chunk_frames: int = PLOT_CHUNK_FRAMES,
     ) -> None:
-        """The time series (see the module docstring) as columns; a ``branch`` with
-        ``filtered`` (K, F, J, 3) mm and ``mahalanobis`` (K, F, J) is a second filter
-        (its raw input and counts are the results' own and are left out)."""
+        """The time series (see the module docstring) as columns, ``chunk_frames`` frames
+        at a time (0: all at once), drained after each piece: what waits to be written is
+        one piece's, however long the scene. A ``branch`` with ``filtered`` (K, F, J, 3) mm
+        and ``mahalanobis`` (K, F, J) is a second filter (its raw input and counts are the
+        results' own and are left out)."""
         frame_ids = np.arange(self.scene.num_frames) if frame_ids is None else frame_ids
         other_filter = filtered is not None
-        _log_plots(
-            self.rec, self.scene, self.results, frame_ids, self.plot_idx,
-            self.person_by_frame, self.gt_by_frame, branch=branch, filtered=filtered,
-            mahalanobis=mahalanobis, raw=not other_filter, counts=not other_filter,
-        )  # fmt: skip
+        for i, piece in enumerate(_chunks(np.asarray(frame_ids, np.int64), chunk_frames)):
+            _log_plots(
+                self.rec, self.scene, self.results, piece, self.plot_idx,
+                self.person_by_frame, self.gt_by_frame, branch=branch, filtered=filtered,
+                mahalanobis=mahalanobis, raw=not other_filter, counts=not other_filter,
+                styles=i == 0,
+            )  # fmt: skip
+            self.drain(chunk_frames)

@@ -34,12 +34,17 @@ def _log_plots(
     mahalanobis: np.ndarray | None = None,
     raw: bool = True,
     counts: bool = True,
+    styles: bool = True,
 ) -> None:
-    """Joint coordinates per track, Mahalanobis distances and counts, as columns.
+    """Joint coordinates per track, Mahalanobis distances and counts over ``frame_ids``,
+    as columns.
 
     ``branch`` suffixes the stage and metric names (see the module docstring);
     ``filtered`` (K, F, J, 3) mm and ``mahalanobis`` (K, F, J) replace the results' own
-    (filter B); without ``raw`` / ``counts`` those series are left out.
+    (filter B); without ``raw`` / ``counts`` those series are left out. The series'
+    line styles are static: a caller sending a scene's frames in pieces logs them with
+    the first piece only (``styles``). Only ``frame_ids``' rows of the (K, F, ...) arrays
+    are read, so a piece costs memory in its own length, not the scene's.
     """
     fps = scene.fps
     filtered = results.track_filtered if filtered is None else filtered
@@ -55,15 +60,16 @@ def _log_plots(
                     color = AXIS_COLORS[a] if stage == "filtered" else _dim(AXIS_COLORS[a])
                     if branch:
                         width = 1.0 if stage == "raw" else 1.5
-                    rec.log(
-                        path,
-                        rr.SeriesLines(
-                            colors=[color],
-                            widths=[width],
-                            names=[f"{k} {name} {stage}{branch} {axis}"],
-                        ),
-                        static=True,
-                    )
+                    if styles:
+                        rec.log(
+                            path,
+                            rr.SeriesLines(
+                                colors=[color],
+                                widths=[width],
+                                names=[f"{k} {name} {stage}{branch} {axis}"],
+                            ),
+                            static=True,
+                        )
                     _send_series(rec, path, frame_ids, xyz[:, a], fps)
         maha = mahalanobis[k][frame_ids]  # (F, J)
         with np.errstate(invalid="ignore"):
@@ -72,22 +78,35 @@ def _log_plots(
                 finite.any(1), np.nansum(np.where(finite, maha, 0), 1) / finite.sum(1), np.nan
             )
         path = f"plots/metrics/mahalanobis{branch}/{k}"
-        rec.log(
-            path, rr.SeriesLines(colors=[track_color(k)], names=[f"track {k}{branch}"]), static=True
-        )
+        if styles:
+            rec.log(
+                path,
+                rr.SeriesLines(colors=[track_color(k)], names=[f"track {k}{branch}"]),
+                static=True,
+            )
         _send_series(rec, path, frame_ids, mean, fps)
     if not counts:
         return
     series = {
         "people": np.array([len(person_by_frame.get(int(f), ())) for f in frame_ids], float),
-        "tracks": np.isfinite(filtered[:, frame_ids]).all(-1).any(-1).sum(0).astype(float),
+        "tracks": _tracks_per_frame(filtered, frame_ids),
     }
     if scene.gt is not None and not branch:
         series["gt_people"] = np.array([len(gt_by_frame.get(int(f), ())) for f in frame_ids], float)
     for name, values in series.items():
         path = f"plots/metrics/{name}{branch}"
-        rec.log(path, rr.SeriesLines(names=[f"{name}{branch}"]), static=True)
+        if styles:
+            rec.log(path, rr.SeriesLines(names=[f"{name}{branch}"]), static=True)
         _send_series(rec, path, frame_ids, values, fps)
+
+
+def _tracks_per_frame(filtered: np.ndarray, frame_ids: np.ndarray) -> np.ndarray:
+    """(F',) float: tracks with a fully finite joint at each of ``frame_ids``; read
+    track by track, never as a (K, F', J, 3) copy."""
+    n = np.zeros(len(frame_ids))
+    for k in range(len(filtered)):
+        n += np.isfinite(filtered[k][frame_ids]).all(-1).any(-1)
+    return n
 
 
 def _dim(color: tuple[int, int, int]) -> tuple[int, int, int]:

@@ -553,3 +553,98 @@ def test_chunks_follow_the_exports_flushes_not_its_speed(tiny, tmp_path, monkeyp
         if str(chunk.entity_path) == "/world/skeletons/gt/0" and not chunk.is_static
     ]
     assert sorted(spans) == [[0, 1, 2], [3, 4, 5], [6, 7, 8], [9]], spans
+
+
+def plot_rows(path: Path) -> tuple[dict[str, dict[int, float]], dict[str, int], dict[str, int]]:
+    """For every ``/plots`` entity: frame -> value, its number of time-indexed chunks and
+    its number of static rows (line styles)."""
+    values: dict[str, dict[int, float]] = {}
+    chunks: dict[str, int] = {}
+    styles: dict[str, int] = {}
+    for chunk in RrdReader(str(path)).stream():
+        ent = str(chunk.entity_path)
+        if not ent.startswith("/plots/"):
+            continue
+        batch = chunk.to_record_batch()
+        if chunk.is_static:
+            styles[ent] = styles.get(ent, 0) + batch.num_rows
+            continue
+        chunks[ent] = chunks.get(ent, 0) + 1
+        rows = values.setdefault(ent, {})
+        for f, (v,) in zip(
+            batch.column("frame").to_pylist(),
+            batch.column("Scalars:scalars").to_pylist(),
+            strict=True,
+        ):
+            assert f not in rows, (ent, f)  # every frame once, whatever the pieces
+            rows[f] = v
+    return values, chunks, styles
+
+
+def test_plots_sent_in_pieces_are_the_plots_sent_at_once(tiny, tmp_path):
+    """The time series go out 4 frames at a time (a long scene's plots wait in rerun's
+    queue one piece at a time): the same value per series and frame as in one piece,
+    each series cut in one chunk per piece, its line style logged once."""
+    import rerun as rr  # noqa: PLC0415
+
+    from mvviz.export.rerun.logger import SceneLogger  # noqa: PLC0415
+
+    scene, results, model = tiny
+    paths = {}
+    for piece in (4, 0):
+        paths[piece] = tmp_path / f"plots{piece}.rrd"
+        rec = rr.RecordingStream("plots", batcher_config=rerun_export.export_batcher())
+        rec.save(paths[piece])
+        logger = SceneLogger(scene, results, rec, images=False, meshes=False, bodies=False)
+        logger.send_plots(np.arange(NUM_FRAMES), chunk_frames=piece)
+        rec.flush()
+        rec.disconnect()
+    (pieces, piece_chunks, piece_styles), (whole, whole_chunks, whole_styles) = (
+        plot_rows(paths[4]), plot_rows(paths[0])
+    )  # fmt: skip
+    assert set(whole) == set(pieces) and len(whole) > 10
+    assert any("/joints/" in e for e in whole) and "/plots/metrics/tracks" in whole
+    for ent, rows in whole.items():
+        assert pieces[ent] == rows, ent
+    assert piece_styles == whole_styles and set(whole_styles.values()) == {1}
+    # a series with a value in every piece (0-3, 4-7, 8-9) is cut in 3 chunks, not 1
+    assert whole_chunks["/plots/metrics/tracks"] == 1
+    assert piece_chunks["/plots/metrics/tracks"] == 3
+    counts = np.isfinite(results.track_filtered).all(-1).any(-1).sum(0)
+    assert [whole["/plots/metrics/tracks"][f] for f in range(NUM_FRAMES)] == counts.tolist()
+
+
+def test_drains_hand_back_the_pages_of_mapped_results(tiny, tmp_path, monkeypatch):
+    """Results opened from a directory are memory-mapped; every drain (each mesh chunk,
+    each plot piece, every ``mesh_chunk_frames`` frames) hands the pages read so far back
+    for every file map under the scene and its results, and the file is the same as one
+    exported from the results in memory."""
+    from mvviz.export.rerun import logger as logger_module  # noqa: PLC0415
+    from pipeline.npy_stream import is_mapped  # noqa: PLC0415
+    from pipeline.results import load_results, save_results  # noqa: PLC0415
+
+    scene, results, model = tiny
+    save_results(results, tmp_path / "results")
+    mapped = load_results(tmp_path / "results", model=model)
+    released: list[int] = []
+    release = logger_module.release_pages
+
+    def counting_release(arr):
+        assert is_mapped(arr)
+        released.append(id(arr))
+        return release(arr)
+
+    monkeypatch.setattr(logger_module, "release_pages", counting_release)
+    export_rrd(scene, mapped, model, tmp_path / "mapped.rrd", images=False,
+               mesh_chunk_frames=4, progress=False)  # fmt: skip
+    maps = len(set(released))
+    assert maps >= 10  # one per .npy file the results directory holds
+    # frames 0-3 and 4-7 (2 drains), GT meshes and bodies per chunk, plots: one piece
+    assert len(released) % maps == 0 and len(released) // maps >= 5
+    released.clear()
+    export_rrd(scene, results, model, tmp_path / "memory.rrd", images=False,
+               mesh_chunk_frames=4, progress=False)  # fmt: skip
+    assert released == []  # nothing mapped in memory
+    assert mesh_rows(tmp_path / "mapped.rrd").keys() == mesh_rows(tmp_path / "memory.rrd").keys()
+    assert plot_rows(tmp_path / "mapped.rrd")[0] == plot_rows(tmp_path / "memory.rrd")[0]
+
