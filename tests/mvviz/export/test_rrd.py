@@ -647,4 +647,3 @@ def test_drains_hand_back_the_pages_of_mapped_results(tiny, tmp_path, monkeypatc
     assert released == []  # nothing mapped in memory
     assert mesh_rows(tmp_path / "mapped.rrd").keys() == mesh_rows(tmp_path / "memory.rrd").keys()
     assert plot_rows(tmp_path / "mapped.rrd")[0] == plot_rows(tmp_path / "memory.rrd")[0]
-
