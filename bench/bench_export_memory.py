@@ -4,7 +4,9 @@ alternated: meshes sent in chunks, rows cut into chunks when the export flushes
 (:func:`mvviz.export.heap.release_free_heap`) (today: ``chunked``, ``mesh_chunk_frames`` =
 :data:`mvviz.export.rrd.MESH_CHUNK_FRAMES`); in chunks on rerun's default 200 ms clock
 without the trim (``before``, the export of stops 28-36); all at once (``at_once``,
-``mesh_chunk_frames=0``, before stop 28).
+``mesh_chunk_frames=0``, before stop 28); and today's without rerun's chunk index, the
+file's footer (``no_index``: not a product option, as ``rerun rrd verify`` refuses such a
+file; it shows what the index, which rerun builds in memory until the file closes, holds).
 
 Each export runs in a fresh process on ``--scene`` (default the shipped sample,
 ``sample_data/shelf_synth``:
@@ -57,7 +59,8 @@ from pipeline.results import run_or_load
 from pipeline.scene import load_scene
 
 scene_dir, frames, chunk, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
-if sys.argv[5] == "0":  # the export of stops 28-36: no heap trim, rerun's 200 ms clock
+mode = sys.argv[5]
+if mode in ("before", "at_once"):  # the export of stops 28-36: no heap trim, rerun's 200 ms clock
     import rerun as rr
     import mvviz.export.rerun.logger, mvviz.export.rrd
     mvviz.export.rerun.logger.release_free_heap = lambda: False
@@ -66,6 +69,10 @@ if sys.argv[5] == "0":  # the export of stops 28-36: no heap trim, rerun's 200 m
     send_plots = mvviz.export.rerun.logger.SceneLogger.send_plots  # and the plots at once
     mvviz.export.rerun.logger.SceneLogger.send_plots = (
         lambda self, *a, **k: send_plots(self, *a, **{**k, "chunk_frames": 0}))
+if mode == "no_index":  # today's, without rerun's chunk index at the end of the file
+    import rerun as rr
+    save = rr.RecordingStream.save
+    rr.RecordingStream.save = lambda self, *a, **k: save(self, *a, **{**k, "write_footer": False})
 model = load_body_model()
 scene = load_scene(scene_dir)
 results, _ = run_or_load(scene, PipelineConfig(), model, progress=False)
@@ -116,10 +123,9 @@ print(json.dumps({"growth_mb": (status("VmHWM") - before) / 1024, "people": resu
 """
 
 
-def run_child(scene: Path, frames: int, chunk: int, trim: bool, out: Path) -> dict:
+def run_child(scene: Path, frames: int, chunk: int, mode: str, out: Path) -> dict:
     proc = subprocess.run(
-        [sys.executable, "-c", CHILD, str(scene), str(frames), str(chunk), str(out),
-         str(int(trim))],
+        [sys.executable, "-c", CHILD, str(scene), str(frames), str(chunk), str(out), mode],
         capture_output=True, text=True, cwd=REPO, check=False,
     )  # fmt: skip
     if proc.returncode != 0:
@@ -133,21 +139,21 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--scene", type=Path, default=SCENE, help="default: the shipped sample")
     ap.add_argument("--modes", nargs="+", default=["chunked", "before", "at_once"],
-                    choices=["chunked", "before", "at_once"])  # fmt: skip
+                    choices=["chunked", "before", "at_once", "no_index"])  # fmt: skip
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     from mvviz.export.rrd import MESH_CHUNK_FRAMES  # noqa: PLC0415
 
-    modes = {"chunked": (MESH_CHUNK_FRAMES, True), "before": (MESH_CHUNK_FRAMES, False),
-             "at_once": (0, False)}  # fmt: skip
+    modes = {"chunked": MESH_CHUNK_FRAMES, "before": MESH_CHUNK_FRAMES, "at_once": 0,
+             "no_index": MESH_CHUNK_FRAMES}  # fmt: skip
     modes = {m: v for m, v in modes.items() if m in args.modes}
     runs: dict[str, dict[int, list[dict]]] = {m: {f: [] for f in args.frames} for m in modes}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.repeats):
             for f in args.frames:
                 order = list(modes.items()) if r % 2 == 0 else list(reversed(modes.items()))
-                for m, (chunk, trim) in order:
-                    row = run_child(args.scene, f, chunk, trim, Path(tmp) / f"{m}_{f}.rrd")
+                for m, chunk in order:
+                    row = run_child(args.scene, f, chunk, m, Path(tmp) / f"{m}_{f}.rrd")
                     runs[m][f].append(row)
                     print(f"repeat {r + 1}: {f:4d} frames, {m:8s}: +{row['growth_mb']:7.1f} MB "
                           f"peak ({row['anon_peak_mb']:.1f} anonymous, {row['file_peak_mb']:.1f} "
@@ -183,7 +189,7 @@ def main() -> int:
                            "gb_at_10k_20p": at_10k, "seconds": secs, "held_mb": held,
                            "held_kb_per_frame": held_kb, "anon_peak_mb": anon,
                            "anon_kb_per_frame": anon_kb}  # fmt: skip
-    for m in [m for m in ("at_once", "before") if m in modes and "chunked" in modes]:
+    for m in [m for m in ("at_once", "before", "no_index") if m in modes and "chunked" in modes]:
         a, b = (out["modes"][k]["growth_mb"] for k in (m, "chunked"))
         print(f"growth at {args.frames[-1]} frames: {m} / chunked = {a[-1] / b[-1]:.2f}x; "
               f"from {args.frames[0]} to {args.frames[-1]} frames: {m} +{a[-1] - a[0]:.1f} MB, "
