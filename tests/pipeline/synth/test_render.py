@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import trimesh
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -384,6 +384,8 @@ def brute_force(xy: np.ndarray, inv_z: np.ndarray, width: int, height: int):
 
 @settings(max_examples=25, deadline=None)
 @given(st.integers(0, 2**32 - 1))
+@example(836)  # slivers whose float32 1/z was 1.3e-5 off (1/z is now float64)
+@example(841)
 def test_rasteriser_matches_brute_force(seed):
     rng = np.random.default_rng(seed)
     width, height, n = 48, 36, 25
@@ -395,10 +397,11 @@ def test_rasteriser_matches_brute_force(seed):
     clear = ~ambiguous
     assert clear.mean() > 0.95
     # allow ties in depth (pixels where two triangles are within float32 of each other)
-    same = (tri == ref_tri) | np.isclose(depth, ref_depth, rtol=1e-5)
+    same = (tri == ref_tri) | np.isclose(depth, ref_depth, rtol=1e-6)
     assert same[clear].all()
     hit = ref_tri >= 0
-    np.testing.assert_allclose(depth[hit & clear], ref_depth[hit & clear], rtol=1e-5)
+    # the depth is float32, interpolated in float64: its rounding only (float32 eps 6e-8)
+    np.testing.assert_allclose(depth[hit & clear], ref_depth[hit & clear], rtol=1e-6)
     assert np.isinf(depth[tri < 0]).all()
 
 
