@@ -179,9 +179,12 @@ def make_scenes(root: Path, frames: int = 250, people: int = 4) -> list[Path]:
             print(f"synthesising {s} (seed {seed}) ...", flush=True)
             cmd = [sys.executable, "-m", "mvviz.cli", "synth", str(s), "--frames", str(frames),
                    "--people", str(people), "--seed", str(seed), "--no-video"]  # fmt: skip
-            subprocess.run(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            done = subprocess.run(
+                cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+            )
         if not (s / "scene.json").is_file():
-            raise SystemExit(f"bench_batch: could not synthesise {s} ({people} people)")
+            last = (done.stderr.strip().splitlines() or ["no error output"])[-1]
+            raise SystemExit(f"bench_batch: could not synthesise {s} ({people} people): {last}")
     return scenes
 
 

@@ -82,3 +82,19 @@ def test_app_py_and_mvviz_exit_2_on_a_bad_scene(tmp_path):
         assert proc.returncode == 2, proc.stderr
         assert "Traceback" not in proc.stderr
         assert "scene.json: file not found" in proc.stderr
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [("--people", "-1"), ("--people", "0"), ("--frames", "0"), ("--frames", "x")],
+)
+def test_synth_counts_below_one_are_a_usage_error_and_write_nothing(
+    option, value, tmp_path, capsys
+):
+    out = tmp_path / "scene"
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", str(out), option, value, "--no-video"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {option}: expected an integer" in err and "Traceback" not in err
+    assert not out.exists()
