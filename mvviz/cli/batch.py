@@ -251,8 +251,14 @@ def _run_jobs(args, ray_start: _RayStart, jobs, scenes, model, bad) -> list:
     return run_jobs(
         jobs, scenes, model, chunk_frames=args.chunk_frames, retries=args.retries,
         force=args.force, shared_files=args.address is None or args.shared_storage,
-        warm=ray_start.warm,
+        warm=ray_start.warm, on_idle_cpu=_import_report,
     )  # fmt: skip
+
+
+def _import_report() -> None:
+    """The report's modules (matplotlib, ~0.4 s) imported while the last scenes run,
+    not after them."""
+    import pipeline.batch.report  # noqa: F401, PLC0415
 
 
 def _report(args, outcomes, bad, t0: float) -> int:

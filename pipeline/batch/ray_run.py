@@ -40,7 +40,7 @@ import logging
 import os
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -438,12 +438,16 @@ def run_jobs(
     progress: Progress = True,
     shared_files: bool = False,
     warm: Sequence[ray.ObjectRef] = (),
+    on_idle_cpu: Callable[[], None] | None = None,
 ) -> list[Outcome]:
     """Run every job whose results are not current (``force``: all) on the connected
     Ray; ``scenes`` maps each job's ``scene_dir`` to its loaded scene; ``shared_files``:
     the workers read the scenes and write the results at the driver's paths (see the
     module docstring); ``warm``: the refs of :func:`warm_workers` (collected at the
-    end). Outcomes in the order of ``jobs``. Progress: stage "scenes" (jobs
+    end); ``on_idle_cpu``: called once, in this thread, as soon as fewer jobs are left
+    than Ray has CPUs (a core has nothing more to do: the driver's own closing work,
+    such as the report's imports, costs the batch no time there). Outcomes in the
+    order of ``jobs``. Progress: stage "scenes" (jobs
     done, cached ones counted at once) and stage "chunks" (frame chunks done)."""
     outcomes: list[Outcome | None] = [None] * len(jobs)
     todo: list[tuple[int, bool]] = []
@@ -469,11 +473,17 @@ def run_jobs(
         pending.update(submitter.submit(i, jobs[i], current, chunk_frames))
 
     done_jobs = len(jobs) - len(todo)
+    # (all current: no Ray was started, nothing is idle)
+    cpus = ray.cluster_resources().get("CPU", 1) if on_idle_cpu is not None and todo else 0
+    left = len(todo)  # jobs not finished
     with (
         StageBar("scenes", len(jobs), progress, unit="scene", initial=done_jobs) as scene_bar,
         StageBar("chunks", submitter.num_chunks, progress, unit="chunk") as chunk_bar,
     ):
         while pending:
+            if on_idle_cpu is not None and left < cpus:
+                on_idle_cpu()
+                on_idle_cpu = None
             ready, _ = ray.wait(list(pending), num_returns=1)
             kind, i = pending.pop(ready[0])
             if kind == "chunk":
@@ -481,6 +491,7 @@ def run_jobs(
                 continue
             outcomes[i] = _finish(jobs[i], kind, ready[0], time.perf_counter() - started[i])
             scene_bar.update()
+            left -= 1
     for ref in warm:  # done long ago; a failed load is the scene tasks' error to report
         try:
             ray.get(ref)

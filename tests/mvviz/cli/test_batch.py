@@ -157,6 +157,41 @@ def test_embedded_ray_starts_a_lean_head_and_restores_ray():
     assert ray_node.Node.__dict__["start_api_server"] is api
 
 
+def test_idle_cpu_hook_runs_once_when_a_core_has_nothing_left(dataset, tmp_path, monkeypatch):
+    """3 scenes on 2 CPUs: the driver's closing work (``on_idle_cpu``) runs once, as soon as
+    fewer scenes are left than CPUs: after the second scene is done (one left, a core
+    idle), before the last one finishes."""
+    from mvviz.cli import build_parser  # noqa: PLC0415
+    from mvviz.cli.batch import plan  # noqa: PLC0415
+
+    dirs = []
+    for name in ("s1", "s2", "s3"):
+        skip = shutil.ignore_patterns(".mvviz")
+        shutil.copytree(dataset / "ref" / "a", tmp_path / name, ignore=skip)
+        dirs.append(str(tmp_path / name))
+    argv = ["batch", *dirs, *SMPL, "--force", "--out", str(tmp_path / "out")]
+    jobs, scenes, model, bad = plan(build_parser(argv).parse_args(argv))
+    assert len(jobs) == 3 and not bad
+    events: list[str] = []
+    finish = ray_run._finish
+
+    def recorded_finish(*args):
+        events.append("done")
+        return finish(*args)
+
+    monkeypatch.setattr(ray_run, "_finish", recorded_finish)
+    start_ray(num_cpus=2)
+    try:
+        outcomes = ray_run.run_jobs(
+            jobs, scenes, model, force=True, progress=False, shared_files=True,
+            on_idle_cpu=lambda: events.append("idle"),
+        )  # fmt: skip
+    finally:
+        stop_ray()
+    assert [o.status for o in outcomes] == ["computed"] * 3
+    assert events == ["done", "done", "idle", "done"]
+
+
 def _is_loopback(ip: str) -> bool:
     addr = ipaddress.ip_address(ip)
     return (getattr(addr, "ipv4_mapped", None) or addr).is_loopback
