@@ -26,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "Runs the pipeline, and the evaluation where a scene has ground truth, on every "
             "SCENE (or every scene directory under --root) as Ray tasks: an embedded local "
-            "Ray on this machine's cores, or a cluster with --address. Long scenes split into "
+            "Ray on this machine's cores, or a cluster with --address. A scene longer than an "
+            "even share of the work (one long scene, or fewer scenes than CPUs) splits into "
             "frame chunks for association and triangulation. Results are the same, bit for "
             "bit, as mvviz run's, written atomically beside each scene (SCENE/.mvviz/"
             "results.npz) or under --out; a re-run skips scenes whose results are current. "
@@ -58,8 +59,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=None, help="results under DIR/<scene>/")
     p.add_argument("--report", type=Path, default=None, help="directory of the report files")
     p.add_argument(
-        "--chunk-frames", type=int, default=500,
-        help="frames per association/triangulation task (default 500; 0: one per scene)",
+        "--chunk-frames", type=int, default=None,
+        help="split every scene into association/triangulation tasks of N frames (0: one "
+        "task per scene; default: a scene longer than an even share of the work splits "
+        "into chunks of 500, the others run as one task)",
     )  # fmt: skip
     p.add_argument("--retries", type=int, default=2, help="retries of a failing task (default 2)")
     p.add_argument("--force", action="store_true", help="recompute current results too")

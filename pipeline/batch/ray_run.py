@@ -1,10 +1,11 @@
 """The jobs of :mod:`pipeline.batch.jobs` as Ray tasks: embedded local Ray or a cluster.
 
-The unit of work is a scene: a scene of at most ``chunk_frames`` frames (every
-sample-sized one) is one task that runs all its stages, on a warm worker (Ray keeps its
-worker processes, so torch and the pipeline are imported once per worker, not per
-scene). A longer scene is one inputs task, one task per frame chunk (association,
-triangulation) and one join task (sequence stages, SMPL fit, the report's summary).
+The unit of work is a scene: a scene is one task that runs all its stages, on a warm
+worker (Ray keeps its worker processes, so torch and the pipeline are imported once per
+worker, not per scene). A scene that alone is more than an even share of the work
+(:func:`split_frames`: one long scene, or fewer scenes than CPUs) is one inputs task,
+one task per frame chunk (association, triangulation) and one join task (sequence
+stages, SMPL fit, the report's summary).
 
 What travels: with ``shared_files`` (always for the embedded Ray: the workers are on
 this machine) a task gets the scene's directory, the body model's file and the results
@@ -432,7 +433,7 @@ def run_jobs(
     scenes: dict[Path, Scene],
     model: BodyModelData,
     *,
-    chunk_frames: int = 0,
+    chunk_frames: int | None = 0,
     retries: int = 2,
     force: bool = False,
     progress: Progress = True,
@@ -441,14 +442,16 @@ def run_jobs(
     on_idle_cpu: Callable[[], None] | None = None,
 ) -> list[Outcome]:
     """Run every job whose results are not current (``force``: all) on the connected
-    Ray; ``scenes`` maps each job's ``scene_dir`` to its loaded scene; ``shared_files``:
-    the workers read the scenes and write the results at the driver's paths (see the
-    module docstring); ``warm``: the refs of :func:`warm_workers` (collected at the
-    end); ``on_idle_cpu``: called once, in this thread, as soon as fewer jobs are left
-    than Ray has CPUs (a core has nothing more to do: the driver's own closing work,
-    such as the report's imports, costs the batch no time there). Outcomes in the
-    order of ``jobs``. Progress: stage "scenes" (jobs
-    done, cached ones counted at once) and stage "chunks" (frame chunks done)."""
+    Ray; ``scenes`` maps each job's ``scene_dir`` to its loaded scene;
+    ``chunk_frames``: every scene split into frame chunks of at most that many (0:
+    none; None: :func:`split_frames` decides per scene); ``shared_files``: the workers
+    read the scenes and write the results at the driver's paths (see the module
+    docstring); ``warm``: the refs of :func:`warm_workers` (collected at the end);
+    ``on_idle_cpu``: called once, in this thread, as soon as fewer jobs are left than
+    Ray has CPUs (a core has nothing more to do: the driver's own closing work, such
+    as the report's imports, costs the batch no time there). Outcomes in the order of
+    ``jobs``. Progress: stage "scenes" (jobs done, cached ones counted at once) and
+    stage "chunks" (frame chunks done)."""
     outcomes: list[Outcome | None] = [None] * len(jobs)
     todo: list[tuple[int, bool]] = []
     for i, job in enumerate(jobs):
@@ -468,20 +471,25 @@ def run_jobs(
     submitter = _Submitter(scenes, model, retries, shared_files)
     pending: dict[ray.ObjectRef, tuple[str, int]] = {}
     started: dict[int, float] = {}
+    sizes = {i: 0 if current else _scene_size(scenes[jobs[i].scene_dir]) for i, current in todo}
+    cpus = ray.cluster_resources().get("CPU", 1) if todo else 0  # (all current: no Ray)
     for i, current in todo:
         started[i] = time.perf_counter()
-        pending.update(submitter.submit(i, jobs[i], current, chunk_frames))
+        chunks = (
+            split_frames(sizes[i], sum(sizes.values()), cpus)
+            if chunk_frames is None
+            else chunk_frames
+        )
+        pending.update(submitter.submit(i, jobs[i], current, chunks))
 
     done_jobs = len(jobs) - len(todo)
-    # (all current: no Ray was started, nothing is idle)
-    cpus = ray.cluster_resources().get("CPU", 1) if on_idle_cpu is not None and todo else 0
     left = len(todo)  # jobs not finished
     with (
         StageBar("scenes", len(jobs), progress, unit="scene", initial=done_jobs) as scene_bar,
         StageBar("chunks", submitter.num_chunks, progress, unit="chunk") as chunk_bar,
     ):
         while pending:
-            if on_idle_cpu is not None and left < cpus:
+            if on_idle_cpu is not None and left < cpus:  # a core has nothing left to do
                 on_idle_cpu()
                 on_idle_cpu = None
             ready, _ = ray.wait(list(pending), num_returns=1)
@@ -520,6 +528,20 @@ def _prior_errors(configs: Sequence[PipelineConfig], retries: int) -> dict[str |
         except (ray.exceptions.RayError, SceneFormatError, OSError, ValueError) as exc:
             errors[prior] = _error_text(exc)
     return errors
+
+
+AUTO_CHUNK_FRAMES = 500
+"""Frames per chunk of a scene :func:`split_frames` splits."""
+
+
+def split_frames(size: int, total: int, cpus: float) -> int:
+    """Frames per chunk of a scene of ``size`` (:func:`_scene_size`) among jobs of
+    ``total`` on ``cpus``: :data:`AUTO_CHUNK_FRAMES` when the scene alone is more than
+    an even share of the work (a long scene beside short ones, or fewer scenes than
+    CPUs: unsplit, it would be the last to finish while cores idle), else 0, one task:
+    the chunks' inputs, join and intermediate objects cost ~30 % more CPU per scene
+    (README, issue 15), for nothing when the scenes keep every core busy anyway."""
+    return AUTO_CHUNK_FRAMES if cpus > 1 and size * cpus > total else 0
 
 
 def _scene_size(scene: Scene) -> int:

@@ -157,10 +157,12 @@ def test_embedded_ray_starts_a_lean_head_and_restores_ray():
     assert ray_node.Node.__dict__["start_api_server"] is api
 
 
-def test_idle_cpu_hook_runs_once_when_a_core_has_nothing_left(dataset, tmp_path, monkeypatch):
-    """3 scenes on 2 CPUs: the driver's closing work (``on_idle_cpu``) runs once, as soon as
-    fewer scenes are left than CPUs: after the second scene is done (one left, a core
-    idle), before the last one finishes."""
+def test_idle_cpu_hook_and_automatic_split(dataset, reference, tmp_path, monkeypatch):
+    """3 equal scenes on 2 CPUs: each runs as one task (none is more than an even share
+    of the work), and the driver's closing work (``on_idle_cpu``) runs once, as soon as
+    fewer scenes are left than CPUs: after the second is done, before the last. One
+    scene alone on 2 CPUs is split into frame chunks (auto chunks of 5 frames here),
+    with mvviz run's results bit for bit."""
     from mvviz.cli import build_parser  # noqa: PLC0415
     from mvviz.cli.batch import plan  # noqa: PLC0415
 
@@ -169,9 +171,13 @@ def test_idle_cpu_hook_runs_once_when_a_core_has_nothing_left(dataset, tmp_path,
         skip = shutil.ignore_patterns(".mvviz")
         shutil.copytree(dataset / "ref" / "a", tmp_path / name, ignore=skip)
         dirs.append(str(tmp_path / name))
-    argv = ["batch", *dirs, *SMPL, "--force", "--out", str(tmp_path / "out")]
-    jobs, scenes, model, bad = plan(build_parser(argv).parse_args(argv))
-    assert len(jobs) == 3 and not bad
+
+    def planned(scene_dirs, out):
+        argv = ["batch", *scene_dirs, *SMPL, "--force", "--out", str(tmp_path / out)]
+        jobs, scenes, model, bad = plan(build_parser(argv).parse_args(argv))
+        assert len(jobs) == len(scene_dirs) and not bad
+        return jobs, scenes, model
+
     events: list[str] = []
     finish = ray_run._finish
 
@@ -180,16 +186,33 @@ def test_idle_cpu_hook_runs_once_when_a_core_has_nothing_left(dataset, tmp_path,
         return finish(*args)
 
     monkeypatch.setattr(ray_run, "_finish", recorded_finish)
+    monkeypatch.setattr(ray_run, "AUTO_CHUNK_FRAMES", 5)
     start_ray(num_cpus=2)
     try:
-        outcomes = ray_run.run_jobs(
-            jobs, scenes, model, force=True, progress=False, shared_files=True,
-            on_idle_cpu=lambda: events.append("idle"),
+        three = ray_run.run_jobs(
+            *planned(dirs, "three"), chunk_frames=None, force=True, progress=False,
+            shared_files=True, on_idle_cpu=lambda: events.append("idle"),
+        )  # fmt: skip
+        one = ray_run.run_jobs(
+            *planned(dirs[:1], "one"), chunk_frames=None, force=True, progress=False,
+            shared_files=True,
         )  # fmt: skip
     finally:
         stop_ray()
-    assert [o.status for o in outcomes] == ["computed"] * 3
-    assert events == ["done", "done", "idle", "done"]
+    assert [o.status for o in three] == ["computed"] * 3
+    assert all(o.parts and o.parts["sequence_fit_s"] > 0 for o in three)  # one task each
+    assert events[:4] == ["done", "done", "idle", "done"]
+    assert one[0].status == "computed" and one[0].parts is None  # inputs, chunks, join
+    assert_same_files(tmp_path / "one" / "s1" / "results.npz", reference)
+
+
+def test_split_frames_splits_a_scene_beyond_an_even_share():
+    split = ray_run.split_frames
+    assert split(100, 800, 2) == 0  # 8 equal scenes on 2 CPUs: one task each
+    assert split(100, 100, 2) == ray_run.AUTO_CHUNK_FRAMES  # one scene, 2 CPUs
+    assert split(600, 800, 2) == ray_run.AUTO_CHUNK_FRAMES  # a long one beside short ones
+    assert split(100, 800, 2) == split(400, 800, 2) == 0  # exactly an even share: no
+    assert split(100, 100, 1) == 0  # one CPU: nothing to gain
 
 
 def _is_loopback(ip: str) -> bool:
