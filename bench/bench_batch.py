@@ -28,7 +28,10 @@ the two workers together get the share the serial process gets alone. The parts:
   scenes (scene, config, body model, cache key), wall and CPU, and whether torch loaded;
 - per repeat, the batch's wall beyond its tasks' work: wall - the sum of the task walls /
   the cores (what Ray's start, the workers' first imports, the driver's own work and the
-  shutdown add where the tasks do not hide them);
+  shutdown add where the tasks do not hide them), and its timeline from the tasks' start
+  and end times: the start-up (command to first scene task), the tail (last task's end
+  to the exit), the workers that ran scenes, and the core-seconds left idle between the
+  first and the last task;
 - per scene, medians over scenes and repeats: ``mvviz run``'s wall and CPU seconds in
   the serial process, and the batch task's per stage (load, frames = restoration +
   association + triangulation, sequence_fit = tracking + filters + SMPL fit,
@@ -218,12 +221,34 @@ def differing(a: Path, b: Path) -> list[str]:
 
 
 def medians(rows: list[dict]) -> dict:
-    return {k: round(statistics.median(r[k] for r in rows), 3) for k in rows[0]} if rows else {}
+    """Per key ending in ``_s`` (seconds), its median over ``rows``."""
+    keys = [k for k in rows[0] if k.endswith("_s")] if rows else []
+    return {k: round(statistics.median(r[k] for r in rows), 3) for k in keys}
+
+
+def timeline(rows: list[dict], t0: float, t1: float) -> dict:
+    """Where a batch's wall went (Unix times ``t0`` the command, ``t1`` its exit; the
+    report rows' task start / end and worker): start-up (command to first task), tail
+    (last task to exit), the workers that ran scenes, and the core-seconds idle between
+    the first and the last task (a core without a task while another still has one)."""
+    parts = [r["task_seconds"] for r in rows if (r.get("task_seconds") or {}).get("started_at")]
+    if not parts:
+        return {}
+    first = min(p["started_at"] for p in parts)
+    last = max(p["ended_at"] for p in parts)
+    busy = sum(p["ended_at"] - p["started_at"] for p in parts)
+    cores = os.cpu_count() or 1
+    return {
+        "startup_s": round(first - t0, 2), "tail_s": round(t1 - last, 2),
+        "workers": len({p["pid"] for p in parts}),
+        "idle_core_s": round(cores * (last - first) - busy, 2),
+    }  # fmt: skip
 
 
 def alternate(names: list[str], tmp: str, repeats: int) -> dict:
     """Serial and batch runs, alternated; their times, loads and per-scene parts."""
     serial, batch, loads, serial_scenes, task_parts, overhead = [], [], [], [], [], []
+    timelines: list[dict] = []  # per repeat, where the batch's wall went
     serial_run = []  # the serial process's wall without its evaluations
     for r in range(repeats):
         loads.append(os.getloadavg()[0])
@@ -240,17 +265,23 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
         loads.append(os.getloadavg()[0])
         cmd = [sys.executable, "-m", "mvviz.cli", "batch", *names, "--force",
                "--out", f"{tmp}/batch", "--report", f"{tmp}/report"]  # fmt: skip
+        t0 = time.time()
         batch.append(timed(cmd)[0])
         rows = json.loads(Path(tmp, "report", "batch_report.json").read_text())["rows"]
         task_parts += [row["task_seconds"] for row in rows if row.get("task_seconds")]
         overhead.append(batch[-1] - sum(map(task_wall, rows)) / (os.cpu_count() or 1))
+        timelines.append(timeline(rows, t0, t0 + batch[-1]))
+        where = (f"; start-up {timelines[-1]['startup_s']:.1f} s, tail "
+                 f"{timelines[-1]['tail_s']:.1f} s, {timelines[-1]['workers']} workers, "
+                 f"{timelines[-1]['idle_core_s']:.1f} core-s idle between tasks"
+                 if timelines[-1] else "")  # fmt: skip
         print(f"repeat {r + 1}: serial {serial[-1]:.1f} s ({serial_run[-1]:.1f} without the "
               f"evaluations; load {loads[-2]:.1f}), batch {batch[-1]:.1f} s (load "
               f"{loads[-1]:.1f}): {serial[-1] / batch[-1]:.2f}x "
-              f"({serial_run[-1] / batch[-1]:.2f}x)", flush=True)  # fmt: skip
+              f"({serial_run[-1] / batch[-1]:.2f}x){where}", flush=True)  # fmt: skip
     return dict(serial=serial, serial_run=serial_run, batch=batch, loads=loads,
                 serial_scene=medians(serial_scenes), task=medians(task_parts),
-                overhead=overhead)  # fmt: skip
+                overhead=overhead, timelines=timelines)  # fmt: skip
 
 
 def task_wall(row: dict) -> float:
@@ -302,6 +333,7 @@ def main() -> int:
         "speedup_per_repeat": [a / b for a, b in zip(runs["serial"], runs["batch"], strict=True)],
         "load_1min": runs["loads"], "load_at_parts": load, "ray_start": ray_start,
         "driver": driver, "batch_overhead_s": runs["overhead"],
+        "batch_timeline": runs["timelines"],
         "serial_per_scene": runs["serial_scene"], "batch_task_per_scene": runs["task"],
         "fit_threads": fit, "results_equal": equal, "results_differ": diffs,
         "autogroup": autogroup(),

@@ -256,11 +256,16 @@ def _scene(scene: Scene | Path) -> Scene:
 
 
 class _Clock:
-    """Wall and CPU seconds (this process, all threads) of the stages of a task."""
+    """Wall and CPU seconds (this process, all threads) of the stages of a task, and
+    when (Unix time) and where (the worker's process id) it ran: a batch's timeline."""
 
     def __init__(self) -> None:
-        self.parts: dict[str, float] = {}
+        self.parts: dict[str, float] = {"started_at": round(time.time(), 3), "pid": os.getpid()}
         self._wall, self._cpu = time.perf_counter(), time.process_time()
+
+    def done(self) -> dict[str, float]:
+        self.parts["ended_at"] = round(time.time(), 3)
+        return self.parts
 
     def lap(self, name: str) -> None:
         wall, cpu = time.perf_counter(), time.process_time()
@@ -287,7 +292,7 @@ def _scene_task(scene, config, model, key, results_path, threads):
         save_results(results, results_path)
         results = None
     clock.lap("summary_save")
-    return results, summary, clock.parts
+    return results, summary, clock.done()
 
 
 def _inputs_task(scene, config, model, threads):

@@ -107,7 +107,11 @@ def test_one_task_scene_equals_mvviz_run(dataset, reference, tmp_path, ship):
     finally:
         stop_ray()
     row = load_report(out)["rows"][0]
-    assert row["status"] == "computed" and row["task_seconds"]["sequence_fit_s"] > 0
+    parts = row["task_seconds"]
+    assert row["status"] == "computed" and parts["sequence_fit_s"] > 0
+    # the batch's timeline: when and on which worker (a Ray worker, not this process)
+    assert parts["started_at"] + parts["sequence_fit_s"] <= parts["ended_at"]
+    assert parts["pid"] != os.getpid()
     assert_same_files(out / "a" / "results.npz", reference)
 
 
