@@ -55,6 +55,22 @@ INPUT_ERRORS = (SceneFormatError, OSError)
 """What bad input raises: exit code 2 and one line, never a traceback."""
 
 
+def at_least(low: int) -> Callable[[str], int]:
+    """An argparse ``type``: an integer >= ``low`` (a count), else a usage error naming
+    the option and the value (exit 2, nothing run), not a failure deep in a stage."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value}")
+        return value
+
+    return parse
+
+
 def add_debug_option(parser: argparse.ArgumentParser, default=False) -> None:
     parser.add_argument(
         "--debug", action="store_true", default=default,
@@ -83,4 +99,3 @@ def run_command(prog: str, func: Callable[[argparse.Namespace], int | None], arg
 def main(argv: list[str] | None = None) -> int:
     args = build_parser(argv).parse_args(argv)
     return run_command(f"mvviz {args.command}", args.func, args)
-

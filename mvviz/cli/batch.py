@@ -12,6 +12,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from mvviz.cli import at_least
 from mvviz.cli.run import add_config_options, prepare
 from pipeline.batch.jobs import SceneJob
 from pipeline.batch.sweep import setting_slug, sweep_grid
@@ -54,17 +55,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the embedded Ray)",
     )  # fmt: skip
     p.add_argument(
-        "--num-cpus", type=int, default=None, help="embedded Ray's CPUs (default: all cores)"
+        "--num-cpus",
+        type=at_least(1),
+        default=None,
+        help="embedded Ray's CPUs (default: all cores)",
     )
     p.add_argument("--out", type=Path, default=None, help="results under DIR/<scene>/")
     p.add_argument("--report", type=Path, default=None, help="directory of the report files")
     p.add_argument(
-        "--chunk-frames", type=int, default=None,
+        "--chunk-frames", type=at_least(0), default=None,
         help="split every scene into association/triangulation tasks of N frames (0: one "
         "task per scene; default: a scene longer than an even share of the work splits "
         "into chunks of 500, the others run as one task)",
     )  # fmt: skip
-    p.add_argument("--retries", type=int, default=2, help="retries of a failing task (default 2)")
+    p.add_argument(
+        "--retries", type=at_least(0), default=2, help="retries of a failing task (default 2)"
+    )
     p.add_argument("--force", action="store_true", help="recompute current results too")
     p.set_defaults(func=run)
 

@@ -7,6 +7,7 @@ import dataclasses
 import time
 from pathlib import Path
 
+from mvviz.cli import at_least
 from mvviz.cli.synth_mocap import add_motion_options, run_motion
 from pipeline.body_model import load_body_model
 from pipeline.cameras import load_cameras
@@ -37,22 +38,6 @@ def load_rig(spec: str):
     return load_cameras(path)
 
 
-def _at_least(low: int):
-    """An argparse type: an integer >= ``low`` (a count of people or frames), else a
-    usage error that names the value, not an IndexError deep in the synthesis."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < low:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value}")
-        return value
-
-    return parse
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "synth",
@@ -79,8 +64,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="people stand within this distance of the cameras' mean centre (default: the "
         "capture circle for a dome, 0.6 of its radius; else anywhere 3 cameras see)",
     )
-    p.add_argument("--people", type=_at_least(1), default=4)
-    p.add_argument("--frames", type=_at_least(1), default=250)
+    p.add_argument("--people", type=at_least(1), default=4)
+    p.add_argument("--frames", type=at_least(1), default=250)
     p.add_argument("--fps", type=float, default=25.0)
     p.add_argument("--seed", type=int, default=0)
     add_motion_options(p)

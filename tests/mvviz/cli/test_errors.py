@@ -98,3 +98,19 @@ def test_synth_counts_below_one_are_a_usage_error_and_write_nothing(
     err = capsys.readouterr().err
     assert f"argument {option}: expected an integer" in err and "Traceback" not in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [("--num-cpus", "0"), ("--retries", "-1"), ("--chunk-frames", "-5"), ("--retries", "two")],
+)
+def test_batch_counts_out_of_range_are_a_usage_error_before_ray_starts(
+    option, value, tmp_path, capsys
+):
+    """Checked by argparse, before any scene is planned or Ray started (no report)."""
+    with pytest.raises(SystemExit) as exc:
+        main(["batch", str(tmp_path), option, value, "--report", str(tmp_path / "r")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {option}: expected an integer" in err and "Traceback" not in err
+    assert not (tmp_path / "r").exists()
