@@ -229,7 +229,7 @@ def _row(outcome) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    t0 = time.perf_counter()
+    t0, started_at = time.perf_counter(), time.time()
     ray_start = _RayStart(args)
     if args.force:  # every job computes: Ray starts now, beside the planning
         ray_start.start()
@@ -241,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
         raise
     ray_start.stop(wait=False)  # the results are written: its shutdown (~1.4 s) beside the report
     try:
-        return _report(args, outcomes, bad, t0)
+        return _report(args, outcomes, bad, t0, started_at)
     finally:
         ray_start.stop()
 
@@ -270,7 +270,7 @@ def _import_report() -> None:
     import pipeline.batch.report  # noqa: F401, PLC0415
 
 
-def _report(args, outcomes, bad, t0: float) -> int:
+def _report(args, outcomes, bad, t0: float, started_at: float) -> int:
     from pipeline.batch.report import build_report, write_report  # noqa: PLC0415  (matplotlib)
 
     rows = [_row(o) for o in outcomes] + bad
@@ -278,7 +278,7 @@ def _report(args, outcomes, bad, t0: float) -> int:
         if o.status == "failed":
             print(f"{o.job.label}: failed after {args.retries} retries: {o.error}", file=sys.stderr)
     report_dir = args.report or args.out or args.root or Path.cwd()
-    report = build_report(rows, sweeps=args.sweep)
+    report = build_report(rows, sweeps=args.sweep, started_at=started_at)
     js, page = write_report(report, report_dir)
     c = report["counts"]
     print(

@@ -66,9 +66,12 @@ def _mean(values: list) -> float | None:
     return sum(v) / len(v) if v else None
 
 
-def build_report(rows: Sequence[dict], *, sweeps: Sequence[str] = ()) -> dict:
+def build_report(
+    rows: Sequence[dict], *, sweeps: Sequence[str] = (), started_at: float | None = None
+) -> dict:
     """The report of ``rows``: one dict per job with ``scene``, ``label``, ``setting``,
-    ``status``, ``error``, ``results``, ``summary`` (None if it failed), ``seconds``."""
+    ``status``, ``error``, ``results``, ``summary`` (None if it failed), ``seconds``;
+    ``started_at``: when the batch command started (Unix time), for its timeline."""
     rows = [dict(r) for r in rows]
     moments = []
     for r in rows:
@@ -110,6 +113,52 @@ def build_report(rows: Sequence[dict], *, sweeps: Sequence[str] = ()) -> dict:
         "counts": {
             s: sum(r["status"] == s for r in rows) for s in ("computed", "cached", "failed")
         },
+        "timeline": task_timeline(rows, started_at),
+    }
+
+
+# a one-task scene's stages, in the order they run, and their colours in the timeline
+TASK_STAGES = {
+    "load": ("reading", "#8c8c8c"),
+    "frames": ("restoration + association + triangulation", "#4c72b0"),
+    "sequence_fit": ("tracking + filters + SMPL fit", "#dd8452"),
+    "summary_save": ("figures + saving", "#55a868"),
+}
+
+
+def task_timeline(rows: Sequence[dict], started_at: float | None = None) -> dict | None:
+    """Where a batch's time went, from its one-task scenes' rows (``task_seconds`` with
+    ``started_at`` / ``ended_at`` / ``pid``; chunked and reused scenes have none): the
+    workers (numbered in the order of their first task), each task's label, worker,
+    start and end in seconds from the first task's start and its stages' walls, the
+    span from the first start to the last end, the share of it the workers were busy,
+    and with ``started_at`` (the command's start, Unix time) the start-up before the
+    first task (``startup_s``: Ray, the workers' imports). None without such a row."""
+    timed = [r for r in rows if (r.get("task_seconds") or {}).get("started_at") is not None]
+    if not timed:
+        return None
+    t0 = min(r["task_seconds"]["started_at"] for r in timed)
+    span = max(r["task_seconds"]["ended_at"] for r in timed) - t0
+    startup = round(t0 - started_at, 3) if started_at is not None else None
+    order = sorted(timed, key=lambda r: r["task_seconds"]["started_at"])
+    workers = list(dict.fromkeys(r["task_seconds"]["pid"] for r in order))
+    tasks = [
+        {
+            "label": r["label"],
+            "worker": workers.index(r["task_seconds"]["pid"]),
+            "start_s": round(r["task_seconds"]["started_at"] - t0, 3),
+            "end_s": round(r["task_seconds"]["ended_at"] - t0, 3),
+            "stages_s": {k: r["task_seconds"].get(f"{k}_s", 0.0) for k in TASK_STAGES},
+        }
+        for r in order
+    ]
+    busy = sum(t["end_s"] - t["start_s"] for t in tasks)
+    return {
+        "workers": len(workers),
+        "span_s": round(span, 3),
+        "busy": round(busy / (len(workers) * span), 3) if span > 0 else 1.0,
+        "startup_s": startup,
+        "tasks": tasks,
     }
 
 
@@ -171,6 +220,40 @@ def _bar_plot(rows: list[dict], metric: str) -> str:
     ax.invert_yaxis()
     ax.set_xlabel(METRICS[metric][0])
     ax.set_title(f"{METRICS[metric][0]} per scene")
+    return _png(fig)
+
+
+def _timeline_plot(timeline: dict) -> str:
+    """The scene tasks per worker in time, each split into its stages."""
+    fig, ax = plt.subplots(figsize=(8, 0.45 * timeline["workers"] + 1.4))
+    lead = timeline.get("startup_s") or 0.0  # the command's start at 0, where known
+    if lead > 0:
+        ax.axvspan(0, lead, color="#e8e8e8", zorder=0)
+        ax.text(lead / 2, (timeline["workers"] - 1) / 2, f"start-up\n{lead:.1f} s", ha="center",
+                va="center", fontsize=8, color="#555")  # fmt: skip
+    for t in timeline["tasks"]:
+        t = dict(t, start_s=t["start_s"] + lead, end_s=t["end_s"] + lead)
+        x = t["start_s"]
+        for k, (_, colour) in TASK_STAGES.items():
+            w = t["stages_s"].get(k, 0.0)
+            ax.barh(t["worker"], w, left=x, height=0.6, color=colour, edgecolor="none")
+            x += w
+        ax.barh(t["worker"], t["end_s"] - t["start_s"], left=t["start_s"], height=0.6,
+                fill=False, edgecolor="#333", linewidth=0.6)  # fmt: skip
+        if t["end_s"] - t["start_s"] > 0.06 * (timeline["span_s"] + lead):
+            ax.text((t["start_s"] + t["end_s"]) / 2, t["worker"], t["label"], ha="center",
+                    va="center", fontsize=7, color="white", clip_on=True)  # fmt: skip
+    ax.set_yticks(range(timeline["workers"]), [f"worker {i}" for i in range(timeline["workers"])])
+    ax.invert_yaxis()
+    ax.set_xlabel("seconds from the batch command's start" if lead > 0
+                  else "seconds from the first scene task's start")  # fmt: skip
+    ax.set_title(
+        f"{len(timeline['tasks'])} scene tasks on {timeline['workers']} workers: busy "
+        f"{100 * timeline['busy']:.0f} % of {timeline['span_s']:.1f} s"
+    )
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for _, c in TASK_STAGES.values()]
+    ax.legend(handles, [name for name, _ in TASK_STAGES.values()], fontsize=7,
+              loc="upper center", bbox_to_anchor=(0.5, -0.35), ncol=2, frameon=False)  # fmt: skip
     return _png(fig)
 
 
@@ -270,6 +353,24 @@ def render_html(report: dict) -> str:
         "<h2>Reprojection error per camera (px)</h2>",
         _table(["scene", *[esc(c) for c in cams]], cam_rows),
     ]  # fmt: skip
+    timeline = report.get("timeline")
+    if timeline:
+        parts += [
+            "<h2>Where the time went</h2>",
+            f"<p>The scene tasks run as one task each, per worker (scenes split into frame "
+            f"chunks and reused ones are not shown): {len(timeline['tasks'])} tasks on "
+            f"{timeline['workers']} workers, busy {100 * timeline['busy']:.0f} % of the "
+            f"{timeline['span_s']:.1f} s from the first task's start to the last one's "
+            f"end"
+            + (
+                f", after {timeline['startup_s']:.1f} s of start-up (Ray's processes, the "
+                f"workers' imports) from the command's start"
+                if timeline.get("startup_s")
+                else ""
+            )
+            + ".</p>",
+            _timeline_plot(timeline),
+        ]
     if report["sweeps"]:
         parts += [
             "<h2>Sweep: the metrics per setting (mean over scenes)</h2>",

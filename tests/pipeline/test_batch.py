@@ -182,3 +182,51 @@ def test_stored_key(tiny, tmp_path):
     results = run_pipeline(scene, NO_FIT, model, progress=False)
     save_results(results, tmp_path / "r.npz")
     assert stored_key(tmp_path / "r.npz") == results.cache_key != ""
+
+
+def _timed_row(label, pid, start, end, fit):
+    parts = {"started_at": start, "ended_at": end, "pid": pid, "load_s": 0.1,
+             "frames_s": 0.4, "sequence_fit_s": fit, "summary_save_s": 0.5}  # fmt: skip
+    return {"label": label, "scene": f"/d/{label}", "results": f"/d/{label}.npz",
+            "status": "computed", "summary": None, "task_seconds": parts}  # fmt: skip
+
+
+def test_task_timeline_numbers_the_workers_and_measures_their_busy_share():
+    from pipeline.batch.report import build_report, render_html, task_timeline  # noqa: PLC0415
+
+    rows = [
+        _timed_row("b", 77, 1000.0, 1004.0, 3.0),
+        _timed_row("a", 55, 1000.5, 1006.0, 4.5),
+        _timed_row("c", 77, 1004.0, 1008.0, 3.0),
+        {
+            "label": "chunked",
+            "scene": "/d/c",
+            "results": "/d/c.npz",
+            "status": "computed",
+            "summary": None,
+            "task_seconds": None,
+        },
+        {
+            "label": "reused",
+            "scene": "/d/r",
+            "results": "/d/r.npz",
+            "status": "cached",
+            "summary": None,
+        },
+    ]
+    tl = task_timeline(rows)
+    assert tl["workers"] == 2 and tl["span_s"] == pytest.approx(8.0)
+    # busy: (4 + 5.5 + 4) s of 2 workers x 8 s
+    assert tl["busy"] == pytest.approx(13.5 / 16, abs=1e-3)
+    assert [(t["label"], t["worker"], t["start_s"]) for t in tl["tasks"]] == [
+        ("b", 0, 0.0), ("a", 1, 0.5), ("c", 0, 4.0)
+    ]  # fmt: skip
+    assert tl["tasks"][1]["stages_s"]["sequence_fit"] == 4.5
+    assert task_timeline(rows[3:]) is None  # no one-task scene: no timeline
+    page = render_html(build_report(rows))
+    assert "Where the time went" in page and "3 tasks on 2 workers, busy 84 %" in page
+    assert "Where the time went" not in render_html(build_report(rows[3:]))
+    assert tl["startup_s"] is None  # the command's start not given
+    started = build_report(rows, started_at=997.0)
+    assert started["timeline"]["startup_s"] == pytest.approx(3.0)
+    assert "after 3.0 s of start-up" in render_html(started)

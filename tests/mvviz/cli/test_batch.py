@@ -354,6 +354,8 @@ def _browse_reports(sync_api, dataset, out, shots, tmp_path):
             text = page.inner_text("body")
             assert "Worst moments across the dataset" in text and "MPJPE mm" in text
             assert "python app.py" in text and "--frame" in text
+            if name == "sweep":  # one task per setting: the batch's timeline is drawn
+                assert "Where the time went" in text and "3 tasks on" in text
             images = page.locator("img")
             widths = [images.nth(i).evaluate("e => e.naturalWidth") for i in range(images.count())]
             assert widths and all(w > 100 for w in widths)  # the inline PNGs decoded
