@@ -478,13 +478,10 @@ def run_jobs(
     started: dict[int, float] = {}
     sizes = {i: 0 if current else _scene_size(scenes[jobs[i].scene_dir]) for i, current in todo}
     cpus = ray.cluster_resources().get("CPU", 1) if todo else 0  # (all current: no Ray)
+    total = sum(sizes.values())
     for i, current in todo:
         started[i] = time.perf_counter()
-        chunks = (
-            split_frames(sizes[i], sum(sizes.values()), cpus)
-            if chunk_frames is None
-            else chunk_frames
-        )
+        chunks = split_frames(sizes[i], total, cpus) if chunk_frames is None else chunk_frames
         pending.update(submitter.submit(i, jobs[i], current, chunks))
 
     done_jobs = len(jobs) - len(todo)
