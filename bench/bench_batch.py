@@ -227,21 +227,21 @@ def medians(rows: list[dict]) -> dict:
 
 
 def timeline(rows: list[dict], t0: float, t1: float) -> dict:
-    """Where a batch's wall went (Unix times ``t0`` the command, ``t1`` its exit; the
-    report rows' task start / end and worker): start-up (command to first task), tail
-    (last task to exit), the workers that ran scenes, and the core-seconds idle between
-    the first and the last task (a core without a task while another still has one)."""
-    parts = [r["task_seconds"] for r in rows if (r.get("task_seconds") or {}).get("started_at")]
-    if not parts:
+    """Where a batch's wall went (Unix times ``t0`` the command, ``t1`` its exit), from
+    the report's task timeline (:func:`pipeline.batch.report.task_timeline`): start-up
+    (command to first task), tail (last task to exit), the workers that ran scenes, and
+    the core-seconds idle between the first and the last task."""
+    from pipeline.batch.report import task_timeline  # noqa: PLC0415  (matplotlib)
+
+    tl = task_timeline(rows, t0)
+    if tl is None:
         return {}
-    first = min(p["started_at"] for p in parts)
-    last = max(p["ended_at"] for p in parts)
-    busy = sum(p["ended_at"] - p["started_at"] for p in parts)
-    cores = os.cpu_count() or 1
+    span, cores = tl["span_s"], os.cpu_count() or 1
+    busy = sum(t["end_s"] - t["start_s"] for t in tl["tasks"])
     return {
-        "startup_s": round(first - t0, 2), "tail_s": round(t1 - last, 2),
-        "workers": len({p["pid"] for p in parts}),
-        "idle_core_s": round(cores * (last - first) - busy, 2),
+        "startup_s": round(tl["startup_s"], 2),
+        "tail_s": round(t1 - t0 - tl["startup_s"] - span, 2),
+        "workers": tl["workers"], "idle_core_s": round(cores * span - busy, 2),
     }  # fmt: skip
 
 
