@@ -5,7 +5,6 @@ truth) and the viewer's frame previews (re-run people to tracks) all do."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 
 def gated_assignment(
@@ -27,6 +26,9 @@ def gated_assignment(
     valid = np.isfinite(cost) if valid is None else np.asarray(valid, bool) & np.isfinite(cost)
     if not valid.any():
         return np.zeros(0, int), np.zeros(0, int)
+    # scipy.optimize (~0.1 s of imports) where a matching runs, not wherever this is imported
+    from scipy.optimize import linear_sum_assignment  # noqa: PLC0415
+
     big = (np.abs(cost[valid]).max() + 1.0) * (min(cost.shape) + 1)
     rows, cols = linear_sum_assignment(np.where(valid, cost, big))
     good = valid[rows, cols]

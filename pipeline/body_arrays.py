@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from pipeline.files import SceneFormatError
 
@@ -118,6 +117,10 @@ class BodyModelData:
         Args: pose_rotvecs (B, J, 3) local axis-angle; betas (B, nb).
         Returns: global rotations (B, J, 3, 3) of the joint frames, posed joints (B, J, 3) m.
         """
+        # scipy.spatial loads ~0.3 s of modules: only where a pose is posed, not in every
+        # process that reads a body model (the batch's driver, the viewer's start)
+        from scipy.spatial.transform import Rotation  # noqa: PLC0415
+
         B = len(pose_rotvecs)
         rot = Rotation.from_rotvec(np.asarray(pose_rotvecs, np.float64).reshape(-1, 3))
         return forward_kinematics_np(

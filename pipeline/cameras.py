@@ -13,7 +13,6 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from pipeline.files import SceneFormatError, atomic_write
@@ -86,9 +85,10 @@ class Camera:
             # Through inv(K) first: cv2.undistortPoints ignores K's skew, project() does not.
             homo = np.concatenate([flat[finite, 0], np.ones((int(finite.sum()), 1))], 1)
             distorted = (homo @ np.linalg.inv(self.K).T)[:, None, :2]
-            out[finite] = cv2.undistortPoints(
-                distorted, np.eye(3), self.dist, criteria=_UNDISTORT_CRITERIA
-            )
+            import cv2  # noqa: PLC0415  (OpenCV's ~0.05 s import: here, not in every process)
+
+            criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+            out[finite] = cv2.undistortPoints(distorted, np.eye(3), self.dist, criteria=criteria)
         return out.reshape(pixels.shape)
 
     def undistort_pixels(self, pixels: np.ndarray) -> np.ndarray:
@@ -125,9 +125,6 @@ def max_valid_radius2(dist: np.ndarray) -> float:
     """
     k1, k2, _, _, k3 = (float(x) for x in dist)
     return _fold_radius2(k1, k2, k3)
-
-
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
 
 
 def distort_and_project(points_cam: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:

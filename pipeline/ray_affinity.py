@@ -18,14 +18,6 @@ import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.cluster.hierarchy import fcluster, linkage
-from scipy.spatial.distance import squareform
-
-try:  # what scipy.cluster.hierarchy.linkage / fcluster call after validating their input
-    from scipy.cluster._hierarchy import cluster_dist as _cluster_dist
-    from scipy.cluster._hierarchy import nn_chain as _nn_chain
-except ImportError:  # another SciPy: the public functions
-    _cluster_dist = _nn_chain = None
 
 from pipeline.ray_pairs import PARALLEL_SIN2, pair_ray_distances, screen_distances
 
@@ -126,6 +118,20 @@ def frame_affinity(
     return best, affinity, None
 
 
+@functools.cache
+def _scipy_linkage() -> tuple:
+    """(nn_chain, cluster_dist): what ``scipy.cluster.hierarchy.linkage`` / ``fcluster``
+    call after validating their input, or (None, None) on a SciPy without them (the
+    public functions then). Imported on the first clustering: scipy.cluster and
+    scipy.spatial cost ~0.2 s of imports to every process that imports the stages (the
+    batch's driver, which only plans)."""
+    try:
+        from scipy.cluster._hierarchy import cluster_dist, nn_chain  # noqa: PLC0415
+    except ImportError:
+        return None, None
+    return nn_chain, cluster_dist
+
+
 def average_linkage(
     affinity: np.ndarray,
     views: np.ndarray,
@@ -162,10 +168,13 @@ def average_linkage(
         condensed = linkage_distances(affinity, np.asarray(views, np.int64))
     else:
         condensed = linkage_distances_reference(affinity, views)
-    if _nn_chain is not None:  # SciPy's own steps without its per-call checks (~0.5 ms)
+    nn_chain, cluster_dist = _scipy_linkage()
+    if nn_chain is not None:  # SciPy's own steps without its per-call checks (~0.5 ms)
         flat = np.zeros(n, np.intc)
-        _cluster_dist(_nn_chain(condensed, n, 2), flat, 1.0 - threshold, n)  # 2: average
+        cluster_dist(nn_chain(condensed, n, 2), flat, 1.0 - threshold, n)  # 2: average
     else:
+        from scipy.cluster.hierarchy import fcluster, linkage  # noqa: PLC0415
+
         Z = linkage(condensed, method="average")
         flat = fcluster(Z, t=1.0 - threshold, criterion="distance")
     first = np.full(flat.max() + 1, n)
@@ -183,6 +192,8 @@ def linkage_distances_reference(affinity: np.ndarray, views: np.ndarray) -> np.n
     dist[np.asarray(views)[:, None] == np.asarray(views)[None, :]] = 4.0 * n * n + 10.0
     np.fill_diagonal(dist, 0.0)
     dist = 0.5 * (dist + dist.T)  # >= 0: affinities are <= 1
+    from scipy.spatial.distance import squareform  # noqa: PLC0415  (see _scipy_linkage)
+
     return squareform(dist, checks=False)
 
 

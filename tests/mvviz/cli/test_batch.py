@@ -161,6 +161,29 @@ def test_embedded_ray_starts_a_lean_head_and_restores_ray():
     assert ray_node.Node.__dict__["start_api_server"] is api
 
 
+def test_embedded_ray_connects_to_its_store_promptly(monkeypatch):
+    """The embedded node's processes get STORE_CONNECT_RETRY (10 ms retries, the same
+    10 s bound) unless the user set a value, which is kept; this process's environment
+    is as before once the node is up."""
+    import psutil  # noqa: PLC0415
+
+    user = "RAY_raylet_client_num_connect_attempts"
+    monkeypatch.setenv(user, "700")
+    before = dict(os.environ)
+    start_ray(num_cpus=1)
+    try:
+        raylets = [
+            p for p in psutil.Process().children(recursive=True) if p.name() == "raylet"
+        ]  # fmt: skip
+        env = raylets[0].environ()
+    finally:
+        stop_ray()
+    assert len(raylets) == 1
+    assert env["RAY_raylet_client_connect_timeout_milliseconds"] == "10"
+    assert env[user] == "700"  # the user's, not ours
+    assert dict(os.environ) == before
+
+
 def test_idle_cpu_hook_and_automatic_split(dataset, reference, tmp_path, monkeypatch):
     """3 equal scenes on 2 CPUs: each runs as one task (none is more than an even share
     of the work), and the driver's closing work (``on_idle_cpu``) runs once, as soon as
@@ -307,13 +330,14 @@ import pipeline.batch.ray_run
 argv = ["batch", sys.argv[1], "--force"]
 jobs, scenes, model, bad = plan(build_parser(argv).parse_args(argv))
 assert len(jobs) == 1 and not bad
-print(sorted(m for m in sys.modules if m == "torch" or m.startswith("torch.")))
+print(sorted(m for m in sys.modules if m.partition(".")[0] in ("torch", "scipy", "cv2")))
 """
 
 
 def test_the_driver_plans_without_torch(dataset):
     """Importing the batch command and Ray's side and planning (scene, config, body
-    model, cache key) load no torch (~1.3 s of a batch's fixed cost)."""
+    model, cache key) load no torch (~1.3 s of a batch's fixed cost), and no SciPy or
+    OpenCV (~0.4 s before Ray can start): the stages import those where they run."""
     done = subprocess.run([sys.executable, "-c", DRIVER, str(dataset / "ref" / "a")],
                           capture_output=True, text=True, check=True)  # fmt: skip
     assert done.stdout.strip() == "[]"
