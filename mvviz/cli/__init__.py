@@ -15,8 +15,11 @@ bug, reported in one line with exit code 1 (``--debug`` prints its traceback).
 from __future__ import annotations
 
 import argparse
+import atexit
 import importlib
+import os
 import sys
+import threading
 import traceback
 from collections.abc import Callable
 
@@ -99,3 +102,31 @@ def run_command(prog: str, func: Callable[[argparse.Namespace], int | None], arg
 def main(argv: list[str] | None = None) -> int:
     args = build_parser(argv).parse_args(argv)
     return run_command(f"mvviz {args.command}", args.func, args)
+
+
+def entry() -> None:
+    """The ``mvviz`` script and ``python -m mvviz.cli``: :func:`main`, then
+    :func:`exit_now` with its code."""
+    exit_now(main())
+
+
+def exit_now(code: int) -> None:
+    """End the process with ``code`` once the command's work is done: the exit functions
+    run (Ray's shutdown, logging's flush, temporary directories' removal) and the
+    standard streams are flushed, but not the interpreter's teardown of every module
+    and object, which takes 0.3-0.6 s here after torch, Ray or matplotlib were imported
+    (``mvviz run`` 0.6 s, ``mvviz batch``'s driver 0.35 s of its fixed cost).
+
+    Where a non-daemon thread still runs, the normal exit, which waits for it."""
+    main_thread = threading.main_thread()
+    running = [t for t in threading.enumerate() if t is not main_thread and not t.daemon]
+    run_exit_functions = getattr(atexit, "_run_exitfuncs", None)  # CPython's own hook
+    if any(t.is_alive() for t in running) or run_exit_functions is None:
+        sys.exit(code)
+    run_exit_functions()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # closed, or its reader has gone
+            pass
+    os._exit(code)
