@@ -7,7 +7,7 @@ times:
 
 - serial: one ``python`` process running ``mvviz run SCENE --force`` for every scene,
   one after another (what a user does today: the same code path, imports paid once,
-  torch's default threads), each followed by the evaluation the batch's report holds
+  torch's default threads, ended as the ``mvviz`` script ends), each followed by the evaluation the batch's report holds
   for it (the results read back, :func:`pipeline.batch.jobs.summarize`), timed apart:
   the speed-up is printed against the same work and against ``mvviz run`` alone;
 - batch: ``mvviz batch SCENE... --force`` (embedded Ray on every core: its start, the
@@ -88,6 +88,9 @@ for scene in sys.argv[2:]:
     from pipeline.scene import load_scene
     summarize(load_scene(scene), load_results(path))
     print("EVAL", time.perf_counter() - t, file=sys.stderr)
+# ended as the mvviz script ends (mvviz batch too), without the interpreter's teardown
+from mvviz.cli import exit_now
+exit_now(0)
 """
 RAY_START = """
 import json, os, time
