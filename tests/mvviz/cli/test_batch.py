@@ -161,10 +161,10 @@ def test_embedded_ray_starts_a_lean_head_and_restores_ray():
     assert ray_node.Node.__dict__["start_api_server"] is api
 
 
-def test_embedded_ray_connects_to_its_store_promptly(monkeypatch):
-    """The embedded node's processes get STORE_CONNECT_RETRY (10 ms retries, the same
-    10 s bound) unless the user set a value, which is kept; this process's environment
-    is as before once the node is up."""
+def test_embedded_ray_config_reaches_its_processes(monkeypatch):
+    """The embedded node's processes get EMBEDDED_RAY_CONFIG (10 ms socket retries, the
+    same 10 s bound; workers prestarted with the raylet) unless the user set a value,
+    which is kept; this process's environment is as before once the node is up."""
     import psutil  # noqa: PLC0415
 
     user = "RAY_raylet_client_num_connect_attempts"
@@ -180,6 +180,7 @@ def test_embedded_ray_connects_to_its_store_promptly(monkeypatch):
         stop_ray()
     assert len(raylets) == 1
     assert env["RAY_raylet_client_connect_timeout_milliseconds"] == "10"
+    assert env["RAY_enable_worker_prestart"] == "1"
     assert env[user] == "700"  # the user's, not ours
     assert dict(os.environ) == before
 
