@@ -7,9 +7,10 @@ times:
 
 - serial: one ``python`` process running ``mvviz run SCENE --force`` for every scene,
   one after another (what a user does today: the same code path, imports paid once,
-  torch's default threads, ended as the ``mvviz`` script ends), each followed by the evaluation the batch's report holds
-  for it (the results read back, :func:`pipeline.batch.jobs.summarize`), timed apart:
-  the speed-up is printed against the same work and against ``mvviz run`` alone;
+  torch's default threads, ended as the ``mvviz`` script ends), each followed by the
+  evaluation the batch's report holds for it (the results read back,
+  :func:`pipeline.batch.jobs.summarize`), timed apart: the speed-up is printed against
+  the same work and against ``mvviz run`` alone;
 - batch: ``mvviz batch SCENE... --force`` (embedded Ray on every core: its start, the
   workers' imports, the report and its shutdown are counted).
 

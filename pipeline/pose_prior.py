@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline import mocap, pose_limits
+from pipeline import pose_limits
 from pipeline.files import SceneFormatError
 from pipeline.prior_path import DEFAULT_PRIOR_PATH, resolve_prior_path  # noqa: F401
 from pipeline.progress import StageBar
@@ -54,7 +54,6 @@ from pipeline.smpl_kinematics import (
     rot6d_to_matrix,
     rotvec_to_matrix,
 )
-from pipeline.synth.motion import LIBRARY_ACTIVITIES, sample_pose_library
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 BODY_JOINTS = tuple(range(1, 22))
@@ -181,6 +180,8 @@ def load_pose_data(path: str | os.PathLike) -> np.ndarray:
     or a ``.bvh`` clip (the default body model fitted to it at 30 fps)."""
     path = Path(path)
     if path.suffix.lower() == ".bvh":
+        from pipeline import mocap  # noqa: PLC0415  (training only; see default_training_poses)
+
         return mocap.bvh_training_poses(path)[0]
     with np.load(path, allow_pickle=False) as z:
         if "poses" not in z.files:
@@ -231,10 +232,15 @@ def perturb_poses(poses: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def default_training_poses(
-    num_poses: int = 60000, seed: int = 0, *, kinds: tuple[str, ...] = LIBRARY_ACTIVITIES
+    num_poses: int = 60000, seed: int = 0, *, kinds: tuple[str, ...] | None = None
 ) -> np.ndarray:
-    """(M, 72) the default training set: half library poses (of the activities ``kinds``),
-    half their perturbations."""
+    """(M, 72) the default training set: half library poses (of the activities ``kinds``,
+    default :data:`pipeline.synth.motion.LIBRARY_ACTIVITIES`), half their perturbations."""
+    # The motion library and the BVH importers (~0.15-0.5 s of imports) are the training's:
+    # every fit imports this module for the prior, in every process (a batch worker too).
+    from pipeline.synth.motion import LIBRARY_ACTIVITIES, sample_pose_library  # noqa: PLC0415
+
+    kinds = LIBRARY_ACTIVITIES if kinds is None else kinds
     rng = np.random.default_rng(seed)
     lib = sample_pose_library(num_poses // 2, seed=seed, kinds=tuple(kinds))
     return np.concatenate([lib, perturb_poses(lib, rng)])

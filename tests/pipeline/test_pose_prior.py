@@ -120,3 +120,25 @@ def test_amass_layout_and_cli(tmp_path):
     assert main(args + ["--latent", "4", "--hidden", "16"]) == 0
     prior = load_prior(out)
     assert prior.config.latent == 4 and str(tmp_path / "a.npz") in prior.info["data"]
+
+
+def test_the_fit_side_loads_no_training_modules():
+    """Importing the prior and reading the shipped checkpoint, what every fit does (a
+    batch worker before its first scene), loads neither the motion library nor the BVH
+    importers (~0.2 s of a worker's warm-up); the training functions import them."""
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    from tests.conftest import REPO  # noqa: PLC0415
+
+    code = (
+        "import sys\n"
+        "from pipeline.pose_prior import load_prior\n"
+        "load_prior(None)\n"
+        "print(sorted(m for m in sys.modules if m in ('pipeline.mocap', 'pipeline.synth.motion')"
+        " or m.startswith('pipeline.importers')))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    ).stdout
+    assert out.strip() == "[]"
