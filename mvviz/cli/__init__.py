@@ -118,10 +118,10 @@ def exit_now(code: int) -> None:
     (``mvviz run`` 0.6 s, ``mvviz batch``'s driver 0.35 s of its fixed cost).
 
     Where a non-daemon thread still runs, the normal exit, which waits for it."""
-    main_thread = threading.main_thread()
-    running = [t for t in threading.enumerate() if t is not main_thread and not t.daemon]
+    main_thread = threading.main_thread()  # enumerate() lists the live threads only
+    waiting = any(not t.daemon for t in threading.enumerate() if t is not main_thread)
     run_exit_functions = getattr(atexit, "_run_exitfuncs", None)  # CPython's own hook
-    if any(t.is_alive() for t in running) or run_exit_functions is None:
+    if waiting or run_exit_functions is None:
         sys.exit(code)
     run_exit_functions()
     for stream in (sys.stdout, sys.stderr):
