@@ -230,3 +230,28 @@ def test_task_timeline_numbers_the_workers_and_measures_their_busy_share():
     started = build_report(rows, started_at=997.0)
     assert started["timeline"]["startup_s"] == pytest.approx(3.0)
     assert "after 3.0 s of start-up" in render_html(started)
+
+
+def test_report_figures_are_inline_svg_with_their_text_as_text():
+    """The figures are vector images inside the page (nothing fetched), and their words
+    are text a browser lays out and a reader can search, not glyph outlines."""
+    import base64  # noqa: PLC0415
+    import re  # noqa: PLC0415
+
+    from pipeline.batch.report import build_report, render_html  # noqa: PLC0415
+
+    rows = [
+        _timed_row("b", 77, 1000.0, 1004.0, 3.0),
+        _timed_row("a", 55, 1000.5, 1006.0, 4.5),
+    ]
+    for row, mpjpe in zip(rows, (31.5, 12.0), strict=True):
+        row["summary"] = {"mpjpe_mm": mpjpe}
+    page = render_html(build_report(rows, started_at=999.0))
+    assert "data:image/png" not in page
+    images = re.findall(r'src="data:image/svg\+xml;base64,([^"]+)"', page)
+    assert len(images) == 2  # MPJPE per scene, the timeline
+    svgs = [base64.b64decode(x).decode() for x in images]
+    assert all(s.lstrip().startswith("<?xml") and "<svg" in s for s in svgs)
+    bars, timeline = svgs
+    assert re.search(r"<text[^>]*>MPJPE mm per scene</text>", bars)
+    assert re.search(r"<text[^>]*>worker 1</text>", timeline)
