@@ -15,7 +15,10 @@ times:
   workers' imports, the report and its shutdown are counted).
 
 Both are timed from the command to its exit. Prints, each repeat with the 1-minute load
-average before it, then the medians and their ratio, and the parts. On a shared machine
+average before it and the seconds in which the machine stalled on I/O meanwhile (the
+kernel's ``/proc/pressure/io``: a shared VM's page cache drops torch's and Ray's
+libraries, and a command that reads them back from disk waits seconds for it), then the
+medians and their ratio, and the parts. On a shared machine
 the ratio means nothing while other work runs: with a load above the core count the
 cores are taken, and with the kernel's autogroup scheduling on
 (``/proc/sys/kernel/sched_autogroup_enabled``, printed) CPU time is shared per session,
@@ -195,13 +198,26 @@ def make_scenes(root: Path, frames: int = 250, people: int = 4) -> list[Path]:
     return scenes
 
 
-def timed(cmd: list[str]) -> tuple[float, str]:
-    """(wall seconds, stderr) of ``cmd``."""
-    t0 = time.perf_counter()
+def io_stall_s() -> float | None:
+    """Seconds so far in which some task on this machine waited on I/O (the kernel's
+    pressure stall information, ``/proc/pressure/io``; None where the kernel has none).
+    A repeat whose command read its libraries from disk (a shared VM's page cache drops
+    them) shows it here: the cause of most outliers, not the code."""
+    try:
+        some = Path("/proc/pressure/io").read_text().splitlines()[0]
+        return int(some.rpartition("total=")[2]) / 1e6
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def timed(cmd: list[str]) -> tuple[float, str, float | None]:
+    """(wall seconds, stderr, seconds stalled on I/O machine-wide meanwhile) of ``cmd``."""
+    io0, t0 = io_stall_s(), time.perf_counter()
     done = subprocess.run(
         cmd, check=True, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
     )
-    return time.perf_counter() - t0, done.stderr
+    took, io1 = time.perf_counter() - t0, io_stall_s()
+    return took, done.stderr, (None if io0 is None or io1 is None else round(io1 - io0, 2))
 
 
 def python_json(code: str, *argv: str) -> dict:
@@ -254,9 +270,10 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
     serial, batch, loads, serial_scenes, task_parts, overhead = [], [], [], [], [], []
     timelines: list[dict] = []  # per repeat, where the batch's wall went
     serial_run = []  # the serial process's wall without its evaluations
+    io_stalls = []  # per repeat: (serial, batch) seconds stalled on I/O
     for r in range(repeats):
         loads.append(os.getloadavg()[0])
-        took, err = timed([sys.executable, "-c", SERIAL, f"{tmp}/serial", *names])
+        took, err, serial_io = timed([sys.executable, "-c", SERIAL, f"{tmp}/serial", *names])
         serial.append(took)
         evaluations = 0.0
         for line in err.splitlines():
@@ -270,7 +287,9 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
         cmd = [sys.executable, "-m", "mvviz.cli", "batch", *names, "--force",
                "--out", f"{tmp}/batch", "--report", f"{tmp}/report"]  # fmt: skip
         t0 = time.time()
-        batch.append(timed(cmd)[0])
+        took, _, batch_io = timed(cmd)
+        batch.append(took)
+        io_stalls.append((serial_io, batch_io))
         rows = json.loads(Path(tmp, "report", "batch_report.json").read_text())["rows"]
         task_parts += [row["task_seconds"] for row in rows if row.get("task_seconds")]
         overhead.append(batch[-1] - sum(map(task_wall, rows)) / (os.cpu_count() or 1))
@@ -282,10 +301,17 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
         print(f"repeat {r + 1}: serial {serial[-1]:.1f} s ({serial_run[-1]:.1f} without the "
               f"evaluations; load {loads[-2]:.1f}), batch {batch[-1]:.1f} s (load "
               f"{loads[-1]:.1f}): {serial[-1] / batch[-1]:.2f}x "
-              f"({serial_run[-1] / batch[-1]:.2f}x){where}", flush=True)  # fmt: skip
+              f"({serial_run[-1] / batch[-1]:.2f}x){where}{stalls(serial_io, batch_io)}",
+              flush=True)  # fmt: skip
     return dict(serial=serial, serial_run=serial_run, batch=batch, loads=loads,
                 serial_scene=medians(serial_scenes), task=medians(task_parts),
-                overhead=overhead, timelines=timelines)  # fmt: skip
+                overhead=overhead, timelines=timelines, io_stall_s=io_stalls)  # fmt: skip
+
+
+def stalls(serial_io: float | None, batch_io: float | None) -> str:
+    if serial_io is None or batch_io is None:
+        return ""
+    return f"; stalled on I/O: serial {serial_io:.1f} s, batch {batch_io:.1f} s"
 
 
 def task_wall(row: dict) -> float:
@@ -337,7 +363,7 @@ def main() -> int:
         "speedup_per_repeat": [a / b for a, b in zip(runs["serial"], runs["batch"], strict=True)],
         "load_1min": runs["loads"], "load_at_parts": load, "ray_start": ray_start,
         "driver": driver, "batch_overhead_s": runs["overhead"],
-        "batch_timeline": runs["timelines"],
+        "batch_timeline": runs["timelines"], "io_stall_s": runs["io_stall_s"],
         "serial_per_scene": runs["serial_scene"], "batch_task_per_scene": runs["task"],
         "fit_threads": fit, "results_equal": equal, "results_differ": diffs,
         "autogroup": autogroup(),
