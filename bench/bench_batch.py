@@ -12,7 +12,13 @@ times:
   :func:`pipeline.batch.jobs.summarize`), timed apart: the speed-up is printed against
   the same work and against ``mvviz run`` alone;
 - batch: ``mvviz batch SCENE... --force`` (embedded Ray on every core: its start, the
-  workers' imports, the report and its shutdown are counted).
+  workers' imports, the report and its shutdown are counted);
+- the no-Ray split: the serial process's work split by hand into one plain process per
+  core (scenes dealt round-robin), all started at once: what this machine gives that many
+  busy processes at that moment, Ray or not. On this shared VM two busy processes each
+  run 10-20 % slower than one alone (their CPU seconds grow too: caches, memory and the
+  host's other tenants), so even a perfect split stays below 2x; the batch is printed
+  against it as well.
 
 Both are timed from the command to its exit. Prints, each repeat with the 1-minute load
 average before it and the seconds in which the machine stalled on I/O meanwhile (the
@@ -220,6 +226,22 @@ def timed(cmd: list[str]) -> tuple[float, str, float | None]:
     return took, done.stderr, (None if io0 is None or io1 is None else round(io1 - io0, 2))
 
 
+def timed_split(groups: list[list[str]], out: str) -> tuple[float, float | None]:
+    """(wall seconds, seconds stalled on I/O) of one serial process per group of scenes,
+    all started at once: the same work split by hand with no Ray, so each process pays
+    its own imports and the cores are shared as the batch's workers share them."""
+    io0, t0 = io_stall_s(), time.perf_counter()
+    procs = [
+        subprocess.Popen([sys.executable, "-c", SERIAL, out, *g], cwd=REPO,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for g in groups
+    ]  # fmt: skip
+    if any(p.wait() for p in procs):
+        raise SystemExit("bench_batch: a process of the no-Ray split failed")
+    took, io1 = time.perf_counter() - t0, io_stall_s()
+    return took, (None if io0 is None or io1 is None else round(io1 - io0, 2))
+
+
 def python_json(code: str, *argv: str) -> dict:
     done = subprocess.run([sys.executable, "-c", code, *argv], check=True, cwd=REPO,
                           capture_output=True, text=True)  # fmt: skip
@@ -271,6 +293,8 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
     timelines: list[dict] = []  # per repeat, where the batch's wall went
     serial_run = []  # the serial process's wall without its evaluations
     io_stalls = []  # per repeat: (serial, batch) seconds stalled on I/O
+    split = []  # per repeat: the same work in one plain process per core, no Ray
+    cores = os.cpu_count() or 1
     for r in range(repeats):
         loads.append(os.getloadavg()[0])
         took, err, serial_io = timed([sys.executable, "-c", SERIAL, f"{tmp}/serial", *names])
@@ -290,6 +314,7 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
         took, _, batch_io = timed(cmd)
         batch.append(took)
         io_stalls.append((serial_io, batch_io))
+        split.append(timed_split([names[i::cores] for i in range(cores)], f"{tmp}/split")[0])
         rows = json.loads(Path(tmp, "report", "batch_report.json").read_text())["rows"]
         task_parts += [row["task_seconds"] for row in rows if row.get("task_seconds")]
         overhead.append(batch[-1] - sum(map(task_wall, rows)) / (os.cpu_count() or 1))
@@ -301,11 +326,13 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
         print(f"repeat {r + 1}: serial {serial[-1]:.1f} s ({serial_run[-1]:.1f} without the "
               f"evaluations; load {loads[-2]:.1f}), batch {batch[-1]:.1f} s (load "
               f"{loads[-1]:.1f}): {serial[-1] / batch[-1]:.2f}x "
-              f"({serial_run[-1] / batch[-1]:.2f}x){where}{stalls(serial_io, batch_io)}",
+              f"({serial_run[-1] / batch[-1]:.2f}x){where}{stalls(serial_io, batch_io)}; "
+              f"no-Ray split {split[-1]:.1f} s ({serial[-1] / split[-1]:.2f}x)",
               flush=True)  # fmt: skip
     return dict(serial=serial, serial_run=serial_run, batch=batch, loads=loads,
                 serial_scene=medians(serial_scenes), task=medians(task_parts),
-                overhead=overhead, timelines=timelines, io_stall_s=io_stalls)  # fmt: skip
+                overhead=overhead, timelines=timelines, io_stall_s=io_stalls,
+                split=split)  # fmt: skip
 
 
 def stalls(serial_io: float | None, batch_io: float | None) -> str:
@@ -364,6 +391,7 @@ def main() -> int:
         "load_1min": runs["loads"], "load_at_parts": load, "ray_start": ray_start,
         "driver": driver, "batch_overhead_s": runs["overhead"],
         "batch_timeline": runs["timelines"], "io_stall_s": runs["io_stall_s"],
+        "split_s": runs["split"], "split_median_s": statistics.median(runs["split"]),
         "serial_per_scene": runs["serial_scene"], "batch_task_per_scene": runs["task"],
         "fit_threads": fit, "results_equal": equal, "results_differ": diffs,
         "autogroup": autogroup(),
@@ -414,6 +442,11 @@ def main() -> int:
           f"{figures['speedup_vs_run_only']:.2f}x (target 1.7x, "
           f"loads {min(runs['loads']):.1f}-{max(runs['loads']):.1f}); "
           f"results equal: {equal}{'' if equal else f' (differ: {diffs})'}")  # fmt: skip
+    split = figures["split_median_s"]
+    print(f"no-Ray split (one plain process per core, {cores} groups of scenes, the same "
+          f"work): median {split:.1f} s, {figures['serial_median_s'] / split:.2f}x the serial "
+          f"time: what this machine gives two processes now; the batch takes "
+          f"{figures['batch_median_s'] / split:.2f}x the split's time")  # fmt: skip
     if args.json:
         write_json(args.json, figures)
     return 0

@@ -18,7 +18,7 @@ import ray
 
 from mvviz.cli import main
 from pipeline.batch import ray_run
-from pipeline.batch.ray_run import start_ray, stop_ray
+from pipeline.batch.ray_run import EMBEDDED_RAY_CONFIG, start_ray, stop_ray
 from pipeline.batch.report import load_report
 from pipeline.body_model import load_body_model
 from pipeline.config import PipelineConfig
@@ -182,7 +182,35 @@ def test_embedded_ray_config_reaches_its_processes(monkeypatch):
     assert env["RAY_raylet_client_connect_timeout_milliseconds"] == "10"
     assert env["RAY_enable_worker_prestart"] == "1"
     assert env[user] == "700"  # the user's, not ours
-    assert dict(os.environ) == before
+    # Ray's own init sets a few variables for good (its auth mode, the breakpoint hook),
+    # and start_ray turns usage statistics off: the config's are the ones restored.
+    assert {k: os.environ.get(k) for k in EMBEDDED_RAY_CONFIG} == {
+        k: before.get(k) for k in EMBEDDED_RAY_CONFIG
+    }
+
+
+def _worker_priority() -> int:
+    return os.getpriority(os.PRIO_PROCESS, 0)
+
+
+def test_embedded_ray_workers_run_at_the_normal_priority(monkeypatch):
+    """A task runs at the priority ``mvviz run`` gets (nice 0), not at Ray's default 15,
+    under which any other runnable thread takes the core first; a user's value is kept."""
+    import ray  # noqa: PLC0415
+
+    monkeypatch.delenv("RAY_worker_niceness", raising=False)
+    start_ray(num_cpus=1)
+    try:
+        ours = ray.get(ray.remote(_worker_priority).remote())
+    finally:
+        stop_ray()
+    monkeypatch.setenv("RAY_worker_niceness", "7")
+    start_ray(num_cpus=1)
+    try:
+        users = ray.get(ray.remote(_worker_priority).remote())
+    finally:
+        stop_ray()
+    assert (ours, users) == (os.getpriority(os.PRIO_PROCESS, 0), 7)
 
 
 def test_idle_cpu_hook_and_automatic_split(dataset, reference, tmp_path, monkeypatch):
