@@ -158,7 +158,7 @@ for the embedded node; a cluster keeps its own.
 - ``worker_niceness`` 0, not Ray's 15: Ray lowers its workers' priority so that its own
   processes stay responsive beside them, but here the workers are the batch's work,
   and at nice 15 every other runnable thread on the machine (the raylet's and driver's
-  polling, the kernel's reclaim, the host's other work) takes their core first, while
+  polling, the kernel's own threads: its memory reclaim here) takes their core first, while
   ``mvviz run`` runs at the normal priority. On this 2-core VM, 4 alternated pairs of
   8-scene batches: median task 6.16 -> 5.72 s, batch 30.9 -> 28.5 s, faster in every
   pair."""
