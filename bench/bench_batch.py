@@ -226,20 +226,19 @@ def timed(cmd: list[str]) -> tuple[float, str, float | None]:
     return took, done.stderr, (None if io0 is None or io1 is None else round(io1 - io0, 2))
 
 
-def timed_split(groups: list[list[str]], out: str) -> tuple[float, float | None]:
-    """(wall seconds, seconds stalled on I/O) of one serial process per group of scenes,
-    all started at once: the same work split by hand with no Ray, so each process pays
-    its own imports and the cores are shared as the batch's workers share them."""
-    io0, t0 = io_stall_s(), time.perf_counter()
+def timed_split(groups: list[list[str]], out: str) -> float:
+    """Wall seconds of one serial process per group of scenes, all started at once: the
+    same work split by hand with no Ray, so each process pays its own imports and the
+    cores are shared as the batch's workers share them."""
+    t0 = time.perf_counter()
     procs = [
         subprocess.Popen([sys.executable, "-c", SERIAL, out, *g], cwd=REPO,
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         for g in groups
     ]  # fmt: skip
-    if any(p.wait() for p in procs):
+    if any([p.wait() for p in procs]):  # every one waited for, not just to the first failure
         raise SystemExit("bench_batch: a process of the no-Ray split failed")
-    took, io1 = time.perf_counter() - t0, io_stall_s()
-    return took, (None if io0 is None or io1 is None else round(io1 - io0, 2))
+    return time.perf_counter() - t0
 
 
 def python_json(code: str, *argv: str) -> dict:
@@ -314,7 +313,7 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
         took, _, batch_io = timed(cmd)
         batch.append(took)
         io_stalls.append((serial_io, batch_io))
-        split.append(timed_split([names[i::cores] for i in range(cores)], f"{tmp}/split")[0])
+        split.append(timed_split([names[i::cores] for i in range(cores)], f"{tmp}/split"))
         rows = json.loads(Path(tmp, "report", "batch_report.json").read_text())["rows"]
         task_parts += [row["task_seconds"] for row in rows if row.get("task_seconds")]
         overhead.append(batch[-1] - sum(map(task_wall, rows)) / (os.cpu_count() or 1))
