@@ -69,8 +69,14 @@ def test_playback_drops_frames_instead_of_lagging(browser, own_app):
     print(f"\n{lag.summary()}")
     assert lag.samples >= 5, lag.summary()
     assert lag.frames_advanced >= 8 * 25 * 0.5, "playback barely advanced"  # 25 fps video
-    # the page shows the newest frame sent or the one before it (the one in flight)
-    assert np.median(lag.sent_lag) <= 1 and lag.sent_lag.max() <= 3, lag.summary()
+    # the page shows the newest frame sent or the one before it (the one in flight).
+    # Each sample lies between two bounds: the frames sent before the page was read
+    # (certain) and those sent by the time the read returned. A read that stalls (a new
+    # picture hashed, the shared machine busy) widens the upper bound of that one sample
+    # (CI once: upper max 4, lower max 1), so the worst case is asserted on the lower
+    # bound; a page that queues frames raises both.
+    assert np.median(lag.sent_lag) <= 1, lag.summary()
+    assert lag.sent_lag_low.max() <= 2 and np.mean(lag.sent_lag > 3) <= 0.1, lag.summary()
     # the camera picture is the 3D view's frame (a moment behind while it decodes)
     assert np.median(lag.image_lag) <= 1, lag.summary()
     assert not own_app.render_errors
