@@ -189,6 +189,8 @@ class _RayStart:
         self.warm = []
         if ray_run is not None:
             ray_run.stop_ray()
+            if self.args.address is None:  # the embedded Ray's: ended sessions' logs
+                ray_run.prune_ray_sessions()
 
     def wait(self) -> float:
         """Ray's CPUs once it is up (the start's error raised here)."""

@@ -39,6 +39,8 @@ import inspect
 import json
 import logging
 import os
+import re
+import shutil
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -228,6 +230,53 @@ def _lean_head():
 def stop_ray() -> None:
     if ray.is_initialized():
         ray.shutdown()
+
+
+KEPT_RAY_SESSIONS = 10
+"""Sessions of finished embedded Rays kept under :data:`RAY_TEMP_DIR` (their logs, for
+a look at a failed batch): Ray never deletes its session directories (~180 KB each),
+so one per ``mvviz batch`` piles up in the system temp without this."""
+_SESSION_NAME = re.compile(r"session_\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}_\d+_(\d+)")
+
+
+def prune_ray_sessions(
+    temp_dir: Path = RAY_TEMP_DIR, keep: int = KEPT_RAY_SESSIONS, limit: int = 20
+) -> list[Path]:
+    """Delete the session directories of embedded Rays that have ended, all but the
+    newest ``keep``, at most ``limit`` of them (oldest first: a backlog of hundreds takes
+    seconds to delete, and goes over the next batches instead of stalling one's end). A
+    session is Ray's ``session_<date>_<time>_<us>_<pid>``, named by the driver that
+    started it (Ray's ``Node``), and has ended when that process is gone: a batch still
+    running in another process keeps its session, whatever its age. Anything else in
+    ``temp_dir`` (``session_latest``, a link) is left alone. Returns the directories
+    deleted (a removal that fails is skipped: it is only disk space)."""
+    try:
+        entries = sorted(temp_dir.iterdir(), key=lambda p: p.name)  # names sort by date
+    except OSError:
+        return []
+    sessions = [
+        (p, int(m.group(1))) for p in entries
+        if (m := _SESSION_NAME.fullmatch(p.name)) and p.is_dir() and not p.is_symlink()
+    ]  # fmt: skip
+    removed = []
+    for path, pid in sessions[: max(len(sessions) - keep, 0)]:
+        if len(removed) == limit:
+            break
+        if not _process_alive(pid):
+            shutil.rmtree(path, ignore_errors=True)
+            if not path.exists():
+                removed.append(path)
+    return removed
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # signal 0: only checks that the process exists
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
 
 
 def _set_threads(n: int) -> None:

@@ -213,6 +213,34 @@ def test_embedded_ray_workers_run_at_the_normal_priority(monkeypatch):
     assert (ours, users) == (os.getpriority(os.PRIO_PROCESS, 0), 7)
 
 
+def test_ended_ray_sessions_are_pruned_beyond_the_newest(tmp_path):
+    """Ray leaves a session directory per embedded start: those whose driver has ended
+    go, but the newest ``keep`` and any still running (its driver alive) stay, and
+    nothing else in the directory is touched."""
+    ended = subprocess.Popen([sys.executable, "-c", "pass"])
+    ended.wait()
+    names = [
+        f"session_2026-01-01_00-00-00_000001_{ended.pid}",
+        f"session_2026-01-02_00-00-00_000001_{os.getpid()}",  # running: this process
+        f"session_2026-01-03_09-30-00_123456_{ended.pid}",
+        f"session_2026-01-04_00-00-00_000001_{ended.pid}",
+        f"session_2026-01-05_00-00-00_000001_{ended.pid}",
+    ]
+    for name in names:
+        (tmp_path / name / "logs").mkdir(parents=True)
+        (tmp_path / name / "logs" / "raylet.out").write_text("log")
+    (tmp_path / "session_latest").symlink_to(tmp_path / names[-1])
+    (tmp_path / "session_notes").mkdir()  # not a session's name
+    removed = ray_run.prune_ray_sessions(tmp_path, keep=2)
+    assert sorted(p.name for p in removed) == [names[0], names[2]]
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == sorted([names[1], names[3], names[4], "session_latest", "session_notes"])
+    # a backlog goes a few at a time, the oldest first
+    assert ray_run.prune_ray_sessions(tmp_path, keep=0, limit=1) == [tmp_path / names[3]]
+    assert ray_run.prune_ray_sessions(tmp_path, keep=0) == [tmp_path / names[4]]
+    assert ray_run.prune_ray_sessions(tmp_path / "absent") == []
+
+
 def test_idle_cpu_hook_and_automatic_split(dataset, reference, tmp_path, monkeypatch):
     """3 equal scenes on 2 CPUs: each runs as one task (none is more than an even share
     of the work), and the driver's closing work (``on_idle_cpu``) runs once, as soon as
@@ -317,10 +345,25 @@ def test_rerun_skips_current_results(dataset, first_batch):
 def test_sweep_runs_the_grid(dataset, tmp_path):
     scene = dataset / "root" / "a"
     out = tmp_path / "out"
-    code = main(
-        ["batch", str(scene), "--set", "fit_smpl=false", "--sweep", "kalman.q=1,2000",
-         "--out", str(out)]
-    )  # fmt: skip
+    # ended sessions older than any: whatever else is there, the oldest is beyond the
+    # newest KEPT_RAY_SESSIONS, and the batch's end deletes it
+    ended = subprocess.Popen([sys.executable, "-c", "pass"])
+    ended.wait()
+    old = [
+        ray_run.RAY_TEMP_DIR / f"session_2000-01-01_00-00-{i:02d}_000000_{ended.pid}"
+        for i in range(ray_run.KEPT_RAY_SESSIONS + 1)
+    ]
+    for d in old:
+        (d / "logs").mkdir(parents=True)
+    try:
+        code = main(
+            ["batch", str(scene), "--set", "fit_smpl=false", "--sweep", "kalman.q=1,2000",
+             "--out", str(out)]
+        )  # fmt: skip
+        assert not old[0].exists()
+    finally:
+        for d in old:
+            shutil.rmtree(d, ignore_errors=True)
     assert code == 0
     report = load_report(out)
     assert [r["setting"] for r in report["rows"]] == [["kalman.q=1"], ["kalman.q=2000"]]
