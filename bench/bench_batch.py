@@ -24,8 +24,9 @@ Both are timed from the command to its exit. Prints, each repeat with the 1-minu
 average before it and the seconds in which the machine stalled on I/O meanwhile (the
 kernel's ``/proc/pressure/io``: a shared VM's page cache drops torch's and Ray's
 libraries, and a command that reads them back from disk waits seconds for it), then the
-medians and their ratio, and the parts. On a shared machine
-the ratio means nothing while other work runs: with a load above the core count the
+medians and their ratio (and the median of the per-repeat ratios: a repeat's two run
+back to back, on a VM whose speed drifts), and the parts. On a shared machine the ratio
+means nothing while other work runs: with a load above the core count the
 cores are taken, and with the kernel's autogroup scheduling on
 (``/proc/sys/kernel/sched_autogroup_enabled``, printed) CPU time is shared per session,
 and Ray's workers are in the session of ``mvviz batch``, so beside other busy sessions
@@ -387,6 +388,9 @@ def main() -> int:
         "speedup_vs_run_only": statistics.median(runs["serial_run"])
         / statistics.median(runs["batch"]),
         "speedup_per_repeat": [a / b for a, b in zip(runs["serial"], runs["batch"], strict=True)],
+        "speedup_per_repeat_median": statistics.median(
+            a / b for a, b in zip(runs["serial"], runs["batch"], strict=True)
+        ),
         "load_1min": runs["loads"], "load_at_parts": load, "ray_start": ray_start,
         "driver": driver, "batch_overhead_s": runs["overhead"],
         "batch_timeline": runs["timelines"], "io_stall_s": runs["io_stall_s"],
@@ -441,6 +445,10 @@ def main() -> int:
           f"{figures['speedup_vs_run_only']:.2f}x (target 1.7x, "
           f"loads {min(runs['loads']):.1f}-{max(runs['loads']):.1f}); "
           f"results equal: {equal}{'' if equal else f' (differ: {diffs})'}")  # fmt: skip
+    # A repeat's serial and batch ran a minute apart; the medians above may come from
+    # repeats far apart, on a VM whose speed drifts by a third within minutes.
+    print(f"median of the per-repeat ratios (each pair run back to back): "
+          f"{figures['speedup_per_repeat_median']:.2f}x")  # fmt: skip
     split = figures["split_median_s"]
     print(f"no-Ray split (one plain process per core, {cores} groups of scenes, the same "
           f"work): median {split:.1f} s, {figures['serial_median_s'] / split:.2f}x the serial "
