@@ -8,6 +8,7 @@ Screenshots are printed (and kept under docs/screenshots with MVVIZ_UPDATE_SCREE
 from __future__ import annotations
 
 import re
+import time
 
 import cv2
 import numpy as np
@@ -54,6 +55,7 @@ def test_the_diagnose_tab_shows_a_late_camera(browser, tmp_path):
             page.wait_for_function(
                 "() => document.body.textContent.includes('Diagnosed in')", timeout=300_000
             )
+            assert app.diagnose_panel.wait(120)  # its plots drawn after the status text
             settle(page, 2.0)
             found = app.diagnose_panel.findings.diagnosis.sync[LATE]
             text = page.locator("body").inner_text()
@@ -68,9 +70,17 @@ def test_the_diagnose_tab_shows_a_late_camera(browser, tmp_path):
             assert f"Camera {LATE} is out of sync, not miscalibrated" in text
             assert "suspect" not in text
             # the plots and the field are on the page, drawn (not blank)
-            imgs = [page.locator("img").nth(i) for i in range(page.locator("img").count())]
-            shown = [im for im in imgs if (b := im.bounding_box()) and b["x"] > 1000
-                     and b["height"] > 100]  # fmt: skip
+            # (the page decodes them after their messages: polled, with a deadline)
+            deadline = time.monotonic() + 30
+            while True:
+                imgs = [page.locator("img").nth(i) for i in range(page.locator("img").count())]
+                shown = [im for im in imgs if (b := im.bounding_box()) and b["x"] > 1000
+                         and b["height"] > 100]  # fmt: skip
+                if (len(shown) >= 2 and all(_png(im).std() > 20 for im in shown[:2])) or (
+                    time.monotonic() > deadline
+                ):
+                    break
+                settle(page, 0.5)
             assert len(shown) >= 2, [im.bounding_box() for im in imgs]
             for im in shown[:2]:
                 img = _png(im)

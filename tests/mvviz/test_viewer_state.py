@@ -287,21 +287,22 @@ def test_frustum_images_are_predecoded(viewer_scene, frame_store):
 
 
 def test_latest_wins_collapses_requests():
-    seen, value = [], {"v": 0}
+    seen, value, gate = [], {"v": 0}, threading.Event()
 
     def render():
-        time.sleep(0.02)
+        gate.wait(10)  # a render in progress while all the requests arrive
         seen.append(value["v"])
 
     worker = LatestWins(render)
     for i in range(1, 101):
         value["v"] = i
         worker.request()
-        time.sleep(0.001)
-    assert worker.wait_idle(5)
+    gate.set()
+    assert worker.wait_idle(10)
     worker.stop()
     assert seen[-1] == 100
-    assert len(seen) < 40  # not one render per request
+    # the render running, then one for every request made meanwhile: not one per request
+    assert len(seen) <= 2, seen
 
 
 def test_server_without_browser(viewer_scene, frame_store):
@@ -316,7 +317,8 @@ def test_server_without_browser(viewer_scene, frame_store):
             assert app.wait_idle(10)
         assert seen[-1][0] == NUM_FRAMES - 1
         stats = app.frame_time_stats()
-        assert stats["count"] >= NUM_FRAMES and stats["median_ms"] < 200
+        # a liveness bound on a shared machine: the speed target is bench_viewer's
+        assert stats["count"] >= NUM_FRAMES and stats["median_ms"] < 1000
         app.jump_to(frame=3, track=1, joint="left_wrist", view=2)
         assert app.wait_idle(10)
         assert state.frame == 3 and state.camera == 2
@@ -327,7 +329,9 @@ def test_server_without_browser(viewer_scene, frame_store):
         # playback advances frames on its own, and pausing stops it
         app.timeline.gui.play.value = True  # a click
         assert state.playing
-        time.sleep(0.5)
+        deadline = time.monotonic() + 10
+        while state.frame == 3 and time.monotonic() < deadline:
+            time.sleep(0.02)
         app.timeline.gui.play.value = True
         assert not state.playing and state.frame != 3
         assert app.wait_idle(10) and not app.render_errors

@@ -17,25 +17,39 @@ def _calls(stop: threading.Event, count: list[int]) -> None:
         step()
 
 
+def _eventually(condition, timeout_s: float = 10.0) -> bool:
+    """Polls ``condition`` until it holds (a shared machine may not schedule the job's
+    thread for a while: a deadline, not a fixed sleep)."""
+    end = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.01)
+    return True
+
+
 def test_job_makes_no_progress_while_busy_and_resumes_after() -> None:
     busy, stop, count = threading.Event(), threading.Event(), [0]
 
     def job() -> None:
-        with yielding_to(busy.is_set):
+        with yielding_to(busy.is_set, max_wait_s=60.0):  # held as long as the test says
             _calls(stop, count)
+
+    def settled() -> bool:  # two reads 50 ms apart agree
+        before = count[0]
+        time.sleep(0.05)
+        return count[0] == before
 
     worker = threading.Thread(target=job, daemon=True)
     worker.start()
-    time.sleep(0.05)
-    assert count[0] > 0  # it runs while nothing renders
+    assert _eventually(lambda: count[0] > 0)  # it runs while nothing renders
     busy.set()
-    time.sleep(0.02)  # let it reach its next call
+    assert _eventually(settled)  # held at its next Python call, not spinning
     held = count[0]
     time.sleep(0.2)
-    assert count[0] == held  # held at its next Python call, not spinning
+    assert count[0] == held
     busy.clear()
-    time.sleep(0.05)
-    assert count[0] > held  # and on again once the frame is drawn
+    assert _eventually(lambda: count[0] > held)  # and on again once the frame is drawn
     stop.set()
     worker.join(2)
     assert not worker.is_alive()

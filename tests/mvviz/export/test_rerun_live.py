@@ -119,13 +119,19 @@ def test_rerun_server_binds_loopback_and_serves_its_web_viewer(live_run, browser
     try:
         page.goto(server.url)
         page.wait_for_selector("canvas", timeout=60_000)
-        time.sleep(12)  # wasm start, connect, first frames
         SHOTS.mkdir(parents=True, exist_ok=True)
         shot = SHOTS / "rerun_live_web_viewer.png"
-        page.screenshot(path=str(shot))
+        # wasm start, connect, first frames: at least 12 s, then until drawn (a deadline)
+        time.sleep(12)
+        deadline = time.monotonic() + 90
+        while True:
+            page.screenshot(path=str(shot))
+            img = np.asarray(Image.open(shot).convert("RGB"), float)
+            if img.std() > 10 or time.monotonic() > deadline:
+                break
+            time.sleep(2)
     finally:
         page.close()
-    img = np.asarray(Image.open(shot).convert("RGB"), float)
     assert img.std() > 10, "the web viewer page is blank"
 
 

@@ -40,7 +40,7 @@ from tests.mvviz.conftest import (
     open_tab,
     open_viewer,
     settle,
-    wait_rendered,
+    wait_drawn,
 )
 
 FRAME = 10
@@ -356,8 +356,7 @@ def test_switching_a_camera_off_changes_the_canvas(browser, browser_app, tmp_pat
     try:
         open_tab(page, "Pipeline")  # its folder is open in its tab
         app.jump_to(frame=12, track=-1)  # no track selected: every person's rays
-        wait_rendered(app, page)
-        a = canvas_image(page)
+        a = wait_drawn(app, page)
         cam = app.state.scene.rig.names[0]
         box = page.get_by_label(f"camera {cam}")
         box.scroll_into_view_if_needed()
@@ -367,7 +366,7 @@ def test_switching_a_camera_off_changes_the_canvas(browser, browser_app, tmp_pat
             time.sleep(0.05)
         assert app.state.results.config.disabled_views == (cam,)
         assert panel.wait_idle(60)
-        wait_rendered(app, page, 2.5)
+        wait_drawn(app, page)  # the label stays: the page's answer and a stable picture
         page.get_by_text("Changed from the run config").first.scroll_into_view_if_needed()
         notices = page.locator("button.mantine-Notification-closeButton")
         for i in range(notices.count()):  # the software-WebGL notice, if it came back
