@@ -46,7 +46,9 @@ class SceneFormatError(ValueError):
         super().__init__(f"{where}: {message}")
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (another user's counts: it cannot be signalled,
+    but it is there)."""
     if pid == os.getpid():
         return True
     try:
@@ -80,7 +82,7 @@ def recover(path: str | os.PathLike) -> None:
         if m is None:
             continue
         pid = int(m.group(1) or m.group(3))
-        if not _alive(pid):
+        if not process_alive(pid):
             stale[m.group(2) or "tmp"].append(entry)
     for p in stale["tmp"]:
         _remove(p)

@@ -60,7 +60,7 @@ from pipeline.batch.jobs import (
 )
 from pipeline.body_arrays import BodyModelData
 from pipeline.config import PipelineConfig
-from pipeline.files import SceneFormatError, atomic_write
+from pipeline.files import SceneFormatError, atomic_write, process_alive
 from pipeline.progress import Progress, StageBar
 from pipeline.results import load_results, save_results
 from pipeline.scene import Scene, load_scene
@@ -262,21 +262,11 @@ def prune_ray_sessions(
     for path, pid in sessions[: max(len(sessions) - keep, 0)]:
         if len(removed) == limit:
             break
-        if not _process_alive(pid):
+        if not process_alive(pid):
             shutil.rmtree(path, ignore_errors=True)
             if not path.exists():
                 removed.append(path)
     return removed
-
-
-def _process_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)  # signal 0: only checks that the process exists
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process
-        return True
-    return True
 
 
 def _set_threads(n: int) -> None:

@@ -131,6 +131,15 @@ def open_tab(page, name: str) -> None:
     settle(page, 0.3)
 
 
+def wait_until(predicate, seconds: float = 10.0, what: str = "") -> None:
+    """Poll ``predicate`` until it holds: a deadline on a shared machine, not a fixed
+    sleep (the thread or page it waits for may not be scheduled for a while)."""
+    deadline = time.monotonic() + seconds
+    while not predicate():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
 def settle(page, seconds: float = 2.0) -> None:
     """Give the client time to apply messages and software-render a few frames."""
     page.wait_for_timeout(int(seconds * 1000))

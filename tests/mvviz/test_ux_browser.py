@@ -15,7 +15,14 @@ from mvviz.app import ViewerApp
 from mvviz.panels.filter_panel import B_ROOT
 from mvviz.scene.geometry import SELECTED_CAMERA
 from mvviz.state import ViewerState
-from tests.mvviz.conftest import free_port, open_tab, open_viewer, wait_drawn, wait_rendered
+from tests.mvviz.conftest import (
+    free_port,
+    open_tab,
+    open_viewer,
+    wait_drawn,
+    wait_rendered,
+    wait_until,
+)
 
 
 @pytest.fixture
@@ -40,13 +47,6 @@ def idle(app) -> None:
     for _ in range(2):  # a render may request panel work and a panel a redraw
         assert app.wait_idle(30)
         assert app.filter_panel.wait_idle(30) and app.failure_panel.wait_idle(30)
-
-
-def wait_until(predicate, seconds: float = 10.0, what: str = "") -> None:
-    deadline = time.monotonic() + seconds
-    while not predicate():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.05)
 
 
 def sees(app, failure, view: int) -> bool:

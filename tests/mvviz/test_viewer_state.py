@@ -32,7 +32,7 @@ from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.results import run_pipeline
 from pipeline.scene import Detections
 from tests.conftest import RIGS
-from tests.mvviz.conftest import NUM_FRAMES, free_port
+from tests.mvviz.conftest import NUM_FRAMES, free_port, wait_until
 
 
 def all_on(state: ViewerState) -> ViewerState:
@@ -329,9 +329,7 @@ def test_server_without_browser(viewer_scene, frame_store):
         # playback advances frames on its own, and pausing stops it
         app.timeline.gui.play.value = True  # a click
         assert state.playing
-        deadline = time.monotonic() + 10
-        while state.frame == 3 and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_until(lambda: state.frame != 3, what="playback to advance")
         app.timeline.gui.play.value = True
         assert not state.playing and state.frame != 3
         assert app.wait_idle(10) and not app.render_errors

@@ -7,6 +7,7 @@ import threading
 import time
 
 from mvviz.workers import yielding_to
+from tests.mvviz.conftest import wait_until
 
 
 def _calls(stop: threading.Event, count: list[int]) -> None:
@@ -15,17 +16,6 @@ def _calls(stop: threading.Event, count: list[int]) -> None:
 
     while not stop.is_set():
         step()
-
-
-def _eventually(condition, timeout_s: float = 10.0) -> bool:
-    """Polls ``condition`` until it holds (a shared machine may not schedule the job's
-    thread for a while: a deadline, not a fixed sleep)."""
-    end = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > end:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 def test_job_makes_no_progress_while_busy_and_resumes_after() -> None:
@@ -42,14 +32,14 @@ def test_job_makes_no_progress_while_busy_and_resumes_after() -> None:
 
     worker = threading.Thread(target=job, daemon=True)
     worker.start()
-    assert _eventually(lambda: count[0] > 0)  # it runs while nothing renders
+    wait_until(lambda: count[0] > 0, what="the job to run")  # while nothing renders
     busy.set()
-    assert _eventually(settled)  # held at its next Python call, not spinning
+    wait_until(settled, what="the job to be held")  # at its next call, not spinning
     held = count[0]
     time.sleep(0.2)
     assert count[0] == held
     busy.clear()
-    assert _eventually(lambda: count[0] > held)  # and on again once the frame is drawn
+    wait_until(lambda: count[0] > held, what="the job to resume")  # once drawn
     stop.set()
     worker.join(2)
     assert not worker.is_alive()

@@ -213,18 +213,24 @@ def test_embedded_ray_workers_run_at_the_normal_priority(monkeypatch):
     assert (ours, users) == (os.getpriority(os.PRIO_PROCESS, 0), 7)
 
 
+def _ended_pid() -> int:
+    """The id of a process that has ended (a Ray session's driver gone)."""
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
 def test_ended_ray_sessions_are_pruned_beyond_the_newest(tmp_path):
     """Ray leaves a session directory per embedded start: those whose driver has ended
     go, but the newest ``keep`` and any still running (its driver alive) stay, and
     nothing else in the directory is touched."""
-    ended = subprocess.Popen([sys.executable, "-c", "pass"])
-    ended.wait()
+    ended = _ended_pid()
     names = [
-        f"session_2026-01-01_00-00-00_000001_{ended.pid}",
+        f"session_2026-01-01_00-00-00_000001_{ended}",
         f"session_2026-01-02_00-00-00_000001_{os.getpid()}",  # running: this process
-        f"session_2026-01-03_09-30-00_123456_{ended.pid}",
-        f"session_2026-01-04_00-00-00_000001_{ended.pid}",
-        f"session_2026-01-05_00-00-00_000001_{ended.pid}",
+        f"session_2026-01-03_09-30-00_123456_{ended}",
+        f"session_2026-01-04_00-00-00_000001_{ended}",
+        f"session_2026-01-05_00-00-00_000001_{ended}",
     ]
     for name in names:
         (tmp_path / name / "logs").mkdir(parents=True)
@@ -347,10 +353,9 @@ def test_sweep_runs_the_grid(dataset, tmp_path):
     out = tmp_path / "out"
     # ended sessions older than any: whatever else is there, the oldest is beyond the
     # newest KEPT_RAY_SESSIONS, and the batch's end deletes it
-    ended = subprocess.Popen([sys.executable, "-c", "pass"])
-    ended.wait()
+    ended = _ended_pid()
     old = [
-        ray_run.RAY_TEMP_DIR / f"session_2000-01-01_00-00-{i:02d}_000000_{ended.pid}"
+        ray_run.RAY_TEMP_DIR / f"session_2000-01-01_00-00-{i:02d}_000000_{ended}"
         for i in range(ray_run.KEPT_RAY_SESSIONS + 1)
     ]
     for d in old:

@@ -27,6 +27,7 @@ from mvviz.cli import main
 from pipeline.batch.report import load_report
 from pipeline.body_model import load_body_model
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
+from tests.mvviz.conftest import wait_until
 from tests.pipeline.helpers import campus_rig
 
 RAY = shutil.which("ray") or str(Path(sys.executable).with_name("ray"))
@@ -195,11 +196,8 @@ def test_worker_node_killed_mid_run(scenes, tmp_path):
         return not Path(f"/proc/{pid}").exists() or _zombie(pid)
 
     # every process this test started is gone (one killed may take a moment to exit)
-    deadline = time.monotonic() + 30
     for node in nodes:
-        while not all(map(gone, node.seen)) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert [pid for pid in node.seen if not gone(pid)] == []
+        wait_until(lambda n=node: all(map(gone, n.seen)), 30, f"{node.seen} to exit")
 
 
 def _zombie(pid: int) -> bool:
