@@ -20,6 +20,10 @@ times:
   host's other tenants), so even a perfect split stays below 2x; the batch is printed
   against it as well.
 
+- with ``--per-command``, the scenes as a user runs them by hand today: one ``mvviz run
+  SCENE --force`` command after another (each pays its imports and its exit; no
+  evaluation, so the batch, which evaluates every scene, is compared against less work).
+
 Both are timed from the command to its exit. Prints, each repeat with the 1-minute load
 average before it and the seconds in which the machine stalled on I/O meanwhile (the
 kernel's ``/proc/pressure/io``: a shared VM's page cache drops torch's and Ray's
@@ -57,7 +61,8 @@ Checks that the last repeat's results of the two ways are equal array for array 
 the entries that differ, if any).
 
 Usage:
-    python bench/bench_batch.py [--scenes DIR] [--frames N] [--people N] [--repeats N] [--json FILE]
+    python bench/bench_batch.py [--scenes DIR] [--frames N] [--people N] [--repeats N]
+                                [--per-command] [--json FILE]
 """
 
 from __future__ import annotations
@@ -227,6 +232,16 @@ def timed(cmd: list[str]) -> tuple[float, str, float | None]:
     return took, done.stderr, (None if io0 is None or io1 is None else round(io1 - io0, 2))
 
 
+def timed_commands(names: list[str], out: str) -> float:
+    """Wall seconds of one ``mvviz run SCENE --force`` command per scene, one after
+    another: each scene run by hand, as before ``mvviz batch``."""
+    t0 = time.perf_counter()
+    for scene in names:
+        path = Path(out, Path(scene).name, "results.npz")
+        timed([sys.executable, "-m", "mvviz.cli", "run", scene, "--force", "--out", str(path)])
+    return time.perf_counter() - t0
+
+
 def timed_split(groups: list[list[str]], out: str) -> float:
     """Wall seconds of one serial process per group of scenes, all started at once: the
     same work split by hand with no Ray, so each process pays its own imports and the
@@ -287,13 +302,14 @@ def timeline(rows: list[dict], t0: float, t1: float) -> dict:
     }  # fmt: skip
 
 
-def alternate(names: list[str], tmp: str, repeats: int) -> dict:
+def alternate(names: list[str], tmp: str, repeats: int, per_command: bool = False) -> dict:
     """Serial and batch runs, alternated; their times, loads and per-scene parts."""
     serial, batch, loads, serial_scenes, task_parts, overhead = [], [], [], [], [], []
     timelines: list[dict] = []  # per repeat, where the batch's wall went
     serial_run = []  # the serial process's wall without its evaluations
     io_stalls = []  # per repeat: (serial, batch) seconds stalled on I/O
     split = []  # per repeat: the same work in one plain process per core, no Ray
+    commands = []  # per repeat (--per-command): one mvviz run command per scene
     cores = os.cpu_count() or 1
     for r in range(repeats):
         loads.append(os.getloadavg()[0])
@@ -315,6 +331,10 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
         batch.append(took)
         io_stalls.append((serial_io, batch_io))
         split.append(timed_split([names[i::cores] for i in range(cores)], f"{tmp}/split"))
+        if per_command:
+            commands.append(timed_commands(names, f"{tmp}/commands"))
+        by_hand = (f"; {len(names)} mvviz run commands {commands[-1]:.1f} s "
+                   f"({commands[-1] / batch[-1]:.2f}x)" if per_command else "")  # fmt: skip
         rows = json.loads(Path(tmp, "report", "batch_report.json").read_text())["rows"]
         task_parts += [row["task_seconds"] for row in rows if row.get("task_seconds")]
         overhead.append(batch[-1] - sum(map(task_wall, rows)) / (os.cpu_count() or 1))
@@ -327,12 +347,12 @@ def alternate(names: list[str], tmp: str, repeats: int) -> dict:
               f"evaluations; load {loads[-2]:.1f}), batch {batch[-1]:.1f} s (load "
               f"{loads[-1]:.1f}): {serial[-1] / batch[-1]:.2f}x "
               f"({serial_run[-1] / batch[-1]:.2f}x){where}{stalls(serial_io, batch_io)}; "
-              f"no-Ray split {split[-1]:.1f} s ({serial[-1] / split[-1]:.2f}x)",
+              f"no-Ray split {split[-1]:.1f} s ({serial[-1] / split[-1]:.2f}x){by_hand}",
               flush=True)  # fmt: skip
     return dict(serial=serial, serial_run=serial_run, batch=batch, loads=loads,
                 serial_scene=medians(serial_scenes), task=medians(task_parts),
                 overhead=overhead, timelines=timelines, io_stall_s=io_stalls,
-                split=split)  # fmt: skip
+                split=split, commands=commands)  # fmt: skip
 
 
 def stalls(serial_io: float | None, batch_io: float | None) -> str:
@@ -359,6 +379,10 @@ def main() -> int:
         "--fit-repeats", type=int, default=1,
         help="fits of one scene per thread count (2 threads on a busy machine can take 20x)",
     )  # fmt: skip
+    p.add_argument(
+        "--per-command", action="store_true",
+        help="also time the scenes as separate mvviz run commands (what a user does by hand)",
+    )  # fmt: skip
     p.add_argument("--json", type=Path, default=None)
     args = p.parse_args()
     scenes = make_scenes(args.scenes, args.frames, args.people)
@@ -366,7 +390,7 @@ def main() -> int:
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the start, "
           f"autogroup scheduling {autogroup()} (see --help)")  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
-        runs = alternate(names, tmp, args.repeats)
+        runs = alternate(names, tmp, args.repeats, args.per_command)
         diffs = {
             s.name: d
             for s in scenes
@@ -399,6 +423,10 @@ def main() -> int:
         "fit_threads": fit, "results_equal": equal, "results_differ": diffs,
         "autogroup": autogroup(),
     }  # fmt: skip
+    if runs["commands"]:
+        figures["commands_s"] = runs["commands"]
+        figures["commands_median_s"] = statistics.median(runs["commands"])
+        figures["speedup_vs_commands"] = figures["commands_median_s"] / figures["batch_median_s"]
     print(
         f"parts (load {load:.1f}): Ray import {ray_start['import_s']:.2f} s, ray.init "
         f"{ray_start['init_s']:.2f} s, {ray_start['workers']} workers started + pipeline "
@@ -454,6 +482,10 @@ def main() -> int:
           f"work): median {split:.1f} s, {figures['serial_median_s'] / split:.2f}x the serial "
           f"time: what this machine gives two processes now; the batch takes "
           f"{figures['batch_median_s'] / split:.2f}x the split's time")  # fmt: skip
+    if runs["commands"]:
+        print(f"{NUM_SCENES} mvviz run commands one after another (each scene by hand, no "
+              f"evaluation): median {figures['commands_median_s']:.1f} s, the batch "
+              f"{figures['speedup_vs_commands']:.2f}x faster")  # fmt: skip
     if args.json:
         write_json(args.json, figures)
     return 0
