@@ -57,8 +57,8 @@ the two workers together get the share the serial process gets alone. The parts:
 Then the bound: the batch's tasks' CPU seconds, Ray's start-up CPU and the driver's,
 perfectly packed on the cores, and the speed-up that allows.
 
-Checks that the last repeat's results of the two ways are equal array for array (and names
-the entries that differ, if any).
+Checks that the last repeat's results of the two ways (and of the commands, with
+``--per-command``) are equal array for array (and names the entries that differ, if any).
 
 Usage:
     python bench/bench_batch.py [--scenes DIR] [--frames N] [--people N] [--repeats N]
@@ -333,8 +333,8 @@ def alternate(names: list[str], tmp: str, repeats: int, per_command: bool = Fals
         split.append(timed_split([names[i::cores] for i in range(cores)], f"{tmp}/split"))
         if per_command:
             commands.append(timed_commands(names, f"{tmp}/commands"))
-        by_hand = (f"; {len(names)} mvviz run commands {commands[-1]:.1f} s "
-                   f"({commands[-1] / batch[-1]:.2f}x)" if per_command else "")  # fmt: skip
+        by_hand = (f"; {len(names)} mvviz run commands {commands[-1]:.1f} s (the batch "
+                   f"{commands[-1] / batch[-1]:.2f}x faster)" if per_command else "")  # fmt: skip
         rows = json.loads(Path(tmp, "report", "batch_report.json").read_text())["rows"]
         task_parts += [row["task_seconds"] for row in rows if row.get("task_seconds")]
         overhead.append(batch[-1] - sum(map(task_wall, rows)) / (os.cpu_count() or 1))
@@ -391,10 +391,12 @@ def main() -> int:
           f"autogroup scheduling {autogroup()} (see --help)")  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         runs = alternate(names, tmp, args.repeats, args.per_command)
+        others = ["serial", *(["commands"] if args.per_command else [])]
         diffs = {
-            s.name: d
+            f"{s.name} ({other})": d
             for s in scenes
-            if (d := differing(Path(tmp, "serial", s.name, "results.npz"),
+            for other in others
+            if (d := differing(Path(tmp, other, s.name, "results.npz"),
                                Path(tmp, "batch", s.name, "results.npz")))
         }  # fmt: skip
         equal = not diffs
