@@ -232,6 +232,7 @@ def _timeline_plot(timeline: dict) -> str:
     """The scene tasks per worker in time, each split into its stages."""
     fig, ax = plt.subplots(figsize=(8, 0.45 * timeline["workers"] + 1.4))
     lead = timeline.get("startup_s") or 0.0  # the command's start at 0, where known
+    labels = []  # (task, its label's text): shortened to their bars once the axis is set
     if lead > 0:
         ax.axvspan(0, lead, color="#e8e8e8", zorder=0)
         ax.text(lead / 2, (timeline["workers"] - 1) / 2, f"start-up\n{lead:.1f} s", ha="center",
@@ -245,9 +246,10 @@ def _timeline_plot(timeline: dict) -> str:
             x += w
         ax.barh(t["worker"], t["end_s"] - t["start_s"], left=t["start_s"], height=0.6,
                 fill=False, edgecolor="#333", linewidth=0.6)  # fmt: skip
-        if t["end_s"] - t["start_s"] > 0.06 * (timeline["span_s"] + lead):
-            ax.text((t["start_s"] + t["end_s"]) / 2, t["worker"], t["label"], ha="center",
-                    va="center", fontsize=7, color="white", clip_on=True)  # fmt: skip
+        middle = (t["start_s"] + t["end_s"]) / 2
+        text = ax.text(middle, t["worker"], t["label"], ha="center", va="center", fontsize=7,
+                       color="white")  # fmt: skip
+        labels.append((t, text))
     ax.set_yticks(range(timeline["workers"]), [f"worker {i}" for i in range(timeline["workers"])])
     ax.invert_yaxis()
     ax.set_xlabel("seconds from the batch command's start" if lead > 0
@@ -256,10 +258,36 @@ def _timeline_plot(timeline: dict) -> str:
         f"{len(timeline['tasks'])} scene tasks on {timeline['workers']} workers: busy "
         f"{100 * timeline['busy']:.0f} % of {timeline['span_s']:.1f} s"
     )
+    renderer = fig.canvas.get_renderer()
+    for t, text in labels:
+        (x0, _), (x1, _) = ax.transData.transform([(t["start_s"], 0), (t["end_s"], 0)])
+        _fit_label(text, 0.9 * (x1 - x0), renderer)
     handles = [plt.Rectangle((0, 0), 1, 1, color=c) for _, c in TASK_STAGES.values()]
     ax.legend(handles, [name for name, _ in TASK_STAGES.values()], fontsize=7,
               loc="upper center", bbox_to_anchor=(0.5, -0.35), ncol=2, frameon=False)  # fmt: skip
     return _image(fig)
+
+
+def _fit_label(text, width_px: float, renderer) -> None:
+    """Shorten a bar's label to its longest prefix (with an ellipsis) that fits
+    ``width_px``, or remove it where not even three letters fit: a short task's label
+    would run over its neighbours' (scene names with a sweep setting are long)."""
+    label = text.get_text()
+
+    def fits(n: int) -> bool:
+        text.set_text(label if n == len(label) else label[:n] + "\u2026")
+        return text.get_window_extent(renderer).width <= width_px
+
+    if fits(len(label)):
+        return
+    lo, hi = 3, len(label) - 1  # the longest prefix that fits, by bisection
+    if lo > hi or not fits(lo):
+        text.remove()
+        return
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if fits(mid) else (lo, mid - 1)
+    fits(lo)
 
 
 def _sweep_plots(report: dict) -> list[str]:

@@ -232,6 +232,31 @@ def test_task_timeline_numbers_the_workers_and_measures_their_busy_share():
     assert "after 3.0 s of start-up" in render_html(started)
 
 
+def test_timeline_labels_are_shortened_to_their_bars():
+    """A task's label is drawn inside its bar: whole where it fits, cut short with an
+    ellipsis where it does not, left out where not three letters fit (the labels of
+    short scenes with a sweep setting ran over their neighbours')."""
+    import base64  # noqa: PLC0415
+    import re  # noqa: PLC0415
+
+    from pipeline.batch.report import build_report, render_html  # noqa: PLC0415
+
+    long = "shelf_synth_noisy [kalman.q=100, association.max_distance_mm=120]"
+    rows = [
+        _timed_row("whole", 77, 1000.0, 1010.0, 8.0),  # 10 s of a 20 s span
+        _timed_row(long, 55, 1000.0, 1006.0, 4.0),
+        _timed_row("tiny", 55, 1006.0, 1006.05, 0.0),
+        _timed_row("pose2sim_demo [kalman.q=10]", 55, 1006.05, 1020.0, 12.0),
+    ]
+    page = render_html(build_report(rows, started_at=999.0))
+    svg = base64.b64decode(re.findall(r'src="data:image/svg\+xml;base64,([^"]+)"', page)[-1])
+    texts = re.findall(r"<text[^>]*>([^<]*)</text>", svg.decode())
+    assert "whole" in texts and "pose2sim_demo [kalman.q=10]" in texts
+    assert long not in texts and "tiny" not in texts and "t\u2026" not in texts
+    cut = [t for t in texts if t.endswith("\u2026")]
+    assert len(cut) == 1 and long.startswith(cut[0][:-1]) and 3 <= len(cut[0]) - 1 < len(long)
+
+
 def test_report_figures_are_inline_svg_with_their_text_as_text():
     """The figures are vector images inside the page (nothing fetched), and their words
     are text a browser lays out and a reader can search, not glyph outlines."""
