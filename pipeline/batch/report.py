@@ -340,7 +340,9 @@ def render_html(report: dict) -> str:
     scene_rows = []
     for r in rows:
         s = r.get("summary") or {}
-        status = esc(r["status"]) + (f": {esc(r['error'])}" if r.get("error") else "")
+        status = f'<span class="status">{esc(r["status"])}</span>' + (
+            f': <span class="err">{esc(r["error"])}</span>' if r.get("error") else ""
+        )
         scene_rows.append(
             [esc(r["label"]), status]
             + [_fmt(s.get(m), 3 if m in ("pck160", "pcp") else 1) for m in METRICS]
@@ -420,7 +422,13 @@ body { font: 14px system-ui, sans-serif; margin: 24px; color: #222; }
 table { border-collapse: collapse; margin: 8px 0 20px; }
 th, td { border: 1px solid #ccc; padding: 3px 7px; text-align: right; }
 th { background: #f0f0f0; }
-td:first-child, th:first-child, td:has(code), td.text { text-align: left; }
-code { font-size: 11px; white-space: nowrap; background: #f7f7f7; }
+td { white-space: nowrap; }
+td:first-child { white-space: normal; }
+td:first-child, th:first-child, td:has(code), td:has(.status) { text-align: left; }
+/* a viewer command or an error (long paths) wraps inside its cell, not the page */
+td:has(code), td:has(.err) { white-space: normal; overflow-wrap: anywhere; }
+td:has(code) { min-width: 22em; }
+td:has(.err) { min-width: 12em; }
+code { font-size: 11px; background: #f7f7f7; user-select: all; }
 img { max-width: 100%; }
 """

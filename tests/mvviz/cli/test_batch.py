@@ -457,6 +457,13 @@ def _browse_reports(sync_api, dataset, out, shots, tmp_path):
             assert "python app.py" in text and "--frame" in text
             if name == "sweep":  # one task per setting: the batch's timeline is drawn
                 assert "Where the time went" in text and "3 tasks on" in text
+            # The viewer commands wrap inside their cells (one click selects a whole
+            # command): the page is no wider than the window, every command in view.
+            assert page.evaluate("document.documentElement.scrollWidth") <= 1400
+            boxes = [c.bounding_box() for c in page.locator("td code").all()]
+            assert boxes and max(b["x"] + b["width"] for b in boxes) <= 1400
+            assert page.locator("td code").first.evaluate(
+                "e => getComputedStyle(e).userSelect") == "all"  # fmt: skip
             images = page.locator("img")
             widths = [images.nth(i).evaluate("e => e.naturalWidth") for i in range(images.count())]
             assert widths and all(w > 100 for w in widths)  # the inline PNGs decoded
