@@ -55,6 +55,9 @@ from mvviz.state import ViewerState
 from mvviz.workers import LatestWins, PageAcks
 from pipeline.results import PipelineResults
 
+FirstTab = tuple[str, str, Callable[["ViewerApp"], Panel]]
+"""(label, icon, build): a tab shown before the viewer's own (see :class:`ViewerApp`)."""
+
 if TYPE_CHECKING:
     from pipeline.body_arrays import BodyModelData
     from pipeline.body_model import BodyModel
@@ -81,9 +84,14 @@ class ViewerApp:
         model: BodyModel | BodyModelData | None = None,
         verbose: bool = False,
         server: viser.ViserServer | None = None,
+        first_tab: FirstTab | None = None,
     ) -> None:
         """``server``: an already running server to build on (``host``, ``port`` and
-        ``verbose`` then unused; ``mvviz view`` starts it before the heavy imports)."""
+        ``verbose`` then unused; ``mvviz view`` starts it before the heavy imports).
+        ``first_tab``: (label, icon, build) of a panel shown before the standard tabs,
+        open when the page loads (viser opens a tab group at its first tab and has no
+        way to select another): the Dataset panel of ``app.py --batch``."""
+        self._first_tab = first_tab
         self.state = state
         self.model = model  # the body model of the run (None: the shipped one)
         self.frames = frames
@@ -132,6 +140,10 @@ class ViewerApp:
         camera panel docked left."""
         self.timeline = self._add(make_timeline_panel(self))
         self.tabs = tabs = self.server.gui.add_tab_group()
+        if self._first_tab is not None:
+            label, icon, build = self._first_tab
+            with tabs.add_tab(label, icon):
+                self.first_panel = self._add(build(self))
         with tabs.add_tab("Layers", viser.Icon.STACK_2):
             self.layers_panel = self._add(make_layers_panel(self))
         with tabs.add_tab("Selection", viser.Icon.POINTER):

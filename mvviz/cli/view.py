@@ -17,7 +17,7 @@ import viser
 from pipeline.files import CACHE_DIR, SceneFormatError
 
 if TYPE_CHECKING:
-    from mvviz.app import ViewerApp
+    from mvviz.app import FirstTab, ViewerApp
 
 REPO_ROOT = Path(__file__).resolve().parents[2]  # mvviz/cli/view.py -> the repository
 DEFAULT_SCENE = REPO_ROOT / "sample_data" / "shelf_synth"
@@ -85,15 +85,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def start(args: argparse.Namespace, *, progress: bool = True) -> ViewerApp:
+def start(
+    args: argparse.Namespace, *, progress: bool = True, first_tab: FirstTab | None = None
+) -> ViewerApp:
     """Start the server, load the scene, run or load results, build the viewer on the
-    server; returns the running app (the server stops if any of it fails)."""
+    server (``first_tab``: see :class:`mvviz.app.ViewerApp`); returns the running app
+    (the server stops if any of it fails)."""
     t0 = time.perf_counter()
     server = viser.ViserServer(host=args.host, port=args.port, verbose=False)
     loading = server.gui.add_markdown(f"**Loading** `{Path(args.scene).name}` …")
     print(f"serving http://{args.host}:{server.get_port()} (loading the scene)", flush=True)
     try:
-        app = _build_viewer(args, server, loading, progress=progress)
+        app = _build_viewer(args, server, loading, progress=progress, first_tab=first_tab)
     except BaseException:
         server.stop()
         raise
@@ -109,6 +112,7 @@ def _build_viewer(
     loading: viser.GuiMarkdownHandle,
     *,
     progress: bool,
+    first_tab: FirstTab | None = None,
 ) -> ViewerApp:
     # The heavy imports (torch, scipy, trimesh, OpenCV) come after the server is up.
     from mvviz.app import ViewerApp  # noqa: PLC0415
@@ -126,7 +130,7 @@ def _build_viewer(
     frames = FrameStore(scene, cache_dir=scene.root / CACHE_DIR / "frames").start()
     state = ViewerState.create(scene, results, model)
     loading.remove()
-    app = ViewerApp(state, server=server, frames=frames, model=model)
+    app = ViewerApp(state, server=server, frames=frames, model=model, first_tab=first_tab)
     app.wait_idle(30)
     _open_at(app, args, results.num_frames, results.num_tracks)
     if app.server.get_port() != args.port:  # viser moves to the next free port

@@ -56,13 +56,20 @@ class BatchViewer:
                 self.sort_by = self.panel.metric if self.panel else self.sort_by
                 stop(self.app)
                 self.app = self.panel = None
-            self.app = start(scene_args(self.args, row, moment), progress=self.progress)
-            with self.app.tabs.add_tab("Dataset", viser.Icon.DATABASE):
+
+            def dataset_panel(app) -> DatasetPanel:
                 self.panel = make_dataset_panel(
-                    self.app, self.report, current=row["results"], open_scene=self.request,
+                    app, self.report, current=row["results"], open_scene=self.request,
                     sort_by=self.sort_by,
                 )  # fmt: skip
-            self.app.panels.append(self.panel)
+                return self.panel
+
+            # The Dataset tab first, so that the page, which reconnects to every new
+            # scene's viewer, opens on the list the user was going through.
+            self.app = start(
+                scene_args(self.args, row, moment), progress=self.progress,
+                first_tab=("Dataset", viser.Icon.DATABASE, dataset_panel),
+            )  # fmt: skip
             self.shown = row
         self.switched.set()
 

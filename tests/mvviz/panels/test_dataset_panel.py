@@ -162,7 +162,10 @@ def _switch_scenes_in_chromium(batch_dir, tmp_path):
             page.goto(viewer.app.url)
             page.wait_for_selector("canvas", timeout=60_000)
             close_webgl_notice(page)
-            page.get_by_role("tab", name="Dataset").click()
+            # The Dataset tab is the open one, before and after a switch: the page
+            # reconnects to each new scene's viewer and stays on the list.
+            dataset_tab = page.get_by_role("tab", name="Dataset")
+            assert dataset_tab.get_attribute("aria-selected") == "true"
             page.wait_for_timeout(1500)
             assert f"▶ {first['label']}" in page_text(page)
             page.screenshot(path=str(tmp_path / "dataset_before.png"))
@@ -174,11 +177,11 @@ def _switch_scenes_in_chromium(batch_dir, tmp_path):
                 "t => document.body.textContent.includes(t)", arg=f"frame {want} / {n - 1}",
                 timeout=60_000,
             )  # fmt: skip
-            page.get_by_role("tab", name="Dataset").click()
             deadline = time.time() + 30
             while f"▶ {other['label']}" not in page_text(page) and time.time() < deadline:
                 page.wait_for_timeout(300)
             assert f"▶ {other['label']}" in page_text(page)
+            assert page.get_by_role("tab", name="Dataset").get_attribute("aria-selected") == "true"
             assert viewer.app.state.data.scene.root.name == other["label"]
             assert viewer.app.server.get_port() == port  # the page reconnected to it
             page.wait_for_timeout(1500)
