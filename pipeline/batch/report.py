@@ -334,20 +334,27 @@ def _code(cmd: str) -> str:
     return f"<code>{html.escape(cmd)}</code>"
 
 
-def render_html(report: dict) -> str:
-    rows = report["rows"]
+def _scene_rows(rows: list[dict]) -> list[list[str]]:
+    """The Scenes table's cells: label, status (and error), metrics, viewer command."""
     esc = html.escape
-    scene_rows = []
+    out = []
     for r in rows:
         s = r.get("summary") or {}
         status = f'<span class="status">{esc(r["status"])}</span>' + (
             f': <span class="err">{esc(r["error"])}</span>' if r.get("error") else ""
         )
-        scene_rows.append(
+        out.append(
             [esc(r["label"]), status]
             + [_fmt(s.get(m), 3 if m in ("pck160", "pcp") else 1) for m in METRICS]
             + [_code(r["view_command"])]
         )
+    return out
+
+
+def render_html(report: dict) -> str:
+    rows = report["rows"]
+    esc = html.escape
+    scene_rows = _scene_rows(rows)
     cams = sorted(
         {v for r in rows for v in ((r.get("summary") or {}).get("reprojection_px") or {})}
     )
