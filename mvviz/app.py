@@ -91,7 +91,6 @@ class ViewerApp:
         ``first_tab``: (label, icon, build) of a panel shown before the standard tabs,
         open when the page loads (viser opens a tab group at its first tab and has no
         way to select another): the Dataset panel of ``app.py --batch``."""
-        self._first_tab = first_tab
         self.state = state
         self.model = model  # the body model of the run (None: the shipped one)
         self.frames = frames
@@ -122,7 +121,7 @@ class ViewerApp:
         self._set_initial_camera()
         use_one_icon_zip()  # the panels' icons: ~0.35 s of CPU less at every start
         self.layers = make_scene_layers(server, state.data, on_joint_click=self._on_joint_click)
-        self._build_panels()
+        self._build_panels(first_tab)
         self._image_pool = ThreadPoolExecutor(1, thread_name_prefix="mvviz-images")
         self.last_image_cpu_ms = 0.0  # CPU time of the last frame's image job
         self._stats_shown_t = -np.inf
@@ -134,16 +133,16 @@ class ViewerApp:
             frames.on_camera_ready.append(lambda _cam: self._on_change("video"))
         self._on_change("init")
 
-    def _build_panels(self) -> None:
+    def _build_panels(self, first_tab: FirstTab | None = None) -> None:
         """The timeline on top whatever tab is open (scrubbing while looking at a
         failure, a filter or a layer is the point); below it one tab per panel; the
         camera panel docked left."""
         self.timeline = self._add(make_timeline_panel(self))
         self.tabs = tabs = self.server.gui.add_tab_group()
-        if self._first_tab is not None:
-            label, icon, build = self._first_tab
+        if first_tab is not None:
+            label, icon, build = first_tab
             with tabs.add_tab(label, icon):
-                self.first_panel = self._add(build(self))
+                self._add(build(self))
         with tabs.add_tab("Layers", viser.Icon.STACK_2):
             self.layers_panel = self._add(make_layers_panel(self))
         with tabs.add_tab("Selection", viser.Icon.POINTER):
