@@ -70,8 +70,8 @@ class Detections:
     Attributes:
         frame: (N,) int frame index.
         view: (N,) int index into the scene's camera rig.
-        keypoints: (N, J, 3) x px, y px, confidence in [0, 1]; a missed joint has
-            confidence 0 (its x, y may be NaN).
+        keypoints: (N, J, 3) x px, y px, confidence >= 0 (the detector's score; it may
+            exceed 1); a missed joint has confidence 0 (its x, y may be NaN).
         smpl_pose: (N, 72) axis-angle, SPIN-style, root orientation in the camera frame
             (x right, y down, z forward); a NaN row means "no regressor output".
         smpl_betas: (N, 10); cam_weak: (N, 3) weak-perspective (s, tx, ty);
@@ -213,7 +213,8 @@ def _check_array(
 
 
 def _check_keypoint_values(source, kp: np.ndarray) -> None:
-    """Confidences finite in [0, 1], coordinates finite where confidence > 0; in blocks
+    """Confidences finite and >= 0 (a detector's score, which may exceed 1), coordinates
+    finite where confidence > 0; in blocks
     of rows, a mapped array's pages released after each (a long scene's keypoints are
     not held in memory for the check)."""
     step = CHECK_ROWS
@@ -222,13 +223,13 @@ def _check_keypoint_values(source, kp: np.ndarray) -> None:
         conf = block[..., 2]
         # reductions first (NaN propagates through min / max / sum: 1.9 GB of keypoints
         # check in ~1 s where element-wise masks took 3), the details only on failure
-        if not (conf.min(initial=0.0) >= 0 and conf.max(initial=1.0) <= 1):
+        if not (conf.min(initial=0.0) >= 0 and np.isfinite(conf.max(initial=0.0))):
             if not np.isfinite(conf).all():
                 raise SceneFormatError(source, "keypoints[..., 2]", "confidence is NaN or infinite")
             raise SceneFormatError(
                 source,
                 "keypoints[..., 2]",
-                f"expected confidence in [0, 1], got range [{conf.min():.3g}, {conf.max():.3g}]"
+                f"expected confidence >= 0 (0 = missing), got minimum {conf.min():.3g}"
                 + (f" in rows {i}..{i + len(block) - 1}" if len(kp) > step else ""),
             )
         xy = np.where(conf > 0, block[..., 0] + block[..., 1], 0.0).sum()

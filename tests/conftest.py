@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,10 @@ REPO = Path(__file__).resolve().parents[1]
 RIGS = REPO / "sample_data" / "rigs"
 SHELF_CALIB = RIGS / "shelf_voxelpose.json"
 CAMPUS_CALIB = RIGS / "campus_voxelpose.json"
+# real captures with peers' results, beside the repository (never shipped): tests that
+# read them skip when absent; MVVIZ_SHARED_DATA points elsewhere
+SHARED_DATA = Path(os.environ.get("MVVIZ_SHARED_DATA", REPO.parent / "shared" / "data"))
+SHELF_REAL = SHARED_DATA / "shelf_real"
 
 
 def tiny_body_model_arrays(seed: int = 0) -> dict[str, np.ndarray]:

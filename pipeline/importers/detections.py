@@ -12,7 +12,8 @@ file per frame, the frame index being the trailing digits of the file name):
   ``{"keypoints": [[x, y], ...], "keypoint_scores": [...]}`` instances, or one
   ``instance_info`` file per camera (:func:`read_mmpose_predictions`).
 
-Keypoints are image pixels; a joint with confidence 0 is missing and gets NaN x, y.
+Keypoints are image pixels; confidences are the detector's scores as written (they may
+exceed 1); a joint scored 0, below 0 or NaN is missing and gets NaN x, y.
 The layout (BODY_25, BODY_25B, OpenPose COCO-18, COCO-17, Human3.6M-17, Halpe-26,
 COCO-WholeBody-133, BlazePose-33, SMPL-24) is identified from the data unless forced
 (:mod:`pipeline.importers.layouts`: counts collide, so the anatomy decides), and the
@@ -63,8 +64,6 @@ from pipeline.schema import check_numbers
 # the viewer use body and feet; ``joint_set="coco_wholebody133"`` keeps them).
 DEFAULT_SCENE_JOINT_SET: dict[str, str] = {"coco_wholebody133": "coco23"}
 
-# Confidences a little above 1 are float round-off in the writer; clip them.
-_CONFIDENCE_SLACK = 1e-4
 _TRAILING_DIGITS = re.compile(r"(\d+)\D*$")
 
 
@@ -134,8 +133,11 @@ def frame_index(path: Path) -> int:
 def check_keypoints(value, path, field: str) -> np.ndarray:
     """One person's keypoints as (J, 3) x, y, confidence, validated.
 
-    Confidence must be finite and in [0, 1] (values up to 1.0001 are clipped to 1);
-    x, y must be finite where the confidence is > 0; x, y become NaN where it is 0.
+    A confidence is the detector's score, not a probability, and is kept as written:
+    OpenPose's heatmap peaks and MMPose's top-down scores exceed 1. A score of zero or
+    below, or NaN, marks a missing joint (OpenPose writes ``0 0 0``): its confidence
+    becomes 0 and its x, y NaN. An infinite score is refused, as are x, y that are not
+    finite where the score is > 0.
     """
     check_numbers(value, path, field)
     try:
@@ -151,17 +153,13 @@ def check_keypoints(value, path, field: str) -> np.ndarray:
     if kp.ndim != 2 or kp.shape[1] != 3:
         raise SceneFormatError(path, field, f"expected (num_joints, 3) x, y, c; got {kp.shape}")
     conf = kp[:, 2]
-    if np.isnan(conf).any():
-        j = int(np.flatnonzero(np.isnan(conf))[0])
-        raise SceneFormatError(path, field, f"confidence of keypoint {j} is NaN")
-    bad = (conf < 0) | (conf > 1 + _CONFIDENCE_SLACK)
-    if bad.any():
-        j = int(np.flatnonzero(bad)[0])
+    if np.isinf(conf).any():
+        j = int(np.flatnonzero(np.isinf(conf))[0])
         raise SceneFormatError(
-            path, field, f"confidence of keypoint {j} is {conf[j]!r}, expected a value in [0, 1]"
+            path, field, f"confidence of keypoint {j} is {conf[j]!r}, expected a finite score"
         )
-    kp[:, 2] = np.minimum(conf, 1.0)
-    seen = kp[:, 2] > 0
+    seen = conf > 0  # NaN compares False: missing
+    kp[~seen, 2] = 0.0
     if not np.isfinite(kp[seen, :2]).all():
         j = int(np.flatnonzero(seen & ~np.isfinite(kp[:, :2]).all(1))[0])
         raise SceneFormatError(path, field, f"keypoint {j} has confidence > 0 but x, y not finite")
@@ -231,12 +229,6 @@ def _easymocap_people(path: Path) -> list[tuple[str, np.ndarray]]:
     return out
 
 
-# MMPose's keypoint scores are not probabilities: RTMPose's SimCC scores reach ~1.2,
-# heatmap maxima a little above 1. They are divided by this and clipped to [0, 1].
-MMPOSE_SCORE_SCALE = 1.0
-_MMPOSE_MAX_SCORE = 10.0
-
-
 def _mmpose_instance(person, path: Path, field: str) -> np.ndarray:
     """One MMPose instance ``{"keypoints": [[x, y], ...], "keypoint_scores": [...]}``."""
     if not isinstance(person, dict) or "keypoints" not in person:
@@ -258,17 +250,15 @@ def _mmpose_instance(person, path: Path, field: str) -> np.ndarray:
             field + ".keypoint_scores",
             f"expected {len(xy)} scores (one per keypoint), got shape {scores.shape}",
         )
-    bad = ~np.isfinite(scores) | (scores < 0) | (scores > _MMPOSE_MAX_SCORE)
-    if bad.any():
-        j = int(np.flatnonzero(bad)[0])
+    if np.isinf(scores).any():
+        j = int(np.flatnonzero(np.isinf(scores))[0])
         raise SceneFormatError(
             path,
             field + ".keypoint_scores",
-            f"score of keypoint {j} is {scores[j]!r}, "
-            f"expected a value in [0, {_MMPOSE_MAX_SCORE:g}]",
+            f"score of keypoint {j} is {scores[j]!r}, expected a finite score",
         )
-    conf = np.clip(scores / MMPOSE_SCORE_SCALE, 0.0, 1.0)
-    kp = np.concatenate([xy[:, :2], conf[:, None]], 1)
+    # RTMPose's SimCC scores reach ~1.2 and heatmap maxima exceed 1: kept as scores
+    kp = np.concatenate([xy[:, :2], scores[:, None]], 1)
     return check_keypoints(kp, path, field + ".keypoints")
 
 

@@ -221,8 +221,9 @@ def _detection_cases() -> list[Case]:
         "view_names": [np.array(["cam9", "1", "2"]), np.array([3, 4, 5])],
     })  # fmt: skip
     out += [
-        Case("detections conf 1.5", "detections.npz", "keypoints[..., 2]",
-             _npz_edit("detections.npz", lambda a: a.update(keypoints=conf(1.5)(a["keypoints"])))),
+        Case("detections conf inf", "detections.npz", "keypoints[..., 2]",
+             _npz_edit("detections.npz",
+                       lambda a: a.update(keypoints=conf(np.inf)(a["keypoints"])))),
         Case("detections conf -0.1", "detections.npz", "keypoints[..., 2]",
              _npz_edit("detections.npz", lambda a: a.update(keypoints=conf(-0.1)(a["keypoints"])))),
         Case("detections conf NaN", "detections.npz", "keypoints[..., 2]",

@@ -36,6 +36,7 @@ from pipeline.importers import (
 from pipeline.importers.detections import frame_index
 from pipeline.joint_sets import BODY25, COCO17
 from pipeline.scene import load_scene
+from tests.conftest import SHELF_REAL
 
 # the real Shelf/Campus rigs, shipped byte-identical to ../shared/data/calibration
 CALIBRATION_DIR = Path(__file__).resolve().parents[2] / "sample_data" / "rigs"
@@ -601,20 +602,89 @@ def test_no_people_anywhere_gives_zero_rows(tmp_path):
     assert imp.num_frames == 3 and imp.source_layout is None
 
 
-def test_confidence_checks(tmp_path):
+def test_scores_are_kept_as_detectors_write_them(tmp_path):
+    """A confidence is a detector's score: above 1 kept, zero / negative / NaN missing."""
     root = tmp_path / "op"
     p = make_person(25, 1)
-    p[3, 2] = 1.00005  # float round-off above 1: clipped
+    p[3, 2] = 1.008  # an OpenPose heatmap peak above 1, as in real Shelf detections
+    p[4, 2] = 1.407
+    p[5] = [12.0, 34.0, 0.0]  # a zero score with coordinates: missing all the same
+    p[6, 2] = -0.2
+    p[7, 2] = float("nan")
     write_openpose(root, "a", 0, [p])
-    imp = read_openpose_folders(root, ["a"], "body25", layout="body25")
-    assert imp.detections.keypoints[0, 3, 2] == 1.0
-    for bad, message in ((1.01, "1.01"), (-0.2, "-0.2"), (float("nan"), "NaN")):
-        p[3, 2] = bad
-        path = write_openpose(root, "a", 0, [make_person(25, 0), p])
+    kp = read_openpose_folders(root, ["a"], "body25", layout="body25").detections.keypoints[0]
+    assert kp[3, 2] == 1.008 and kp[4, 2] == 1.407
+    np.testing.assert_array_equal(kp[3, :2], p[3, :2])
+    for j in (5, 6, 7):
+        assert kp[j, 2] == 0.0 and np.isnan(kp[j, :2]).all()
+    np.testing.assert_array_equal(kp[8:], p[8:])
+
+
+def test_only_what_is_not_a_score_is_refused(tmp_path):
+    root = tmp_path / "op"
+    p = make_person(25, 1)
+    for bad, message in ((float("inf"), "inf"), ("0.5", "number")):
+        values = np.ravel(p).tolist()
+        values[3 * 3 + 2] = bad
+        path = write_openpose(root, "a", 0, [make_person(25, 0)])
+        body = json.loads(path.read_text())
+        body["people"].append({"pose_keypoints_2d": values})
+        # json.dumps writes inf as Infinity, which Python's reader takes as a number
+        path.write_text(json.dumps(body))
         with pytest.raises(SceneFormatError) as info:
             read_openpose_folders(root, ["a"])
         text = str(info.value)
         assert path.name in text and "people[1].pose_keypoints_2d" in text and message in text
+        assert "\n" not in text
+
+
+def test_openpose_file_variants(tmp_path):
+    """OpenPose 1.x as written: with and without ``person_id``, hands and faces present or
+    not, an empty ``people`` list, a person with only hands (empty body)."""
+    root = tmp_path / "op"
+    a, b = make_person(25, 1), make_person(25, 2)
+    bodies = {
+        0: {"version": 1.3, "people": [
+            {"person_id": [-1], "pose_keypoints_2d": np.ravel(a).tolist(),
+             "face_keypoints_2d": [], "hand_left_keypoints_2d": [],
+             "hand_right_keypoints_2d": [], "pose_keypoints_3d": []},
+            {"pose_keypoints_2d": np.ravel(b).tolist()},
+        ]},
+        1: {"version": 1.2, "people": []},
+        2: {"version": 1.3, "people": [
+            {"person_id": [-1], "pose_keypoints_2d": [],
+             "hand_left_keypoints_2d": [1.0, 2.0, 0.5] * 21},
+            {"person_id": [-1], "pose_keypoints_2d": np.ravel(b).tolist(),
+             "face_keypoints_2d": [3.0, 4.0, 0.7] * 70},
+        ]},
+    }
+    for frame, body in bodies.items():
+        path = root / "a" / f"a_{frame:012d}_keypoints.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(body))
+    imp = read_openpose_folders(root, ["a"], "body25", layout="body25")
+    assert imp.num_frames == 3
+    np.testing.assert_array_equal(imp.detections.frame, [0, 0, 2])
+    np.testing.assert_array_equal(imp.detections.keypoints[:, 0, 0], [1000.0, 2000.0, 2000.0])
+
+
+@pytest.mark.skipif(not SHELF_REAL.is_dir(), reason="../shared/data/shelf_real is absent")
+def test_real_shelf_openpose_is_read_whole():
+    """The real Shelf OpenPose output (scores up to 1.008) reads with no detection lost."""
+    root = SHELF_REAL / "openpose"
+    names = sorted(p.name for p in root.iterdir())
+    imp = read_openpose_folders(root, names, layout="body25")
+    people = 0
+    top = 0.0
+    for name in names:
+        for path in (root / name).glob("*.json"):
+            for person in json.loads(path.read_text())["people"]:
+                if person["pose_keypoints_2d"]:
+                    people += 1
+                    top = max(top, max(person["pose_keypoints_2d"][2::3]))
+    assert len(imp.detections) == people > 1000
+    assert top > 1.0
+    assert imp.detections.keypoints[..., 2].max() == pytest.approx(top)
 
 
 def test_bad_detection_files(tmp_path):
@@ -762,13 +832,13 @@ def test_bad_detections_leave_nothing(tmp_path):
     calib = _campus_pose2sim(tmp_path)
     kw = {"calib_format": "pose2sim", "calib_paths": [calib], "detections_format": "openpose"}
 
-    # NaN confidence.
-    root = tmp_path / "op_nan"
+    # An infinite confidence.
+    root = tmp_path / "op_inf"
     p = make_person(25, 1)
-    p[5, 2] = np.nan
+    p[5, 2] = np.inf
     path = write_openpose(root, "1", 4, [p])
     _expect_error(
-        out, path.name, "'people[0].pose_keypoints_2d'", "NaN", detections_path=root, **kw
+        out, path.name, "'people[0].pose_keypoints_2d'", "finite", detections_path=root, **kw
     )
 
     # A folder for a camera the calibration does not have.

@@ -129,7 +129,7 @@ def test_mmpose_per_frame_files_and_instance_info(tmp_path):
     js = JOINT_SETS["coco_wholebody133"]
     dets = layout_detections(js, frames=slice(0, 60, 3))
     frames = sorted({f for _, f in dets})
-    # Cameras 0-2: one file per frame (RTMPose SimCC scores reach above 1: clipped).
+    # Cameras 0-2: one file per frame (RTMPose SimCC scores reach above 1: kept).
     for v in range(3):
         for f in frames:
             p = tmp_path / "mm" / CAMS[v] / f"{f:06d}.json"
@@ -149,7 +149,7 @@ def test_mmpose_per_frame_files_and_instance_info(tmp_path):
     assert imp.source_layout == "coco_wholebody133" and imp.joint_set.name == "coco23"
     assert imp.num_frames == frames[-1] + 1
     n = sum(len(v) for v in dets.values())
-    assert len(imp.detections) == n and imp.detections.keypoints[:, :, 2].max() == 1.0
+    assert len(imp.detections) == n and 1.0 < imp.detections.keypoints[:, :, 2].max() <= 1.2
     full = read_mmpose_predictions(tmp_path / "mm", CAMS, "coco_wholebody133")
     assert full.detections.keypoints.shape == (n, 133, 3)
 

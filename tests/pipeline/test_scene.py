@@ -40,13 +40,23 @@ def test_write_then_load(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp leftovers
 
 
+def test_scores_above_one_are_a_scene(tmp_path):
+    kp = np.full((4, 17, 3), 0.5)
+    kp[1, 3, 2] = 1.3  # a detector's score, not a probability
+    s = load_scene(_write_small(tmp_path, keypoints=kp))
+    assert s.detections.keypoints[1, 3, 2] == 1.3
+
+
 def test_bad_values_are_refused_and_nothing_is_written(tmp_path):
     kp = np.full((4, 17, 3), 0.5)
     kp[1, 3, 2] = np.nan
     with pytest.raises(SceneFormatError, match=r"detections\.npz: field 'keypoints\[\.\.\., 2\]'"):
         _write_small(tmp_path, keypoints=kp)
     kp[1, 3, 2] = -0.2
-    with pytest.raises(SceneFormatError, match=r"confidence in \[0, 1\]"):
+    with pytest.raises(SceneFormatError, match=r"expected confidence >= 0"):
+        _write_small(tmp_path, keypoints=kp)
+    kp[1, 3, 2] = np.inf
+    with pytest.raises(SceneFormatError, match=r"NaN or infinite"):
         _write_small(tmp_path, keypoints=kp)
     with pytest.raises(SceneFormatError, match=r"field 'view'"):
         _write_small(tmp_path, view=np.array([0, 1, 0, 7]))
