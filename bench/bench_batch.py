@@ -100,8 +100,8 @@ for scene in sys.argv[2:]:
     # back, the scene's summary (timed apart: the serial time with and without it)
     t = time.perf_counter()
     from pipeline.batch.jobs import summarize
-    from pipeline.results import load_results
-    from pipeline.scene import load_scene
+    from pipeline.results.store import load_results
+    from pipeline.data.scene import load_scene
     summarize(load_scene(scene), load_results(path))
     print("EVAL", time.perf_counter() - t, file=sys.stderr)
 # ended as the mvviz script ends (mvviz batch too), without the interpreter's teardown
@@ -158,11 +158,11 @@ print(json.dumps(dict(imports_s=t1 - t0, imports_cpu_s=c1 - c0, plan_s=t2 - t1,
 FIT_THREADS = """
 import json, statistics, sys, time
 import numpy as np
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.results import fit_bodies, run_stages
-from pipeline.run import restored_joints, select_2d
-from pipeline.scene import load_scene
+from pipeline.run.pipeline import fit_bodies, run_stages
+from pipeline.run.frames import restored_joints, select_2d
+from pipeline.data.scene import load_scene
 scene, model = load_scene(sys.argv[1]), load_body_model()
 base = PipelineConfig()
 j2d = select_2d(scene, base, restored := restored_joints(scene, model))

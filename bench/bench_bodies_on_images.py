@@ -37,11 +37,11 @@ from mvviz.scene.images import (  # noqa: E402
     image_overlay,
     posed_vertices,
 )
-from pipeline.body_model import load_body_model  # noqa: E402
-from pipeline.cameras import CameraRig  # noqa: E402
+from pipeline.body.model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
-from pipeline.results import run_or_load  # noqa: E402
-from pipeline.scene import load_scene  # noqa: E402
+from pipeline.data.cameras import CameraRig  # noqa: E402
+from pipeline.data.scene import load_scene  # noqa: E402
+from pipeline.run.pipeline import run_or_load  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -39,17 +39,17 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
-from pipeline.body_model import load_body_model  # noqa: E402
+from pipeline.body.model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
+from pipeline.data.scene import load_scene  # noqa: E402
 from pipeline.diagnose.calibration import check_calibration, replace_camera  # noqa: E402
 from pipeline.diagnose.floor import estimate_floor, transform_scene  # noqa: E402
 from pipeline.diagnose.in_sync import check_calibration_in_sync  # noqa: E402
 from pipeline.diagnose.perturb import _concat, delay_camera, perturb_camera_pose  # noqa: E402
 from pipeline.diagnose.reference import camera_detections  # noqa: E402
 from pipeline.diagnose.sync import estimate_offsets, offsets_over_windows  # noqa: E402
-from pipeline.evaluate import evaluate  # noqa: E402
-from pipeline.results import run_pipeline  # noqa: E402
-from pipeline.scene import load_scene  # noqa: E402
+from pipeline.evaluation.evaluate import evaluate  # noqa: E402
+from pipeline.run.pipeline import run_pipeline  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = PipelineConfig(fit_smpl=False)

@@ -53,10 +53,10 @@ CHILD = r"""
 import json, sys, time
 from pathlib import Path
 from mvviz.export.rrd import export_rrd
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.results import run_or_load
-from pipeline.scene import load_scene
+from pipeline.run.pipeline import run_or_load
+from pipeline.data.scene import load_scene
 
 scene_dir, frames, chunk, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 mode = sys.argv[5]

@@ -3,7 +3,7 @@
 On the shipped sample scene (sample_data/shelf_synth; the pipeline is run first if its
 results file is missing or stale), fits every track of the configured Kalman output
 (``results.track_smoothed``, COCO-17, as ``fit_bodies``) with
-:func:`pipeline.smpl_fit.fit_sequence`: step I and the VAE-corrected fit with the
+:func:`pipeline.fit.smpl.fit_sequence`: step I and the VAE-corrected fit with the
 shipped prior. Reports person-frames fitted per second and the mean joint residual
 (mm), then, in the same run, the baseline on
 ``--baseline-frames`` person-frames spread over the sequence: one frame at a time, the
@@ -14,7 +14,7 @@ search, same Smooth L1 data term and pose / betas regularisers. Both use one tor
 thread (FitParams.num_threads). Also prints MPJPE against the ground truth and the
 plausibility figures of every stage.
 
-With ``--chunk C`` also the chunked fit (:func:`pipeline.smpl_fit_chunks.fit_in_chunks`,
+With ``--chunk C`` also the chunked fit (:func:`pipeline.fit.chunks.fit_in_chunks`,
 chunks of C frames warm-started by the previous one), its accuracy in the table, and
 its throughput at 20 tracks (the sample's 4 tracks copied 5 times: a 31 x 20 scene's
 chunk size in rows; the copies' figures are the same fits, only the cost is new),
@@ -37,27 +37,27 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
-from pipeline import pose_limits  # noqa: E402
-from pipeline.body_model import load_body_model  # noqa: E402
+from pipeline.body import limits as pose_limits  # noqa: E402
+from pipeline.body.kinematics import keypoint_buffers, matrix_to_rotvec  # noqa: E402
+from pipeline.body.model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
-from pipeline.evaluate import (  # noqa: E402
+from pipeline.data.scene import load_scene  # noqa: E402
+from pipeline.evaluation.evaluate import (  # noqa: E402
     ground_truth_slots,
     gt_per_frame,
     stage_metrics,
     to_smpl_slots,
 )
-from pipeline.pose_prior import load_prior  # noqa: E402
-from pipeline.results import run_or_load  # noqa: E402
-from pipeline.scene import load_scene  # noqa: E402
-from pipeline.smpl_fit import (  # noqa: E402
+from pipeline.fit.chunks import fit_in_chunks  # noqa: E402
+from pipeline.fit.prior import load_prior  # noqa: E402
+from pipeline.fit.smpl import (  # noqa: E402
     FitParams,
     _pack,
     fit_sequence,
     initial_alignment,
     plausibility,
 )
-from pipeline.smpl_fit_chunks import fit_in_chunks  # noqa: E402
-from pipeline.smpl_kinematics import keypoint_buffers, matrix_to_rotvec  # noqa: E402
+from pipeline.run.pipeline import run_or_load  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -225,7 +225,7 @@ def main() -> None:
 
     gt_slots, _ = ground_truth_slots(scene.gt, js)
     gt_dense, _ = gt_per_frame(scene.gt, gt_slots, results.num_frames)
-    # Scored like pipeline.evaluate: where the raw triangulation has the joint.
+    # Scored like pipeline.evaluation.evaluate: where the raw triangulation has the joint.
     measured = np.isfinite(results.track_raw).all(-1, keepdims=True)
 
     def scored(x: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Benchmark pipeline.kalman: vectorised filter vs a filterpy loop, same data, same run.
+"""Benchmark pipeline.stages.kalman: vectorised filter vs a filterpy loop, same data, same run.
 
 Filters 250 frames x 4 people x 24 joints (synthetic walks at 25 fps, 15 mm
 noise, ~5% missing joints) with the default constant-velocity model. Times the
@@ -24,7 +24,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
-from pipeline.kalman import KalmanParams, kalman_filter, kalman_filter_filterpy  # noqa: E402
+from pipeline.stages.kalman import (  # noqa: E402
+    KalmanParams,
+    kalman_filter,
+    kalman_filter_filterpy,
+)
 
 NUM_FRAMES, NUM_PEOPLE, NUM_JOINTS, FPS = 250, 4, 24, 25.0
 

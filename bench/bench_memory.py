@@ -17,14 +17,14 @@ seconds. Modes, measured alternately per frame count:
 
 * ``keep``: ``pack_run(run_frames(...))``, the stages before the chunked ones (every
   frame's result kept until tracking and packing);
-* ``chunked``: :func:`pipeline.stages_chunked.run_stages_chunked` (each frame packed at
+* ``chunked``: :func:`pipeline.run.chunked.run_stages_chunked` (each frame packed at
   once), same results;
 * ``lean``: the same without the affinity edges (``keep_edges=False``);
 * ``fit``: ``lean``, then the chunked SMPL fit of the RTS tracks
-  (:func:`pipeline.smpl_fit_chunks.fit_in_chunks`, step I);
+  (:func:`pipeline.fit.chunks.fit_in_chunks`, step I);
 * ``stream``: the tiled scene written once as a scene whose detections are a directory of
   ``.npy`` columns (:func:`write_tiled_scene`), read lazily by ``load_scene``, and
-  :func:`pipeline.stages_streamed.run_stages_streamed` writing the results directory as
+  :func:`pipeline.run.streamed.run_stages_streamed` writing the results directory as
   it goes (no edges; "before" is then the peak while the scene loads);
 * ``streamedges``: the same with the affinity edges (what ``mvviz run`` keeps);
 * ``streamfit``: ``stream``, then the chunked SMPL fit as in ``fit``.
@@ -94,7 +94,7 @@ def tiled_scene(base, num_frames: int):
     F-1..0, ...) to ``num_frames`` frames, keypoint rows only. Backward copies keep every
     person where the last copy left them, so tracks do not break at the seams (a plain
     repeat makes a new set of tracks per copy: tracks x frames then grows as frames^2)."""
-    from pipeline.scene import Detections
+    from pipeline.data.scene import Detections
 
     det, f0 = base.detections, base.num_frames
     reps = -(-num_frames // f0)
@@ -114,8 +114,8 @@ def write_tiled_scene(base_dir: Path, num_frames: int, out: Path) -> Path:
     """:func:`tiled_scene` of ``base_dir`` written as a scene whose detections are a
     directory of ``.npy`` columns (read lazily by ``load_scene``), the keypoints copied
     one tile at a time: the scene a ``stream`` run reads is never whole in any memory."""
-    from pipeline.npy_stream import open_npy_for_writing, release_pages
-    from pipeline.scene import load_scene
+    from pipeline.core.npy_stream import open_npy_for_writing, release_pages
+    from pipeline.data.scene import load_scene
 
     if (out / "scene.json").exists():
         return out
@@ -163,14 +163,14 @@ def child_streamed(scene_dir: str, mode: str, chunk: int) -> dict:
     import tempfile
 
     from pipeline.config import PipelineConfig
-    from pipeline.run import select_2d
-    from pipeline.scene import load_scene
-    from pipeline.stages_streamed import DEFAULT_CHUNK_FRAMES, run_stages_streamed
+    from pipeline.data.scene import load_scene
+    from pipeline.run.frames import select_2d
+    from pipeline.run.streamed import DEFAULT_CHUNK_FRAMES, run_stages_streamed
 
     config = PipelineConfig()
     model = None
     if mode == "streamfit":
-        from pipeline.body_model import load_body_model
+        from pipeline.body.model import load_body_model
 
         model = load_body_model()
     sampler = PeakSampler()
@@ -205,7 +205,7 @@ def _fit(sampler: PeakSampler, model, res) -> dict:
     """The chunked SMPL fit (step I) of ``res``'s smoothed tracks, if ``model``."""
     if model is None:
         return {}
-    from pipeline.smpl_fit_chunks import fit_in_chunks
+    from pipeline.fit.chunks import fit_in_chunks
 
     sampler.stage("fit")
     t1 = time.process_time()
@@ -220,15 +220,15 @@ def _fit(sampler: PeakSampler, model, res) -> dict:
 def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
     """One measurement (run in its own process)."""
     from pipeline.config import PipelineConfig
-    from pipeline.results import pack_run
-    from pipeline.run import run_frames, select_2d
-    from pipeline.scene import load_scene
-    from pipeline.stages_chunked import run_stages_chunked
+    from pipeline.data.scene import load_scene
+    from pipeline.run.chunked import run_stages_chunked
+    from pipeline.run.frames import run_frames, select_2d
+    from pipeline.run.pipeline import pack_run
 
     config = PipelineConfig()
     model = None
     if mode == "fit":  # torch and the body model (~200 MB) before the stages' window
-        from pipeline.body_model import load_body_model
+        from pipeline.body.model import load_body_model
 
         model = load_body_model()
     scene = tiled_scene(load_scene(scene_dir), frames)
@@ -263,7 +263,7 @@ def child(scene_dir: str, frames: int, mode: str, chunk: int) -> dict:
 def dome_dir(cache: Path, cams: int, people: int, frames: int) -> Path:
     out = cache / f"dome{cams}_p{people}_f{frames}"
     if not (out / "scene.json").exists():
-        from pipeline.body_model import load_body_model
+        from pipeline.body.model import load_body_model
         from pipeline.synth.rigs import dome_capture_radius, dome_rig
         from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 

@@ -54,17 +54,18 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
-from pipeline.body_model import load_body_model  # noqa: E402
-from pipeline.compare import (  # noqa: E402
+from bench.peer_compare import (  # noqa: E402
     per_joint_median_mm,
     reprojection_errors,
     subject_observations,
 )
+from pipeline.body.model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
-from pipeline.joint_sets import mapping_indices  # noqa: E402
-from pipeline.results import PipelineResults, run_pipeline  # noqa: E402
-from pipeline.scene import Scene, load_scene  # noqa: E402
-from pipeline.smpl_fit import FitParams, fit_sequence, plausibility  # noqa: E402
+from pipeline.data.joint_sets import mapping_indices  # noqa: E402
+from pipeline.data.scene import Scene, load_scene  # noqa: E402
+from pipeline.fit.smpl import FitParams, fit_sequence, plausibility  # noqa: E402
+from pipeline.results.store import PipelineResults  # noqa: E402
+from pipeline.run.pipeline import run_pipeline  # noqa: E402
 
 UNREGULARISED = FitParams(iters=600, w_smooth=0.0, w_pose=0.0, w_free=0.0, w_limit=0.0)
 """The fit with nothing but the data term (betas and offsets still L2-regularised) and

@@ -2,7 +2,7 @@
 motion, score on a scene synthesised from exactly that motion (issue 19).
 
 Splits (``--split``, default all; sources and activities of
-:mod:`pipeline.prior_sources`):
+:mod:`pipeline.prior.sources`):
 
 * leave one source out: ``no-library`` (prior: CMU + balancing + demo; test: library
   motion of every activity, 4 people), ``no-cmu`` (prior: library + balancing + demo; test:
@@ -18,14 +18,14 @@ Splits (``--split``, default all; sources and activities of
 Each test scene: :func:`pipeline.synth.mocap_scene.write_mocap_scene` on the campus rig,
 ``--frames`` frames at 25 fps, default detector noise, seed 0 (BVH clips as
 ``mvviz synth --motion``; library motion and the balancing poses through
-:func:`pipeline.mocap.clip_from_body`, whose truth is our body model: all 24 SMPL joints
+:func:`pipeline.mocap.clips.clip_from_body`, whose truth is our body model: all 24 SMPL joints
 scored; library walking with the measured ankle gait curve, see :func:`library_clip`).
-Each prior: :func:`pipeline.prior_sources.train_on`, the shipped prior's recipe with
+Each prior: :func:`pipeline.prior.sources.train_on`, the shipped prior's recipe with
 fewer poses and epochs (``--num-poses 20000 --epochs 30``: a split takes
 minutes, not ten, on 2 shared cores; ``--num-poses 60000 --epochs 60`` is the shipped
-recipe). Before scoring, :func:`pipeline.heldout.check_disjoint` proves the prior never saw
+recipe). Before scoring, :func:`pipeline.prior.heldout.check_disjoint` proves the prior never saw
 a frame the scene plays, and for an activity split
-:func:`pipeline.heldout.check_activity_held_out` that no source showed the activity.
+:func:`pipeline.prior.heldout.check_activity_held_out` that no source showed the activity.
 Reported per phase (raw, RTS, step I, SMPL + VAE): MPJPE on the measured COCO joints
 (the 12 body joints for a BVH clip, 17 keypoints for a body-model clip), MPJPE on the SMPL
 joints of the truth (16 mapped for a CMU skeleton, 24 otherwise), joint-limit and hinge
@@ -49,16 +49,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
-from pipeline.body_model import BodyModel, load_body_model  # noqa: E402
+from pipeline.body.model import BodyModel, load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
-from pipeline.evaluate import evaluate  # noqa: E402
-from pipeline.heldout import check_activity_held_out, check_disjoint  # noqa: E402
+from pipeline.data.scene import load_scene  # noqa: E402
+from pipeline.evaluation.evaluate import evaluate  # noqa: E402
+from pipeline.fit.prior import load_prior, save_prior  # noqa: E402
 from pipeline.importers.calibration import read_voxelpose_calibration  # noqa: E402
-from pipeline.mocap import MocapClip, clip_from_body, load_mocap_clip  # noqa: E402
-from pipeline.pose_prior import load_prior, save_prior  # noqa: E402
-from pipeline.prior_sources import BALANCING_POSES, CMU_DIR, sources_for, train_on  # noqa: E402
-from pipeline.results import run_or_load  # noqa: E402
-from pipeline.scene import load_scene  # noqa: E402
+from pipeline.mocap.clips import MocapClip, clip_from_body, load_mocap_clip  # noqa: E402
+from pipeline.prior.heldout import check_activity_held_out, check_disjoint  # noqa: E402
+from pipeline.prior.sources import BALANCING_POSES, CMU_DIR, sources_for, train_on  # noqa: E402
+from pipeline.run.pipeline import run_or_load  # noqa: E402
 from pipeline.synth.mocap_scene import MocapSceneConfig, write_mocap_scene  # noqa: E402
 from pipeline.synth.motion import PersonMotion, activity_params, walk_params  # noqa: E402
 from pipeline.synth.scene_gen import bodies_from_motion  # noqa: E402

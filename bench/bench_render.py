@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
-from pipeline.cameras import Camera, distort_and_project, make_camera  # noqa: E402
+from pipeline.data.cameras import Camera, distort_and_project, make_camera  # noqa: E402
 from pipeline.synth.render import (  # noqa: E402
     MeshInstance,
     render_background,

@@ -3,19 +3,19 @@
 Scenes: ``mvviz synth``'s fast synthesis (no video) on a Panoptic-like dome of 5 m
 radius (``dome:N:5000``, people in its 3 m capture circle), the shipped detector noise,
 --frames frames per scene, for every cameras x people of the grid (kept under --cache
-and reused). Per scene, alternated over --repeats runs: ``pipeline.run.run_frame`` on
-every frame with today's association (``pipeline.ray_affinity.screened_distances``: a
+and reused). Per scene, alternated over --repeats runs: ``pipeline.run.frames.run_frame`` on
+every frame with today's association (``pipeline.association.affinity.screened_distances``: a
 part-ray screen, then the per-joint kernel on the pairs it keeps, in one compiled pass,
-``pipeline.ray_fused``, where a frame has ``COMPILED_MIN_DETECTIONS`` detections), with
+``pipeline.association.fused``, where a frame has ``COMPILED_MIN_DETECTIONS`` detections), with
 the NumPy screen and kernel on every frame ("numpy": by cache-sized blocks,
-``pipeline.ray_pairs``), with the screen and kernel before the blocks
+``pipeline.association.pairs``), with the screen and kernel before the blocks
 ("unblocked": ``screen_distances_unblocked``, ``pair_ray_distances_unchunked``), with
-the association before the screen (``pipeline.associate.dense_frame_distances``: every
+the association before the screen (``pipeline.association.associate.dense_frame_distances``: every
 pair, patched in), and
 with --reference also the kernels as first written (``ray_distances_reference`` /
 ``average_linkage_reference``). Reported: the median CPU time per frame of association
 and of triangulation (this process's own time: the machine is shared), association
-precision / recall (pairs of one frame, pipeline.metrics) and triangulation MPJPE
+precision / recall (pairs of one frame, pipeline.evaluation.metrics) and triangulation MPJPE
 against the true keypoints (people matched per frame), every way.
 
 Then: the exponents of a least-squares fit ``cost ~ cameras^a people^b`` and
@@ -44,18 +44,18 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import pipeline.associate as associate  # noqa: E402
-import pipeline.ray_affinity as ray_affinity  # noqa: E402
-import pipeline.run as run  # noqa: E402
+import pipeline.association.affinity as ray_affinity  # noqa: E402
+import pipeline.association.associate as associate  # noqa: E402
+import pipeline.run.frames as run  # noqa: E402
 from bench.common import write_json  # noqa: E402
-from pipeline import metrics  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
-from pipeline.run import frame_rows, run_frame, select_2d  # noqa: E402
-from pipeline.scene import Scene, load_scene  # noqa: E402
+from pipeline.data.scene import Scene, load_scene  # noqa: E402
+from pipeline.evaluation import metrics  # noqa: E402
+from pipeline.run.frames import frame_rows, run_frame, select_2d  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DOME_MM = 5000.0
-STAGES = ("associate_frame", "triangulate_people")  # pipeline.run's names, timed apart
+STAGES = ("associate_frame", "triangulate_people")  # pipeline.run.frames's names, timed apart
 
 
 @contextlib.contextmanager
@@ -89,7 +89,7 @@ def kernels(mode: str):
 
 @contextlib.contextmanager
 def stage_clock():
-    """CPU seconds spent in each of :data:`STAGES` (pipeline.run's functions wrapped)."""
+    """CPU seconds spent in each of :data:`STAGES` (pipeline.run.frames's functions wrapped)."""
     spent: dict[str, float] = collections.defaultdict(float)
     saved = {name: getattr(run, name) for name in STAGES}
 
@@ -172,7 +172,7 @@ def dome_scene(cache: Path, cams: int, people: int, frames: int) -> Scene:
     """The grid's scene, synthesised once into ``cache``."""
     out = cache / f"dome{cams}_p{people}_f{frames}"
     if not (out / "scene.json").exists():
-        from pipeline.body_model import load_body_model
+        from pipeline.body.model import load_body_model
         from pipeline.synth.rigs import dome_capture_radius, dome_rig
         from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 

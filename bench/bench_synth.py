@@ -48,9 +48,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
-from pipeline.body_model import load_body_model  # noqa: E402
+from pipeline.body.model import load_body_model  # noqa: E402
+from pipeline.data.scene import load_scene  # noqa: E402
 from pipeline.importers.calibration import read_voxelpose_calibration  # noqa: E402
-from pipeline.scene import load_scene  # noqa: E402
 from pipeline.synth import scene_gen  # noqa: E402
 from pipeline.synth.detection_stats import detection_statistics  # noqa: E402
 from pipeline.synth.detectors import DetectorNoise  # noqa: E402

@@ -1,4 +1,5 @@
-"""Benchmark pipeline.triangulate.triangulate_people against aniposelib's CameraGroup.triangulate.
+"""Benchmark pipeline.stages.triangulate.triangulate_people against aniposelib's
+CameraGroup.triangulate.
 
 Scene: the real 5-camera Shelf rig (sample_data/rigs/shelf_voxelpose.json, the same file as
 /work/shared/data/calibration/shelf_voxelpose.json; no lens distortion in this rig),
@@ -39,9 +40,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
-from pipeline.cameras import CameraRig  # noqa: E402
+from pipeline.data.cameras import CameraRig  # noqa: E402
 from pipeline.importers.calibration import read_voxelpose_calibration  # noqa: E402
-from pipeline.triangulate import triangulate_people  # noqa: E402
+from pipeline.stages.triangulate import triangulate_people  # noqa: E402
 
 # The real Shelf calibration; the repository's copy is identical to
 # /work/shared/data/calibration/shelf_voxelpose.json.

@@ -66,11 +66,11 @@ from mvviz.app import ViewerApp
 from mvviz.scene.geometry import GT_MESH, track_color  # noqa: E402
 from mvviz.scene.images import FrameStore  # noqa: E402
 from mvviz.state import ViewerState  # noqa: E402
-from pipeline.body_model import load_body_model  # noqa: E402
+from pipeline.body.model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
-from pipeline.files import CACHE_DIR  # noqa: E402
-from pipeline.results import run_or_load  # noqa: E402
-from pipeline.scene import load_scene  # noqa: E402
+from pipeline.core.files import CACHE_DIR  # noqa: E402
+from pipeline.data.scene import load_scene  # noqa: E402
+from pipeline.run.pipeline import run_or_load  # noqa: E402
 from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium  # noqa: E402
 from tools.playback_probe import PictureLog, measure_playback  # noqa: E402
 

@@ -2,7 +2,7 @@
 
 Synthesises (once, into --cache; fast, no video) a ``dome:31:5000`` scene with 20 people
 over --frames frames, runs the pipeline once and writes its results in both layouts of
-:mod:`pipeline.results`: the memory-mapped directory (``results/``) and, as the baseline,
+:mod:`pipeline.results.store`: the memory-mapped directory (``results/``) and, as the baseline,
 the one compressed file read whole (``results.npz``). Then, each layout in turn, --runs
 times alternated:
 
@@ -52,11 +52,12 @@ from bench.bench_startup import poll_http, repo_env  # noqa: E402
 from bench.bench_viewer import measure, report, start_app  # noqa: E402
 from bench.common import free_port, write_json  # noqa: E402
 from mvviz.scene.images import FrameStore  # noqa: E402
-from pipeline.body_model import load_body_model  # noqa: E402
+from pipeline.body.model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig, load_config  # noqa: E402
-from pipeline.files import CACHE_DIR  # noqa: E402
-from pipeline.results import load_results, run_or_load, save_results  # noqa: E402
-from pipeline.scene import Scene, load_scene  # noqa: E402
+from pipeline.core.files import CACHE_DIR  # noqa: E402
+from pipeline.data.scene import Scene, load_scene  # noqa: E402
+from pipeline.results.store import load_results, save_results  # noqa: E402
+from pipeline.run.pipeline import run_or_load  # noqa: E402
 
 DOME_MM, AREA_MM = 5000.0, 4200.0  # 20 people cannot walk 150 frames in the 3 m circle
 LAYOUTS = {"directory": "results", "npz": "results.npz"}  # under SCENE/.mvviz

@@ -6,7 +6,7 @@ import json
 import socket
 from pathlib import Path
 
-from pipeline.files import atomic_write
+from pipeline.core.files import atomic_write
 
 
 def free_port() -> int:

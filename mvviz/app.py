@@ -1,6 +1,6 @@
 """The viewer: one viser server, a :class:`ViewerState`, one ``make_*_panel`` per panel.
 
-The viewer reads a scene and its :class:`~pipeline.results.PipelineResults` and never
+The viewer reads a scene and its :class:`~pipeline.results.store.PipelineResults` and never
 reaches into a stage. A frame change computes :func:`~mvviz.scene.geometry.frame_geometry`
 and assigns it to existing scene handles; renders run on one worker thread through a
 "latest wins" slot, so scrubbing draws only the newest requested frame.
@@ -53,14 +53,14 @@ from mvviz.scene.images import (
 from mvviz.scene.layers import make_scene_layers
 from mvviz.state import ViewerState
 from mvviz.workers import LatestWins, PageAcks
-from pipeline.results import PipelineResults
+from pipeline.results.store import PipelineResults
 
 FirstTab = tuple[str, str, Callable[["ViewerApp"], Panel]]
 """(label, icon, build): a tab shown before the viewer's own (see :class:`ViewerApp`)."""
 
 if TYPE_CHECKING:
-    from pipeline.body_arrays import BodyModelData
-    from pipeline.body_model import BodyModel
+    from pipeline.body.arrays import BodyModelData
+    from pipeline.body.model import BodyModel
 
 STATS_INTERVAL_S = 1.0  # the render-time line updates at most this often
 P = TypeVar("P", bound=Panel)

@@ -17,12 +17,12 @@ from mvviz.scene.geometry import (
     ViewerData,
     prepare,
 )
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
+from pipeline.data.scene import Scene
+from pipeline.results.store import PipelineResults
 
 if TYPE_CHECKING:
-    from pipeline.body_arrays import BodyModelData
-    from pipeline.body_model import BodyModel
+    from pipeline.body.arrays import BodyModelData
+    from pipeline.body.model import BodyModel
 
 # The camera panel's image: as wide as the panel (400 px) by default, so a frame change
 # sends ~12 kB for it; 640 px (the stored frames' width) for a sharper look.

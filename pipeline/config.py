@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.associate import AssociationParams
-from pipeline.files import SceneFormatError, atomic_write
-from pipeline.kalman import KalmanParams
-from pipeline.schema import Anything, Bool, CameraOffsets, Int, Number, Spec, Str, StrList
-from pipeline.smpl_fit_types import FitParams
-from pipeline.track import TrackingParams
+from pipeline.association.params import AssociationParams
+from pipeline.core.files import SceneFormatError, atomic_write
+from pipeline.core.schema import Anything, Bool, CameraOffsets, Int, Number, Spec, Str, StrList
+from pipeline.fit.types import FitParams
+from pipeline.stages.kalman import KalmanParams
+from pipeline.stages.track import TrackingParams
 
 SOURCES = ("keypoints", "smpl")
 CONFIG_FILE = "mvviz_config.json"
@@ -40,7 +40,7 @@ class SyncParams:
     offsets: tuple[tuple[str, float], ...] = ()
     """Per camera its time offset in frames, ``(name, frames)`` pairs sorted by name; positive =
     that camera's frames lag the others (what ``mvviz diagnose`` reports). Its 2D is
-    re-timed before association (:mod:`pipeline.diagnose.retime`). Written in a config file
+    re-timed before association (:mod:`pipeline.stages.retime`). Written in a config file
     as ``{"cam02": 1.5}``, on the command line as ``--set sync.offsets=cam02:+1.5,cam04:-3``."""
 
     def by_camera(self) -> dict[str, float]:
@@ -145,7 +145,7 @@ def _type_hints(cls) -> dict:
 
 def field_spec(cls, name: str, dotted: str) -> Spec:
     """The declared type of field ``name`` of the params dataclass ``cls`` as a
-    :mod:`pipeline.schema` spec (``dotted`` is its ``section.field`` name)."""
+    :mod:`pipeline.core.schema` spec (``dotted`` is its ``section.field`` name)."""
     hint = _type_hints(cls)[name]
     args = typing.get_args(hint)
     optional = type(None) in args

@@ -26,7 +26,7 @@ def tiny_body_model_arrays(seed: int = 0) -> dict[str, np.ndarray]:
     to that joint, and its regressor is the mean of its own cube (so the cube's centre
     is the joint in every pose).
     """
-    from pipeline.joint_sets import SMPL24_PARENTS
+    from pipeline.data.joint_sets import SMPL24_PARENTS
 
     rng = np.random.default_rng(seed)
     parents = np.array(SMPL24_PARENTS)

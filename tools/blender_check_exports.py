@@ -22,10 +22,10 @@ import numpy as np
 
 
 def write_reference(scene_dir: str, out: str) -> None:
-    from pipeline.body_model import load_body_model  # noqa: PLC0415
+    from pipeline.body.model import load_body_model  # noqa: PLC0415
     from pipeline.config import PipelineConfig  # noqa: PLC0415
-    from pipeline.results import run_or_load  # noqa: PLC0415
-    from pipeline.scene import load_scene  # noqa: PLC0415
+    from pipeline.data.scene import load_scene  # noqa: PLC0415
+    from pipeline.run.pipeline import run_or_load  # noqa: PLC0415
 
     model = load_body_model()
     scene = load_scene(scene_dir)

@@ -37,8 +37,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from pipeline.data.scene import load_scene  # noqa: E402
 from pipeline.importers import convert_scene  # noqa: E402
-from pipeline.scene import load_scene  # noqa: E402
 
 RAW_TRC = "S00_P00_T01_BalancingTrial_0-100.trc"
 FILT_TRC = "S00_P00_T01_BalancingTrial_0-100_filt_butterworth.trc"

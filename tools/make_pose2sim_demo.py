@@ -14,7 +14,7 @@ portrait) with their Qualisys calibration (``calibration/Calib.qca.txt``). This 
  3. downscales every frame by ``--scale`` (``cv2.INTER_AREA``), scales K to match
     (:func:`pipeline.importers.qualisys.resize_camera`: pixel centres stay centres), and
     re-encodes with OpenCV's ``mp4v``;
- 4. writes the scene with :func:`pipeline.scene.write_scene`: coco17, no detections yet
+ 4. writes the scene with :func:`pipeline.data.scene.write_scene`: coco17, no detections yet
     (run ``mvviz detect`` on it), the original ``Calib.qca.txt`` beside it, and
     ``LICENSE-pose2sim.txt`` (Pose2Sim's BSD-3 notice and where the data came from).
 
@@ -41,11 +41,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.cameras import CameraRig  # noqa: E402
-from pipeline.files import atomic_write  # noqa: E402
+from pipeline.core.files import atomic_write  # noqa: E402
+from pipeline.data.cameras import CameraRig  # noqa: E402
+from pipeline.data.joint_sets import get_joint_set  # noqa: E402
+from pipeline.data.scene import Detections, load_scene, write_scene  # noqa: E402
 from pipeline.importers.qualisys import read_qualisys_calibration, resize_camera  # noqa: E402
-from pipeline.joint_sets import get_joint_set  # noqa: E402
-from pipeline.scene import Detections, load_scene, write_scene  # noqa: E402
 
 DEMO = "Demo_MultiPerson"
 LICENSE_NAME = "LICENSE-pose2sim.txt"

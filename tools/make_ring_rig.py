@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cameras import Camera, CameraRig, make_camera, save_cameras
+from pipeline.data.cameras import Camera, CameraRig, make_camera, save_cameras
 
 
 def look_at(

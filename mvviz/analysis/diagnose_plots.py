@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from pipeline.cameras import Camera
+from pipeline.data.cameras import Camera
 from pipeline.diagnose.calibration import CameraResidual, StepChange
 from pipeline.diagnose.sync import SyncEstimate
 

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.kalman import KalmanParams, kalman_filter
-from pipeline.results import PipelineResults
+from pipeline.results.store import PipelineResults
+from pipeline.stages.kalman import KalmanParams, kalman_filter
 
 
 @dataclass(frozen=True, eq=False)

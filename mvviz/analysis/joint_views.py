@@ -6,7 +6,7 @@ point, its weight in the solve, its reprojection residual and, when the view was
 used, why (camera disabled, no detection, confidence under the threshold, dropped as an
 outlier, too few views). Nothing is re-solved: the point, residuals and used flags are
 the results' (``person_joints``, ``person_reproj``, ``person_used``), the reasons follow
-from the run's config the way :func:`pipeline.triangulate.triangulate_people` applies it.
+from the run's config the way :func:`pipeline.stages.triangulate.triangulate_people` applies it.
 
 The weight: the triangulation solves in pixel units (each view's DLT rows scaled by
 confidence x focal / depth, which turns its residual into confidence x pixel error), so

@@ -7,7 +7,7 @@ import graph: it may import everything; nothing in :mod:`mvviz` outside this pac
 imports it (``app.py`` at the repository root does).
 
 Each ``register(subparsers)`` adds a parser whose ``func(args) -> int`` runs the job.
-Errors: bad input (:class:`~pipeline.files.SceneFormatError`, and OS errors such as a
+Errors: bad input (:class:`~pipeline.core.files.SceneFormatError`, and OS errors such as a
 missing file or a full disk) is one line on stderr and exit code 2; anything else is a
 bug, reported in one line with exit code 1 (``--debug`` prints its traceback).
 """
@@ -23,7 +23,7 @@ import threading
 import traceback
 from collections.abc import Callable
 
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
 
 COMMAND_MODULES = {
     "convert": "convert", "add-reference": "reference", "synth": "synth", "detect": "detect",

@@ -16,8 +16,8 @@ from mvviz.cli import at_least
 from mvviz.cli.run import add_config_options, prepare
 from pipeline.batch.jobs import SceneJob
 from pipeline.batch.sweep import setting_slug, sweep_grid
-from pipeline.files import CACHE_DIR, SceneFormatError
-from pipeline.results import cache_key, default_results_path
+from pipeline.core.files import CACHE_DIR, SceneFormatError
+from pipeline.results.store import cache_key, default_results_path
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -26,8 +26,10 @@ import json
 import math
 from pathlib import Path
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import CONFIG_FILE, PipelineConfig, load_config
+from pipeline.core.files import SceneFormatError, atomic_write
+from pipeline.data.scene import load_scene
 from pipeline.diagnose.compare_runs import (
     MATCH_GATE_MM,
     MIN_DIFF_MM,
@@ -35,9 +37,7 @@ from pipeline.diagnose.compare_runs import (
     run_cached,
     view_command,
 )
-from pipeline.files import SceneFormatError, atomic_write
-from pipeline.pose_prior import load_prior
-from pipeline.scene import load_scene
+from pipeline.fit.prior import load_prior
 
 
 def register(sub: argparse._SubParsersAction) -> None:

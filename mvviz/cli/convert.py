@@ -21,15 +21,15 @@ import functools
 import sys
 import warnings
 
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.joint_sets import JOINT_SETS
+from pipeline.data.scene import load_scene
 from pipeline.importers import (
     CALIBRATION_FORMATS,
     DETECTION_FORMATS,
     SOURCE_LAYOUTS,
     convert_scene,
 )
-from pipeline.joint_sets import JOINT_SETS
-from pipeline.scene import load_scene
 
 _EPILOG = """\
 calibration formats (CALIB_FILES):

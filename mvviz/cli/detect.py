@@ -9,7 +9,7 @@ from pathlib import Path
 
 from pipeline.detect.blazepose import InterpreterMissingError
 from pipeline.detect.video import DetectSettings, detect_scene
-from pipeline.video_crop import parse_video_crops
+from pipeline.detect.video_crop import parse_video_crops
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -26,14 +26,14 @@ import json
 from pathlib import Path
 
 from mvviz.cli.run import add_config_options, cached_results
-from pipeline.cameras import save_cameras
+from pipeline.core.files import SceneFormatError, atomic_write
+from pipeline.data.cameras import save_cameras
+from pipeline.data.scene import write_scene
 from pipeline.diagnose.calibration import replace_camera
 from pipeline.diagnose.floor import transform_scene
 from pipeline.diagnose.report import diagnose
-from pipeline.diagnose.retime import offsets_setting
 from pipeline.diagnose.sync import MAX_SHIFT
-from pipeline.files import SceneFormatError, atomic_write
-from pipeline.scene import write_scene
+from pipeline.stages.retime import offsets_setting
 
 
 def register(sub: argparse._SubParsersAction) -> None:

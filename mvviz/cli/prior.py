@@ -8,15 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.mocap import bvh_training_poses, format_residuals
-from pipeline.pose_prior import (
-    DEFAULT_PRIOR_PATH,
-    PriorConfig,
-    default_training_poses,
-    load_pose_data,
-    save_prior,
-    train_prior,
-)
+from pipeline.fit.prior import DEFAULT_PRIOR_PATH, PriorConfig, save_prior
+from pipeline.mocap.clips import bvh_training_poses, format_residuals
+from pipeline.prior.training import default_training_poses, load_pose_data, train_prior
 
 _DEFAULTS = PriorConfig()
 

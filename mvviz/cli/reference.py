@@ -19,9 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.data.scene import add_reference, load_scene
 from pipeline.importers.trc import reference_from_trc
-from pipeline.references import add_reference
-from pipeline.scene import load_scene
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -9,15 +9,16 @@ import sys
 import time
 from pathlib import Path
 
-from pipeline.body_arrays import BodyModelData, load_body_model_data
+from pipeline.body.arrays import BodyModelData, load_body_model_data
 from pipeline.config import CONFIG_FILE, PipelineConfig, load_config
-from pipeline.diagnose.retime import offsets_setting
+from pipeline.core.files import SceneFormatError, atomic_write
+from pipeline.data.scene import Scene, load_scene
 from pipeline.diagnose.sync import estimate_offsets
-from pipeline.evaluate import evaluate, format_table
-from pipeline.files import SceneFormatError, atomic_write
-from pipeline.prior_path import resolve_prior_path
-from pipeline.results import default_results_path, run_or_load
-from pipeline.scene import Scene, load_scene
+from pipeline.evaluation.evaluate import evaluate, format_table
+from pipeline.fit.prior_path import resolve_prior_path
+from pipeline.results.store import default_results_path
+from pipeline.run.pipeline import run_or_load
+from pipeline.stages.retime import offsets_setting
 
 
 def add_config_options(p: argparse.ArgumentParser) -> None:
@@ -69,7 +70,7 @@ def prepare(
     model = load_body_model_data(args.smpl_model)
     if config.fit_smpl and config.use_pose_prior:
         if read_prior:
-            from pipeline.pose_prior import load_prior  # noqa: PLC0415  (torch)
+            from pipeline.fit.prior import load_prior  # noqa: PLC0415  (torch)
 
             load_prior(config.pose_prior or None)
         elif not resolve_prior_path(config.pose_prior or None).is_file():
@@ -84,7 +85,7 @@ def cached_results(args: argparse.Namespace):
     scene, config, model = prepare(args)
     results, cached = run_or_load(scene, config, model)
     print(f"{'reused cached' if cached else 'computed'} results: {results.num_tracks} tracks")
-    from pipeline.body_model import torch_body_model  # noqa: PLC0415  (the exports skin)
+    from pipeline.body.model import torch_body_model  # noqa: PLC0415  (the exports skin)
 
     return scene, results, torch_body_model(model)
 

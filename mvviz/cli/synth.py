@@ -9,10 +9,10 @@ from pathlib import Path
 
 from mvviz.cli import at_least
 from mvviz.cli.synth_mocap import add_motion_options, run_motion
-from pipeline.body_model import load_body_model
-from pipeline.cameras import load_cameras
+from pipeline.body.kinematics import SUPPORTED_JOINT_SETS
+from pipeline.body.model import load_body_model
+from pipeline.data.cameras import load_cameras
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.smpl_kinematics import SUPPORTED_JOINT_SETS
 from pipeline.synth.detectors import DetectorNoise
 from pipeline.synth.rigs import dome_capture_radius, dome_rig, parse_dome_spec
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
@@ -74,7 +74,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="coco17",
         choices=SUPPORTED_JOINT_SETS,
         help="layout of the ground-truth keypoints and simulated 2D detections, read off the "
-        "mesh by pipeline/body_keypoints.py (default: coco17)",
+        "mesh by pipeline/body/keypoints.py (default: coco17)",
     )
     p.add_argument(
         "--occlusion",

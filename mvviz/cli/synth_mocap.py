@@ -10,8 +10,8 @@ import argparse
 import time
 from pathlib import Path
 
-from pipeline.body_model import BodyModel
-from pipeline.cameras import CameraRig
+from pipeline.body.model import BodyModel
+from pipeline.data.cameras import CameraRig
 from pipeline.synth.detectors import DetectorNoise
 from pipeline.synth.mocap_scene import MocapSceneConfig, write_mocap_scene
 

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import viser
 
-from pipeline.files import CACHE_DIR, SceneFormatError
+from pipeline.core.files import CACHE_DIR, SceneFormatError
 
 if TYPE_CHECKING:
     from mvviz.app import FirstTab, ViewerApp
@@ -119,7 +119,7 @@ def _build_viewer(
     from mvviz.cli.run import prepare  # noqa: PLC0415  (shares --config/--set)
     from mvviz.scene.images import FrameStore  # noqa: PLC0415
     from mvviz.state import ViewerState  # noqa: PLC0415
-    from pipeline.results import run_or_load  # noqa: PLC0415
+    from pipeline.run.pipeline import run_or_load  # noqa: PLC0415
 
     scene, config, model = prepare(args, read_prior=False)
     print(f"scene {scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames")

@@ -20,7 +20,7 @@ import viser
 from mvviz.cli.view import serve_until_interrupted, start, stop
 from mvviz.panels.dataset_panel import DatasetPanel, make_dataset_panel
 from pipeline.batch.report import load_report
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
 
 
 def scene_args(args: argparse.Namespace, row: dict, moment: dict | None) -> argparse.Namespace:

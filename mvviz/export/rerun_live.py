@@ -42,8 +42,8 @@ from mvviz.analysis.filter_runs import FilterRun
 from mvviz.export.rerun import APP_ID, SceneLogger, make_blueprint
 from mvviz.scene.images import FrameStore, video_frame
 from mvviz.state import ViewerState
-from pipeline.body_arrays import BodyModelData
-from pipeline.body_model import BodyModel, torch_body_model
+from pipeline.body.arrays import BodyModelData
+from pipeline.body.model import BodyModel, torch_body_model
 
 DEFAULT_WEB_PORT = 9090
 POLL_S = 0.25  # how often the logger looks at filter B and the stop flag

@@ -43,13 +43,13 @@ from mvviz.export.rerun import (  # noqa: F401  (re-exported: the names this mod
     select_frames,
     track_color,
 )
-from pipeline.body_arrays import BodyModelData
-from pipeline.body_model import BodyModel, torch_body_model
-from pipeline.diagnose.retime import picture_frame
-from pipeline.progress import Progress, track
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
-from pipeline.video_crop import CalibratedFrames
+from pipeline.body.arrays import BodyModelData
+from pipeline.body.model import BodyModel, torch_body_model
+from pipeline.core.progress import Progress, track
+from pipeline.data.scene import Scene
+from pipeline.detect.video_crop import CalibratedFrames
+from pipeline.results.store import PipelineResults
+from pipeline.stages.retime import picture_frame
 
 PREFETCH_FRAMES = 16  # images read ahead per camera
 

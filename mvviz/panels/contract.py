@@ -25,11 +25,11 @@ from mvviz.analysis.filter_runs import FilterRun
 from mvviz.scene.geometry import ViewerData
 from mvviz.scene.images import FrameStore
 from mvviz.state import ViewerState
-from pipeline.results import PipelineResults
+from pipeline.results.store import PipelineResults
 
 if TYPE_CHECKING:
-    from pipeline.body_arrays import BodyModelData
-    from pipeline.body_model import BodyModel
+    from pipeline.body.arrays import BodyModelData
+    from pipeline.body.model import BodyModel
 
 # ``callback(state, reason)`` after each render: ``state`` a snapshot of what was drawn,
 # ``reason`` the comma-joined reasons of the redraw ("frame", "results", "layers", ...).

@@ -31,11 +31,11 @@ from mvviz.analysis.diagnose_plots import (
 from mvviz.panels.contract import PanelHost
 from mvviz.scene.images import video_frame
 from mvviz.workers import LatestWins
+from pipeline.data.scene import Scene
 from pipeline.diagnose.calibration import CameraResidual, camera_residual
 from pipeline.diagnose.report import Diagnosis, diagnose
-from pipeline.diagnose.retime import offsets_setting
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
+from pipeline.results.store import PipelineResults
+from pipeline.stages.retime import offsets_setting
 
 GO_STEP, GO_WORST = "moved at", "worst frame"
 FIELD_WIDTH = 400  # px of the vector field's picture (the panel's width)

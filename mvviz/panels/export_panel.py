@@ -18,9 +18,9 @@ from pathlib import Path
 import viser
 
 from mvviz.panels.contract import PanelHost
+from pipeline.core.files import CACHE_DIR
 from pipeline.exports import EXTENSIONS, FORMATS, ExportedFile, export_results, stages_for
-from pipeline.files import CACHE_DIR
-from pipeline.results import PipelineResults
+from pipeline.results.store import PipelineResults
 
 LAST = "last"
 ALL = "all"

@@ -46,7 +46,7 @@ from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import MM, ViewerData
 from mvviz.state import ViewerState
 from mvviz.workers import LatestWins, yielding_to
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
 
 MAX_ENTRIES = 15
 SELECTED_COLOR = "orange"

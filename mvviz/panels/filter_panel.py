@@ -2,7 +2,7 @@
 
 The GUI folder "Filter A/B" shows filter A (``results.config.kalman``) read-only and
 filter B as controls. Any change to B re-filters the whole sequence with the vectorised
-:func:`~pipeline.kalman.kalman_filter` (tens of milliseconds) on a worker thread with a
+:func:`~pipeline.stages.kalman.kalman_filter` (tens of milliseconds) on a worker thread with a
 "latest wins" slot, so typing never queues work. Then:
 
 - B's skeletons are drawn under ``/world/skeletons/filter_b/<track>`` as a distinct
@@ -16,7 +16,7 @@ filter B as controls. Any change to B re-filters the whole sequence with the vec
   strip under the plot's frame axis, a ~0.5 kB image, so scrubbing sends that instead
   of a ~90 kB plot per frame;
 - MPJPE, PCK@160, acceleration error and jitter of raw, A and B against the ground
-  truth, scored exactly as :func:`pipeline.evaluate.evaluate` scores its rows.
+  truth, scored exactly as :func:`pipeline.evaluation.evaluate.evaluate` scores its rows.
 
 "Apply B" swaps B's arrays into the results (``host.set_results``) and saves B
 into ``SCENE/mvviz_config.json`` (atomically), which ``mvviz run`` / ``mvviz view`` /
@@ -49,11 +49,16 @@ from mvviz.analysis.trace_plot import (
 from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import MM, OFFSET_FILTERED_M, ViewerData, bone_segments, track_color
 from mvviz.workers import LatestWins, yielding_to
-from pipeline import metrics
 from pipeline.config import CONFIG_FILE, PipelineConfig, load_config, save_config
-from pipeline.evaluate import ground_truth_slots, gt_per_frame, stage_metrics, to_smpl_slots
-from pipeline.files import SceneFormatError
-from pipeline.kalman import MODELS, KalmanParams
+from pipeline.core.files import SceneFormatError
+from pipeline.evaluation import metrics
+from pipeline.evaluation.evaluate import (
+    ground_truth_slots,
+    gt_per_frame,
+    stage_metrics,
+    to_smpl_slots,
+)
+from pipeline.stages.kalman import MODELS, KalmanParams
 
 B_ROOT = "/world/skeletons/filter_b"
 B_BONE_WIDTH_M = 0.034  # A's filtered bones are 0.022 m: B's dashes sleeve them
@@ -113,7 +118,7 @@ def score(
     track: np.ndarray, track_raw: np.ndarray, joint_set: str, gt: np.ndarray | None
 ) -> dict[str, float]:
     """MPJPE, PCK@160, acceleration error, jitter of ``track`` (K, F, J, 3) mm, scored
-    where ``track_raw`` has the joint, as :func:`pipeline.evaluate.evaluate` does.
+    where ``track_raw`` has the joint, as :func:`pipeline.evaluation.evaluate.evaluate` does.
     Without ground truth (``gt`` None) only the jitter (mean |acceleration|)."""
     measured = np.isfinite(track_raw).all(-1, keepdims=True)
     masked = np.where(measured, track, np.nan)

@@ -2,13 +2,13 @@
 
 Changing a parameter (2D source, association thresholds, triangulation outlier threshold
 and minimum views, which cameras are used) re-runs 2D source selection, association and
-triangulation of the CURRENT frame at once (:func:`pipeline.run.run_frame`, a few ms) and
+triangulation of the CURRENT frame at once (:func:`pipeline.run.frames.run_frame`, a few ms) and
 shows the effect where the user stands: a copy of the shown results with that frame's
 per-frame rows replaced (:func:`patch_frame`, its people matched to the existing tracks)
 is swapped into the viewer's data in place of the results, and the viewer redraws.
 Meanwhile the sequence-wide stages run on a background thread with a progress bar:
 every frame's association and triangulation, tracking and Kalman filtering
-(:func:`pipeline.results.run_stages`), whose results replace the preview through
+(:func:`pipeline.run.pipeline.run_stages`), whose results replace the preview through
 ``host.set_results``; then, if the config fits SMPL bodies, the fit, whose
 results replace those once more. A newer change cancels a run between frames and
 stages (latest wins; a fit in progress is finished and dropped). Frames the user
@@ -37,37 +37,29 @@ import viser
 from mvviz.panels.contract import PanelHost
 from mvviz.panels.run_compare import RunCompare, make_run_compare
 from mvviz.scene.geometry import ViewerData, lazy_detection_rays, person_indices
-from pipeline.body_arrays import BodyModelData, load_body_model_data
+from pipeline.body.arrays import BodyModelData, load_body_model_data
 from pipeline.config import CONFIG_FILE, PipelineConfig, save_config
-from pipeline.files import CACHE_DIR
-from pipeline.joint_sets import get_joint_set
-from pipeline.progress import LatestProgress
-from pipeline.results import (
+from pipeline.core.files import CACHE_DIR
+from pipeline.core.progress import LatestProgress
+from pipeline.data.joint_sets import get_joint_set
+from pipeline.data.scene import Scene
+from pipeline.results.store import (
     EDGE_FIELDS,
     FIT_JOINT_SETS,
     PERSON_FIELDS,
+    FrameResult,
     PipelineResults,
     cache_key,
     default_results_path,
-    fit_bodies,
     pack_frame,
-    pack_run,
-    run_stages,
     save_results,
 )
-from pipeline.run import (
-    FrameResult,
-    frame_rows,
-    restored_joints,
-    run_frame,
-    select_2d,
-    source_joint_set,
-)
-from pipeline.scene import Scene
-from pipeline.track import match_to_tracks
+from pipeline.run.frames import frame_rows, restored_joints, run_frame, select_2d, source_joint_set
+from pipeline.run.pipeline import fit_bodies, pack_run, run_stages
+from pipeline.stages.track import match_to_tracks
 
 if TYPE_CHECKING:
-    from pipeline.body_model import BodyModel
+    from pipeline.body.model import BodyModel
 
 # --------------------------------------------------------------------------- pure parts
 
@@ -147,8 +139,8 @@ def patch_frame(
     """``results`` with frame ``fr.frame``'s per-frame stages replaced by ``fr``.
 
     The frame's person-frame rows, detection assignments and affinity edges are replaced
-    (:func:`~pipeline.results.pack_frame`); its new people take the tracks they match
-    (:func:`~pipeline.track.match_to_tracks` against each track's raw pose in that
+    (:func:`~pipeline.results.store.pack_frame`); its new people take the tracks they match
+    (:func:`~pipeline.stages.track.match_to_tracks` against each track's raw pose in that
     frame, else its filtered one, gated by the tracking distance) and the tracks' raw
     joints in that frame follow; unmatched people are untracked. The filtered
     trajectories are left as they were: they belong to the sequence stages.

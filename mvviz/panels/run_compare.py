@@ -41,11 +41,11 @@ from pipeline.diagnose.compare_runs import (
     compare_runs,
     run_cached,
 )
-from pipeline.results import PipelineResults
+from pipeline.results.store import PipelineResults
 
 if TYPE_CHECKING:
-    from pipeline.body_arrays import BodyModelData
-    from pipeline.body_model import BodyModel
+    from pipeline.body.arrays import BodyModelData
+    from pipeline.body.model import BodyModel
 
 B_ROOT = "/world/skeletons/compare_b"
 B_COLOR = (230, 40, 200)  # magenta: no track colour of the palette, and not filter B's

@@ -16,12 +16,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 import viser.transforms as vtf
 
-from pipeline.body_arrays import BodyModelData, body_data
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
+from pipeline.body.arrays import BodyModelData, body_data
+from pipeline.data.scene import Scene
+from pipeline.results.store import PipelineResults
 
 if TYPE_CHECKING:
-    from pipeline.body_model import BodyModel
+    from pipeline.body.model import BodyModel
 
 MM = 1e-3  # millimetres -> metres
 

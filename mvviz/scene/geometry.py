@@ -20,21 +20,21 @@ import viser.transforms as vtf
 
 from mvviz.scene.bodies import Bodies, GtBodies, fitted_bodies, gt_bodies
 from mvviz.scene.lazy_rows import LazyRows, RowBlocks
-from pipeline.cameras import Camera
-from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
-from pipeline.palette import TRACK_PALETTE
-from pipeline.ray_affinity import pinhole_rays
-from pipeline.results import PipelineResults
-from pipeline.run import frame_rows, group_by_frame
-from pipeline.scene import Scene
+from pipeline.association.affinity import pinhole_rays
+from pipeline.core.palette import TRACK_PALETTE
+from pipeline.data.cameras import Camera
+from pipeline.data.joint_sets import SMPL24, JointSet, get_joint_set
+from pipeline.data.scene import Scene
+from pipeline.results.store import PipelineResults
+from pipeline.run.frames import frame_rows, group_by_frame
 
 if TYPE_CHECKING:
-    from pipeline.body_arrays import BodyModelData
-    from pipeline.body_model import BodyModel
+    from pipeline.body.arrays import BodyModelData
+    from pipeline.body.model import BodyModel
 
 MM = 1e-3  # millimetres -> metres
 
-# One colour per track id, shared with the rerun and file exports (pipeline.palette).
+# One colour per track id, shared with the rerun and file exports (pipeline.core.palette).
 PALETTE = np.array(TRACK_PALETTE, dtype=np.uint8)
 UNASSIGNED = np.array((150, 150, 150), np.uint8)  # detection in no cluster
 UNTRACKED = np.array((70, 70, 70), np.uint8)  # clustered person that no track kept

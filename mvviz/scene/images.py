@@ -14,7 +14,7 @@ once the videos are in (~0.6 ms a frame, in the background), within a memory bud
 Pixels: OpenCV convention, (u, v) = (column, row); arrays are RGB uint8. Every stored
 frame is a uniform scale of its camera's calibrated image: a video an encoder cropped or
 padded by a few pixels, or one whose crop ``scene.json`` records (``video_crop``), is
-placed on the calibrated image first (:mod:`pipeline.video_crop`), so the overlays (in
+placed on the calibrated image first (:mod:`pipeline.detect.video_crop`), so the overlays (in
 calibrated pixels) and the frustums (the calibrated aspect) line up with it.
 """
 
@@ -37,10 +37,10 @@ from scipy.spatial import ConvexHull, QhullError
 
 from mvviz.scene.bodies import Bodies
 from mvviz.scene.geometry import FRUSTUM_WIDTHS, UNASSIGNED, LayerToggles, ViewerData, track_color
-from pipeline.diagnose.retime import picture_frame
-from pipeline.files import save_npz_atomic
-from pipeline.scene import Scene
-from pipeline.video_crop import CalibratedFrames
+from pipeline.core.files import save_npz_atomic
+from pipeline.data.scene import Scene
+from pipeline.detect.video_crop import CalibratedFrames
+from pipeline.stages.retime import picture_frame
 
 CACHE_VERSION = 3  # 3: frames placed on the calibrated image
 THUMBNAIL_WIDTH = FRUSTUM_WIDTHS[0]  # the frustums' default width, px

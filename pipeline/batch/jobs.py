@@ -4,7 +4,7 @@ A scene runs as: :func:`scene_inputs` (the 2D source of every detection row), th
 :func:`run_chunk` for each frame chunk (association and triangulation, the per-frame
 stages: chunks are independent), then :func:`join_chunks` (tracking, Kalman filtering
 and the SMPL fit over the whole sequence). The three together compute exactly what
-:func:`pipeline.results.run_pipeline` computes: the same functions on the same inputs
+:func:`pipeline.run.pipeline.run_pipeline` computes: the same functions on the same inputs
 in the same order, only the frames of a chunk elsewhere. Units: mm, px, frames.
 """
 
@@ -20,21 +20,22 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.body_arrays import BodyModelData
+from pipeline.body.arrays import BodyModelData
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import (
+from pipeline.data.scene import Scene
+from pipeline.evaluation.evaluate import (
     evaluate,
     ground_truth_slots,
     gt_per_frame,
     stage_metrics,
     to_smpl_slots,
 )
-from pipeline.results import RESULTS_VERSION, PipelineResults, fit_bodies, pack_run
-from pipeline.run import FrameResult, frame_rows, restored_joints, run_frame, select_2d
-from pipeline.scene import Scene
+from pipeline.results.store import RESULTS_VERSION, FrameResult, PipelineResults
+from pipeline.run.frames import frame_rows, restored_joints, run_frame, select_2d
+from pipeline.run.pipeline import fit_bodies, pack_run
 
 if TYPE_CHECKING:  # torch: the driver never imports it, the workers' stages do
-    from pipeline.body_model import BodyModel
+    from pipeline.body.model import BodyModel
 
 WORST_PER_SCENE = 5  # worst moments kept per scene
 WORST_GAP_FRAMES = 10  # two worst moments of a scene are at least this far apart
@@ -83,7 +84,7 @@ def chunk_bounds(num_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
 def scene_inputs(
     scene: Scene, config: PipelineConfig, model: BodyModel | BodyModelData
 ) -> SceneInputs:
-    """The restoration and source selection of :func:`pipeline.results.run_pipeline`."""
+    """The restoration and source selection of :func:`pipeline.run.pipeline.run_pipeline`."""
     restored = restored_joints(scene, model)
     return SceneInputs(joints2d=select_2d(scene, config, restored), restored=restored)
 
@@ -92,7 +93,7 @@ def run_chunk(
     scene: Scene, config: PipelineConfig, inputs: SceneInputs, start: int, stop: int
 ) -> list[FrameResult]:
     """Association and triangulation of frames ``start..stop-1`` (as
-    :func:`pipeline.run.run_frames` does them, frame by frame)."""
+    :func:`pipeline.run.frames.run_frames` does them, frame by frame)."""
     rows = frame_rows(scene)
     return [run_frame(scene, f, config, inputs.joints2d, rows=rows[f]) for f in range(start, stop)]
 

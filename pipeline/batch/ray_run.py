@@ -10,7 +10,7 @@ stages, SMPL fit, the report's summary).
 What travels: with ``shared_files`` (always for the embedded Ray: the workers are on
 this machine) a task gets the scene's directory, the body model's file and the results
 path, reads the scene and the model itself (the model once per worker) and writes the
-results atomically (:func:`pipeline.results.save_results`); only the summary comes
+results atomically (:func:`pipeline.results.store.save_results`); only the summary comes
 back. Without it (a cluster without shared storage) the driver puts each scene and the
 body model into Ray's object store (``ray.put``) and writes the results that come back,
 so a worker needs the same mvviz installed, not the scene files.
@@ -27,7 +27,7 @@ results are rebuilt from their lineage); a scene that still fails is reported wi
 error while the others finish.
 
 Bit for bit: the SMPL fit and the restoration run on fixed torch thread counts
-(``FitParams.num_threads``, ``pipeline.restore.RESTORE_THREADS``) whatever the process,
+(``FitParams.num_threads``, ``pipeline.stages.restore.RESTORE_THREADS``) whatever the process,
 and the tasks run the rest of torch on :data:`TASK_TORCH_THREADS`: the numbers are the
 same as ``mvviz run``'s.
 """
@@ -58,12 +58,12 @@ from pipeline.batch.jobs import (
     stored_key,
     summarize,
 )
-from pipeline.body_arrays import BodyModelData
+from pipeline.body.arrays import BodyModelData
 from pipeline.config import PipelineConfig
-from pipeline.files import SceneFormatError, atomic_write, process_alive
-from pipeline.progress import Progress, StageBar
-from pipeline.results import load_results, save_results
-from pipeline.scene import Scene, load_scene
+from pipeline.core.files import SceneFormatError, atomic_write, process_alive
+from pipeline.core.progress import Progress, StageBar
+from pipeline.data.scene import Scene, load_scene
+from pipeline.results.store import load_results, save_results
 
 TASK_TORCH_THREADS = 1
 """torch's threads in a task: a task holds one CPU (two workers of the driver's 2
@@ -280,10 +280,10 @@ def _warm_task(model_path: str | None) -> tuple[int, str | None]:
     task reads it) loaded while the driver still plans. Returns (the worker's process
     id, the error if loading failed: the scene tasks, which load the same, report it)."""
     try:
-        import pipeline.pose_prior  # noqa: F401, PLC0415  (torch, the fit's modules)
-        import pipeline.restore  # noqa: F401, PLC0415
-        import pipeline.smpl_fit  # noqa: F401, PLC0415
-        from pipeline.body_model import load_body_model  # noqa: PLC0415
+        import pipeline.fit.prior  # noqa: F401, PLC0415  (torch, the fit's modules)
+        import pipeline.fit.smpl  # noqa: F401, PLC0415
+        import pipeline.stages.restore  # noqa: F401, PLC0415
+        from pipeline.body.model import load_body_model  # noqa: PLC0415
 
         load_body_model(model_path)  # once per process: the scene tasks find it loaded
     except Exception as exc:  # noqa: BLE001  (reported by the scene tasks)
@@ -303,7 +303,7 @@ def check_prior(path: str | None) -> None:
     """Read the pose prior checkpoint ``path`` (None: the shipped one) as the fit will
     (a bad file raises :class:`SceneFormatError` naming it): on a worker, so the driver
     never imports torch."""
-    from pipeline.pose_prior import load_prior  # noqa: PLC0415
+    from pipeline.fit.prior import load_prior  # noqa: PLC0415
 
     load_prior(path)
 
@@ -324,7 +324,7 @@ def _model(model):
     """The body model of a task: the one shipped, or the file's (read once per worker)."""
     if not isinstance(model, ModelFile):
         return model
-    from pipeline.body_model import load_body_model  # noqa: PLC0415  (torch)
+    from pipeline.body.model import load_body_model  # noqa: PLC0415  (torch)
 
     loaded = load_body_model(model.path)  # once per worker process
     if loaded.fingerprint != model.fingerprint:

@@ -25,7 +25,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from pipeline.files import SceneFormatError, atomic_write  # noqa: E402
+from pipeline.core.files import SceneFormatError, atomic_write  # noqa: E402
 
 REPORT_JSON = "batch_report.json"
 REPORT_HTML = "batch_report.html"

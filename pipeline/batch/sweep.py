@@ -13,7 +13,7 @@ from __future__ import annotations
 import itertools
 
 from pipeline.config import PipelineConfig
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
 
 
 def parse_sweep(raw: str) -> tuple[str, list[str]]:
@@ -29,7 +29,7 @@ def parse_sweep(raw: str) -> tuple[str, list[str]]:
 def sweep_grid(sweeps: list[str], *, base: PipelineConfig | None = None) -> list[tuple[str, ...]]:
     """Every setting of the grid as a tuple of ``--set`` assignments (``[()]`` without
     sweeps); each assignment is checked against ``base`` (a bad field or value is a
-    :class:`~pipeline.files.SceneFormatError` naming it, before anything runs)."""
+    :class:`~pipeline.core.files.SceneFormatError` naming it, before anything runs)."""
     parsed = [parse_sweep(s) for s in sweeps]
     keys = [k for k, _ in parsed]
     if len(set(keys)) != len(keys):

@@ -39,7 +39,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.joint_sets import BLAZEPOSE33, blazepose33_to_smpl24_matrix
+from pipeline.data.joint_sets import BLAZEPOSE33, blazepose33_to_smpl24_matrix
 
 MODEL_DIR = Path(__file__).resolve().parents[2] / "sample_data" / "models" / "blazepose"
 DETECTOR_FILE = "pose_detection.tflite"
@@ -600,7 +600,7 @@ def decode_landmarks(
 
 def mono_joints_smpl24(world: np.ndarray) -> np.ndarray:
     """(P, 33, 3) world landmarks -> (P, 24, 3) SMPL-24 joints (NaN where BlazePose has
-    no counterpart; mapping in ``pipeline.joint_sets.BLAZEPOSE33_TO_SMPL24``)."""
+    no counterpart; mapping in ``pipeline.data.joint_sets.BLAZEPOSE33_TO_SMPL24``)."""
     m = blazepose33_to_smpl24_matrix()
     have = np.isfinite(m).all(1)
     out = np.full(world.shape[:-2] + (m.shape[0], 3), np.nan)

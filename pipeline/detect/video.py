@@ -13,7 +13,7 @@ only at the end, atomically.
 Pixels: OpenCV convention; keypoints are stored in the calibration's pixels: a video
 that is a uniformly scaled copy of the calibrated image is scaled back, one that an
 encoder cropped or padded by a few pixels at the right/bottom edge, or whose crop the
-user states (``--video-crop``), is mapped by :mod:`pipeline.video_crop`; the crop is
+user states (``--video-crop``), is mapped by :mod:`pipeline.detect.video_crop`; the crop is
 recorded in ``scene.json`` (``video_crop``) for the viewer.
 """
 
@@ -31,7 +31,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.cameras import CameraRig, load_cameras
+from pipeline.core.files import (
+    CACHE_DIR,
+    SceneFormatError,
+    atomic_write,
+    load_npz,
+    save_npz_atomic,
+)
+from pipeline.core.progress import StageBar
+from pipeline.data.cameras import CameraRig, load_cameras
+from pipeline.data.joint_sets import BLAZEPOSE33, COCO17, convert_keypoints
+from pipeline.data.scene import check_detections
 from pipeline.detect.blazepose import (
     DETECTOR_FILE,
     LANDMARK_FILE,
@@ -42,12 +52,8 @@ from pipeline.detect.blazepose import (
     mono_joints_smpl24,
     square_bbox,
 )
-from pipeline.files import CACHE_DIR, SceneFormatError, atomic_write, load_npz, save_npz_atomic
-from pipeline.joint_sets import BLAZEPOSE33, COCO17, convert_keypoints
-from pipeline.progress import StageBar
-from pipeline.restore import fit_weak_perspective
-from pipeline.scene import check_detections
-from pipeline.video_crop import VideoCrop, resolve_video_crop
+from pipeline.detect.video_crop import VideoCrop, resolve_video_crop
+from pipeline.stages.restore import fit_weak_perspective
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm")
 CACHE_EVERY = 50
@@ -168,7 +174,7 @@ def image_scale(video: VideoInfo, width: int, height: int) -> float:
 
 def video_crop(camera: str, video: VideoInfo, width: int, height: int, crop=None) -> VideoCrop:
     """How ``camera``'s video maps onto its calibrated ``width`` x ``height`` pixels
-    (:func:`pipeline.video_crop.resolve_video_crop`; ``crop`` = the user's LEFT, TOP,
+    (:func:`pipeline.detect.video_crop.resolve_video_crop`; ``crop`` = the user's LEFT, TOP,
     RIGHT, BOTTOM); the VideoSizeError (a ValueError) also names the video file."""
     try:
         return resolve_video_crop(camera, (video.width, video.height), (width, height), crop=crop)
@@ -360,7 +366,7 @@ def detection_columns(
     poses: CameraPoses, view: int, scale: float, *, offset: tuple[float, float] = (0.0, 0.0)
 ) -> dict[str, np.ndarray]:
     """One camera's rows as ``detections.npz`` columns, in calibration pixels: video pixel
-    ``uv`` is ``scale * uv + offset`` (a :class:`~pipeline.video_crop.VideoCrop`).
+    ``uv`` is ``scale * uv + offset`` (a :class:`~pipeline.detect.video_crop.VideoCrop`).
 
     ``keypoints`` are COCO-17; ``blazepose_keypoints`` / ``blazepose_world`` keep all 33
     landmarks; ``mono_joints3d`` (SMPL-24, metres, camera axes) with ``cam_weak`` fitted
@@ -623,7 +629,7 @@ def detect_scene(
     is created or updated (joint_set coco17, fps, num_frames, videos), ``detections.npz``
     written, ``videos/<camera>.mp4`` copied or re-encoded; all atomically, at the end.
     ``video_crops`` (camera -> LEFT, TOP, RIGHT, BOTTOM calibrated px) states how a video
-    was cut from the calibrated image (see :mod:`pipeline.video_crop`).
+    was cut from the calibrated image (see :mod:`pipeline.detect.video_crop`).
     """
     scene_dir = Path(scene_dir)
     meta = _read_meta(scene_dir)

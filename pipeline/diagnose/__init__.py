@@ -6,6 +6,6 @@ view of where each joint is); ``sync`` finds a camera's time offset from it (who
 sub-frame, with a residual curve and a confidence); ``calibration`` the per-camera
 reprojection residual as a field over the image and over time, a moved camera, and a
 bundle adjustment of a suspect camera's pose; ``floor`` the floor plane and the up
-axis. Pure functions over a :class:`~pipeline.scene.Scene` and its
-:class:`~pipeline.results.PipelineResults`; ``mvviz diagnose`` prints them.
+axis. Pure functions over a :class:`~pipeline.data.scene.Scene` and its
+:class:`~pipeline.results.store.PipelineResults`; ``mvviz diagnose`` prints them.
 """

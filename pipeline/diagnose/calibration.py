@@ -25,10 +25,10 @@ from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 from scipy.spatial.transform import Rotation
 
-from pipeline.cameras import Camera, CameraRig
+from pipeline.data.cameras import Camera, CameraRig
+from pipeline.data.scene import Scene
 from pipeline.diagnose.reference import MIN_CONFIDENCE, triangulate_without
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
+from pipeline.results.store import PipelineResults
 
 GRID = (8, 6)  # cells of the residual field over the image (columns, rows)
 SUSPECT_RATIO = 2.0  # systematic residual this many times the other cameras' median

@@ -6,7 +6,7 @@ writes, or one file per configuration in ``SCENE/.mvviz/runs/``). The comparison
 two parts:
 
 - the per-stage figures of each run (:func:`run_figures`, from
-  :func:`pipeline.evaluate.evaluate`: association precision / recall, tracks, ID
+  :func:`pipeline.evaluation.evaluate.evaluate`: association precision / recall, tracks, ID
   switches, MPJPE / PCK / PCP / acceleration error per stage where there is ground
   truth, reprojection per camera, the SMPL fits' residual), as rows ``(name, a, b)``;
 - where the two runs put people differently (:func:`differences`): per frame, A's
@@ -35,19 +35,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.assignment import gated_assignment
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate
-from pipeline.files import CACHE_DIR, SceneFormatError
-from pipeline.progress import Progress
-from pipeline.results import (
-    PipelineResults,
-    cache_key,
-    default_results_path,
-    load_results,
-    run_or_load,
-)
-from pipeline.scene import Scene
+from pipeline.core.assignment import gated_assignment
+from pipeline.core.files import CACHE_DIR, SceneFormatError
+from pipeline.core.progress import Progress
+from pipeline.data.scene import Scene
+from pipeline.evaluation.evaluate import evaluate
+from pipeline.results.store import PipelineResults, cache_key, default_results_path, load_results
+from pipeline.run.pipeline import run_or_load
 
 RUNS_DIR = "runs"  # SCENE/.mvviz/runs/results_<cache key>.npz, one per configuration
 MIN_DIFF_MM = 20.0
@@ -57,8 +52,8 @@ MATCH_GATE_MM = 500.0  # two people farther apart than this are different people
 MERGE_GAP = 2  # spans of one person this many frames apart are one span
 
 if TYPE_CHECKING:
-    from pipeline.body_arrays import BodyModelData
-    from pipeline.body_model import BodyModel
+    from pipeline.body.arrays import BodyModelData
+    from pipeline.body.model import BodyModel
 
 
 def run_cached(

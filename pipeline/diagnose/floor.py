@@ -20,13 +20,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.body_arrays import BodyModelData, body_data
-from pipeline.cameras import CameraRig
-from pipeline.references import ReferenceTrack
-from pipeline.scene import GroundTruth, Scene
+from pipeline.body.arrays import BodyModelData, body_data
+from pipeline.data.cameras import CameraRig
+from pipeline.data.references import ReferenceTrack
+from pipeline.data.scene import GroundTruth, Scene
 
 if TYPE_CHECKING:
-    from pipeline.body_model import BodyModel
+    from pipeline.body.model import BodyModel
 
 ANKLE_HEIGHT_MM = 90.0  # ankle joint above the sole, standing; detectors' ankles differ by
 # +-25 mm (the open model's COCO ankle stands at ~105 mm, OpenPose's on the demo at ~75)

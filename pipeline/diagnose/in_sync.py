@@ -20,11 +20,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from pipeline.config import SyncParams
+from pipeline.data.scene import Scene
 from pipeline.diagnose.calibration import CalibrationFinding, check_calibration
 from pipeline.diagnose.sync import MAX_SHIFT, SyncEstimate, estimate_offsets
-from pipeline.results import PipelineResults, run_stages
-from pipeline.run import select_2d
-from pipeline.scene import Scene
+from pipeline.results.store import PipelineResults
+from pipeline.run.frames import select_2d
+from pipeline.run.pipeline import run_stages
 
 
 def confident_offsets(sync: dict[str, SyncEstimate]) -> dict[str, float]:

@@ -9,8 +9,8 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.cameras import CameraRig
-from pipeline.scene import Detections, Scene
+from pipeline.data.cameras import CameraRig
+from pipeline.data.scene import Detections, Scene
 
 
 def delay_camera(scene: Scene, camera: str, frames: float) -> Scene:

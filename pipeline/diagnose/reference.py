@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.results import PipelineResults
-from pipeline.run import row_frames
-from pipeline.scene import Scene
-from pipeline.triangulate import triangulate_dlt
+from pipeline.data.scene import Scene
+from pipeline.results.store import PipelineResults
+from pipeline.run.frames import row_frames
+from pipeline.stages.triangulate import triangulate_dlt
 
 MIN_CONFIDENCE = 0.3  # as the triangulation's default: weaker 2D joints are not evidence
 

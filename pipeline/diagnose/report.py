@@ -7,13 +7,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from pipeline.core.progress import ProgressFn
+from pipeline.data.scene import Scene
 from pipeline.diagnose.calibration import CalibrationFinding
 from pipeline.diagnose.floor import FloorEstimate, estimate_floor
 from pipeline.diagnose.in_sync import check_calibration_in_sync
 from pipeline.diagnose.sync import MAX_SHIFT, SyncEstimate, estimate_offsets, offsets_over_windows
-from pipeline.progress import ProgressFn
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
+from pipeline.results.store import PipelineResults
 
 
 @dataclass(frozen=True, eq=False)

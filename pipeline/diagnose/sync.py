@@ -26,10 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.cameras import Camera
+from pipeline.data.cameras import Camera
+from pipeline.data.scene import Scene
 from pipeline.diagnose.reference import MIN_CONFIDENCE, camera_detections, track_points_without
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
+from pipeline.results.store import PipelineResults
 
 CAP_PX = 50.0
 MAX_SHIFT = 12  # frames tried either way

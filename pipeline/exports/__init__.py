@@ -13,7 +13,7 @@ format      what                                     module
 
 :func:`export_results` is the one entry point: it picks the stage (refusing one the run
 does not have, with the stages it has), the tracks, the file names, and calls the
-writer. Every writer writes atomically (:func:`pipeline.files.atomic_write`).
+writer. Every writer writes atomically (:func:`pipeline.core.files.atomic_write`).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from pipeline.exports.common import (
     stage_fit,
     stage_points,
 )
-from pipeline.results import PipelineResults
+from pipeline.results.store import PipelineResults
 
 FORMATS = ("trc", "c3d", "bvh", "smpl-npz", "glb")
 EXTENSIONS = {"trc": ".trc", "c3d": ".c3d", "bvh": ".bvh", "smpl-npz": ".npz", "glb": ".glb"}

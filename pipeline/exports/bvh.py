@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pipeline.core.files import atomic_write
 from pipeline.exports.common import gap_note
 from pipeline.exports.skeleton import TrackSkeleton, end_site_offsets, track_skeleton
-from pipeline.files import atomic_write
-from pipeline.smpl_fit_types import SmplFit
+from pipeline.fit.types import SmplFit
 
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
 JOINT_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")

@@ -1,6 +1,6 @@
 """What every writer of :mod:`pipeline.exports` shares: stages, tracks, axes, gaps, names.
 
-Units and axes: the results are world millimetres, z up (:mod:`pipeline.scene`). The
+Units and axes: the results are world millimetres, z up (:mod:`pipeline.data.scene`). The
 Y-up formats (TRC, BVH, glTF) take the world there by the rotation of
 :func:`pipeline.importers.trc.world_mm_to_trc`: ``(x, y, z)_out = (y, z, x)_world``
 (:data:`WORLD_TO_Y_UP`, det +1, so a person's left stays on their left); it is the
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.results import PipelineResults
-from pipeline.smpl_fit_types import SmplFit
+from pipeline.fit.types import SmplFit
+from pipeline.results.store import PipelineResults
 
 STAGES = ("raw", "kalman", "rts", "smpl", "smpl_vae")
 """Stage names of ``--stage``: raw triangulation, Kalman forward filter, RTS smoother,

@@ -36,12 +36,12 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from pipeline.body_model import torch_body_model
+from pipeline.body.model import torch_body_model
+from pipeline.core.files import atomic_write
+from pipeline.core.palette import track_rgb
 from pipeline.exports.common import gap_note
 from pipeline.exports.skeleton import TrackSkeleton, track_skeleton
-from pipeline.files import atomic_write
-from pipeline.palette import track_rgb
-from pipeline.smpl_fit_types import SmplFit
+from pipeline.fit.types import SmplFit
 
 FLOAT, UINT, UBYTE = 5126, 5125, 5121
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963

@@ -1,7 +1,7 @@
 """Joints as markers: TRC (OpenSim / Pose2Sim) and C3D (biomechanics' binary format).
 
 Input: ``points`` (K, F, J, 3) world millimetres, z up, NaN where a joint or a
-person-frame is missing, in a joint set of :mod:`pipeline.joint_sets`.
+person-frame is missing, in a joint set of :mod:`pipeline.data.joint_sets`.
 
 * TRC: the convention of Pose2Sim's output, which OpenSim reads: metres, **Y up**
   (:func:`pipeline.importers.trc.world_mm_to_trc`), ``DataRate`` = the scene's fps,
@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.files import atomic_write
+from pipeline.core.files import atomic_write
+from pipeline.data.joint_sets import get_joint_set
 from pipeline.importers.trc import POSE2SIM_MARKERS, world_mm_to_trc, write_trc
-from pipeline.joint_sets import get_joint_set
 
 C3D_LABEL_LEN = 30
 

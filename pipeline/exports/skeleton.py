@@ -2,7 +2,7 @@
 
 The fit's body is ``1000 * model(pose, betas) + transl`` in world mm, z up, where the
 model's canonical frame is y up and the root rotation ``R_0`` carries it into the world
-(:mod:`pipeline.smpl_fit`). In forward kinematics the root joint sits at its rest
+(:mod:`pipeline.fit.smpl`). In forward kinematics the root joint sits at its rest
 position ``J_0`` (not rotated) plus the translation, and each child ``j`` at
 ``G_parent @ (J_j - J_parent)``. So in a Y-up file (``M`` = :data:`WORLD_TO_Y_UP`,
 metres):
@@ -24,10 +24,10 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from pipeline.body_model import torch_body_model
+from pipeline.body.model import torch_body_model
+from pipeline.data.joint_sets import SMPL24
 from pipeline.exports.common import WORLD_TO_Y_UP, hold_indices
-from pipeline.joint_sets import SMPL24
-from pipeline.smpl_fit_types import SmplFit
+from pipeline.fit.types import SmplFit
 
 MM_PER_M = 1000.0
 

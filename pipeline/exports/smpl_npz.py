@@ -15,7 +15,7 @@ What the body model is (AMASS assumes SMPL / SMPL+H; ours may be another model i
 SMPL file layout, e.g. the shipped open body model, whose betas mean other shapes):
 ``surface_model_type`` (``"smpl"`` for a licensed SMPL file, else
 ``"smpl-format:<file name>"``), ``body_model_file`` and ``body_model_sha256`` (the
-model's content hash, :attr:`pipeline.body_model.BodyModel.fingerprint`), ``num_betas``
+model's content hash, :attr:`pipeline.body.model.BodyModel.fingerprint`), ``num_betas``
 and ``world_convention`` (the text above).
 
 Frames: the track's span, from its first to its last fitted frame
@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.core.files import save_npz_atomic
 from pipeline.exports.common import gap_note, hold_indices
-from pipeline.files import save_npz_atomic
-from pipeline.smpl_fit_types import SmplFit
+from pipeline.fit.types import SmplFit
 
 MM_PER_M = 1000.0
 WORLD_CONVENTION = (

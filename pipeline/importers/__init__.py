@@ -4,7 +4,7 @@ Calibration formats (:data:`CALIBRATION_FORMATS`): ``voxelpose``, ``easymocap``,
 ``pose2sim``, ``qualisys``. Detection formats (:data:`DETECTION_FORMATS`): ``openpose``,
 ``easymocap``.
 :func:`convert_scene` reads one of each and writes a scene with
-:func:`pipeline.scene.write_scene` (atomic: a failure leaves nothing behind).
+:func:`pipeline.data.scene.write_scene` (atomic: a failure leaves nothing behind).
 
 Units: the scene is in world millimetres; formats in metres are scaled on the way in.
 """
@@ -19,8 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cameras import CameraRig
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.cameras import CameraRig
+from pipeline.data.joint_sets import OPENPOSE_COCO18, JointSet
+from pipeline.data.references import fit_frames
+from pipeline.data.scene import Detections, write_scene
 from pipeline.importers.calibration import (
     read_easymocap_calibration,
     read_pose2sim_calibration,
@@ -39,9 +42,6 @@ from pipeline.importers.detections import (
 from pipeline.importers.layouts import SOURCE_LAYOUTS, LayoutDecision, identify_layout
 from pipeline.importers.qualisys import read_qualisys_calibration, write_qualisys_calibration
 from pipeline.importers.trc import reference_from_trc
-from pipeline.joint_sets import OPENPOSE_COCO18, JointSet
-from pipeline.references import fit_frames
-from pipeline.scene import Detections, write_scene
 
 __all__ = [
     "CALIBRATION_FORMATS",
@@ -286,7 +286,7 @@ def convert_scene(
     atomically, so on any error ``out_dir`` is left as it was (absent if it was absent).
     Without detections the scene gets zero detection rows and ``num_frames = 0`` (or the
     longest reference's length). ``references`` (name -> Pose2Sim TRC file) are stored as
-    the scene's reference tracks (:mod:`pipeline.references`), in its joint set.
+    the scene's reference tracks (:mod:`pipeline.data.references`), in its joint set.
     ``joint_set`` None keeps the detections' layout (identified from the data unless
     ``layout`` names it; COCO-17 without detections); the decision and its evidence are
     recorded in ``scene.json`` under ``imported_from.detections.layout_decision``.

@@ -45,7 +45,7 @@ so a person's left stays on their left), the same mapping
 other obvious choice, ``(x, -z, y)``, is also a rotation and differs only by a turn
 about the vertical; the scene generators place and turn people anyway.)
 
-Every malformed input raises :class:`~pipeline.files.SceneFormatError` naming the file
+Every malformed input raises :class:`~pipeline.core.files.SceneFormatError` naming the file
 and the line (and keyword) at fault: unbalanced braces, a ``CHANNELS`` count that does
 not match its names, unknown channels, non-numbers, a frame row with the wrong number
 of values, ``Frames:`` against the rows present.
@@ -60,7 +60,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.files import SceneFormatError, read_text_lines
+from pipeline.core.files import SceneFormatError, read_text_lines
 
 CHANNEL_NAMES = (
     "Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation",

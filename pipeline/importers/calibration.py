@@ -1,6 +1,6 @@
 """Camera calibrations of other tools, read into (and written from) a native :class:`CameraRig`.
 
-Native convention (see :mod:`pipeline.cameras`): world millimetres, OpenCV world-to-camera
+Native convention (see :mod:`pipeline.data.cameras`): world millimetres, OpenCV world-to-camera
 extrinsics ``x_cam = R @ X + t``, distortion ``(k1, k2, p1, p2, k3)``.
 
 Formats:
@@ -16,7 +16,7 @@ Formats:
   ``size = [w, h]``, ``matrix``, ``distortions`` (k1, k2, p1, p2 [, k3]), ``rotation``
   (Rodrigues), ``translation`` (METRES, world-to-camera), ``fisheye``; plus ``[metadata]``.
 
-Every reader raises :class:`~pipeline.files.SceneFormatError` naming the file and the
+Every reader raises :class:`~pipeline.core.files.SceneFormatError` naming the file and the
 field in the file's own vocabulary (``K_cam3``, ``cam_01.rotation``); every writer is
 atomic. Rotations are snapped to the nearest exact rotation once validated (files store
 them rounded), so the camera centre equals ``-R.T @ t`` to machine precision.
@@ -37,10 +37,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.cameras import Camera, CameraRig, make_camera
-from pipeline.files import SceneFormatError, atomic_write
-from pipeline.rotations import matrix_to_rotvec, rotvec_to_matrix
-from pipeline.schema import check_numbers
+from pipeline.core.files import SceneFormatError, atomic_write
+from pipeline.core.rotations import matrix_to_rotvec, rotvec_to_matrix
+from pipeline.core.schema import check_numbers
+from pipeline.data.cameras import Camera, CameraRig, make_camera
 
 MM_PER_M = 1000.0
 

@@ -18,9 +18,9 @@ The layout (BODY_25, BODY_25B, OpenPose COCO-18, COCO-17, Human3.6M-17, Halpe-26
 COCO-WholeBody-133, BlazePose-33, SMPL-24) is identified from the data unless forced
 (:mod:`pipeline.importers.layouts`: counts collide, so the anatomy decides), and the
 result is kept in that layout or re-ordered by joint name into the asked joint set with
-:func:`~pipeline.joint_sets.convert_keypoints`.
+:func:`~pipeline.data.joint_sets.convert_keypoints`.
 
-Every problem raises :class:`~pipeline.files.SceneFormatError` naming the file and the
+Every problem raises :class:`~pipeline.core.files.SceneFormatError` naming the file and the
 field (``people[2].pose_keypoints_2d``, ``annots[0].keypoints``). Keypoint values must be
 JSON numbers (a string or ``true`` is an error, not 1.0).
 
@@ -43,21 +43,16 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.core.schema import check_numbers
+from pipeline.data.joint_sets import COCO17, JointSet, convert_keypoints, get_joint_set
+from pipeline.data.scene import Detections, check_detections
 from pipeline.importers.layouts import (
     CANDIDATES_BY_COUNT,
     SOURCE_LAYOUTS,
     LayoutDecision,
     identify_layout,
 )
-from pipeline.joint_sets import (
-    COCO17,
-    JointSet,
-    convert_keypoints,
-    get_joint_set,
-)
-from pipeline.scene import Detections, check_detections
-from pipeline.schema import check_numbers
 
 # The joint set a scene keeps of a layout when none is asked for: the layout itself,
 # except COCO-WholeBody, whose 110 face and hand points are dropped (the body model and

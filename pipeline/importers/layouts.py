@@ -39,8 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.files import SceneFormatError
-from pipeline.joint_sets import JOINT_SETS, JointSet
+from pipeline.core.files import SceneFormatError
+from pipeline.data.joint_sets import JOINT_SETS, JointSet
 
 # Layouts a detection file may be in, by name. The scene may keep a file's layout or be
 # converted by joint name into another (``convert_keypoints``).

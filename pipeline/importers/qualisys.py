@@ -1,6 +1,6 @@
 """Qualisys QTM calibrations (``.qca.txt``, XML) read into (and written from) a native rig.
 
-Native convention (see :mod:`pipeline.cameras`): world millimetres, z up, OpenCV
+Native convention (see :mod:`pipeline.data.cameras`): world millimetres, z up, OpenCV
 world-to-camera extrinsics ``x_cam = R @ X + t``, distortion ``(k1, k2, p1, p2, k3)``.
 
 The file, as QTM exports it and as Pose2Sim ships it with its demos::
@@ -61,8 +61,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cameras import Camera, CameraRig
-from pipeline.files import SceneFormatError, atomic_write
+from pipeline.core.files import SceneFormatError, atomic_write
+from pipeline.data.cameras import Camera, CameraRig
 from pipeline.importers.calibration import (
     _build_camera,
     _check_rig,

@@ -15,10 +15,10 @@ axes. OpenSim, and so Pose2Sim, writes **Y up**: our world (millimetres, z up) i
 ``1000 * trc[..., [2, 0, 1]]`` for a file in metres (:func:`trc_to_world_mm`; checked on
 Pose2Sim's balancing trial by reprojection into its calibration). Marker names are
 Pose2Sim's (``RHip``, ``LBigToe``, ``Neck``...); :data:`POSE2SIM_MARKERS` maps them onto
-our joint sets (:mod:`pipeline.joint_sets`) and :func:`trc_to_joint_set` builds
+our joint sets (:mod:`pipeline.data.joint_sets`) and :func:`trc_to_joint_set` builds
 ``(num_frames, num_joints, 3)`` world-mm arrays in a joint set's order.
 
-Every malformed input raises :class:`~pipeline.files.SceneFormatError` naming the file
+Every malformed input raises :class:`~pipeline.core.files.SceneFormatError` naming the file
 and the header field or data cell.
 """
 
@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.files import SceneFormatError, atomic_write, read_text_lines
-from pipeline.joint_sets import JointSet, get_joint_set
-from pipeline.references import ReferenceTrack, check_name
+from pipeline.core.files import SceneFormatError, atomic_write, read_text_lines
+from pipeline.data.joint_sets import JointSet, get_joint_set
+from pipeline.data.references import ReferenceTrack, check_name
 
 # How many millimetres one file unit is.
 UNIT_MM: dict[str, float] = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
@@ -384,7 +384,7 @@ def reference_from_trc(
     fps: float | None = None,
     y_up: bool = True,
 ) -> ReferenceTrack:
-    """A scene reference track (:mod:`pipeline.references`) from a TRC file: its markers
+    """A scene reference track (:mod:`pipeline.data.references`) from a TRC file: its markers
     in ``joint_set`` (world mm, z up), TRC row ``i`` = scene frame ``i``. A TRC rate other
     than the scene's ``fps`` is warned about (the rows are still taken frame for frame)."""
     check_name(name, path)

@@ -4,9 +4,9 @@ A synthesis appends, per frame and view, the rows of the people a detector found
 of its ghosts. For a sample-sized scene the rows are kept as lists and joined at the
 end; for a long one (10,000 frames x 31 cameras x 20 people: 4.6 M rows, ~5 GB of
 keypoints and monocular SMPL columns) they go, every ``flush_rows`` rows, to the files
-of a detections directory (:func:`pipeline.scene.open_detection_columns`), so the
+of a detections directory (:func:`pipeline.data.scene.open_detection_columns`), so the
 synthesis holds a block of rows at a time whatever the scene's length. Both give the
-same :class:`~pipeline.scene.Detections`, array for array.
+same :class:`~pipeline.data.scene.Detections`, array for array.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.npy_stream import NpyRowAppender
-from pipeline.scene import SMPL_FIELD_WIDTH, SMPL_FIELDS, Detections, open_detection_columns
+from pipeline.core.npy_stream import NpyRowAppender
+from pipeline.data.scene import SMPL_FIELD_WIDTH, SMPL_FIELDS, Detections, open_detection_columns
 
 COLUMNS = ("frame", "view", "keypoints", "gt_person_id", *SMPL_FIELDS)
 FLUSH_ROWS = 1 << 16
@@ -76,7 +76,7 @@ class DetectionRows:
         self._held = 0
 
     def detections(self) -> Detections:
-        """The rows as :class:`~pipeline.scene.Detections` (empty arrays for none); streamed,
+        """The rows as :class:`~pipeline.data.scene.Detections` (empty arrays for none); streamed,
         the files are closed and the columns memory-mapped."""
         if self.directory is None:
             arrays = {k: np.concatenate(v) for k, v in self._lists.items() if v}

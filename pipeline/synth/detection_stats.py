@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.cameras import CameraRig
-from pipeline.scene import Detections
+from pipeline.data.cameras import CameraRig
+from pipeline.data.scene import Detections
 from pipeline.synth.detectors import DetectorNoise
 
 __all__ = ["detection_statistics"]

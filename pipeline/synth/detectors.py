@@ -1,7 +1,7 @@
 """Simulated per-view detectors for synthetic scenes, with a documented noise model.
 
 (a) A 2D keypoint detector (:func:`simulate_keypoints`; COCO-17 by default, any layout
-    of :mod:`pipeline.body_keypoints`): pixel noise that grows as confidence falls, the
+    of :mod:`pipeline.body.keypoints`): pixel noise that grows as confidence falls, the
     same for every keypoint of every layout, confidence that drops with occlusion
     (self-occlusion decided by the z-buffer, occlusion by another person by the
     z-buffer's mesh index), joints missed when occluded, occasional left/right swaps
@@ -27,11 +27,11 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from pipeline.body_model import BodyModel, rigid_chain
-from pipeline.cameras import Camera
-from pipeline.joint_sets import _HAND_POINTS, COCO17, SMPL24, JointSet
-from pipeline.restore import fit_weak_perspective
-from pipeline.rotations import axis_angle_to_matrix
+from pipeline.body.model import BodyModel, rigid_chain
+from pipeline.core.rotations import axis_angle_to_matrix
+from pipeline.data.cameras import Camera
+from pipeline.data.joint_sets import _HAND_POINTS, COCO17, SMPL24, JointSet
+from pipeline.stages.restore import fit_weak_perspective
 
 
 @dataclass(frozen=True)

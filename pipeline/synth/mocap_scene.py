@@ -2,7 +2,7 @@
 
 Where :mod:`pipeline.synth.scene_gen` makes people with our own body model and our
 own motion generator (so a fit with that model can be exact: circular evidence), this
-generator takes people from BVH clips (:mod:`pipeline.mocap`): another skeleton, other
+generator takes people from BVH clips (:mod:`pipeline.mocap.clips`): another skeleton, other
 proportions, real motion. What the scene holds:
 
 * **People**: person ``p`` plays clip ``p mod num_clips`` (resampled to the scene's
@@ -14,14 +14,14 @@ proportions, real motion. What the scene holds:
   where it can (the best of ``placement_tries`` random placements). A segment shorter
   than the scene ends the person: no truth, no detections after it.
 * **Ground truth** (``gt.npz``): ``joints3d`` the mocap joints in SMPL-24 slots
-  (:data:`pipeline.mocap.CMU_TO_SMPL24`; NaN for pelvis, spine1-3, collars and hands,
+  (:data:`pipeline.mocap.clips.CMU_TO_SMPL24`; NaN for pelvis, spine1-3, collars and hands,
   which the skeleton lacks), ``keypoints3d`` COCO-17 (twelve mocap joints and five face
-  points derived from the head, :data:`pipeline.mocap.FACE_OFFSETS_MM`). No
+  points derived from the head, :data:`pipeline.mocap.clips.FACE_OFFSETS_MM`). No
   ``smpl_pose``: no body model made these people.
 * **Detections**: the 2D detector sees the COCO-17 points above, projected, with the
   noise of :class:`pipeline.synth.detectors.DetectorNoise` (defaults: the shipped
   sample's). Occlusion is decided by a z-buffer of *proxy bodies*: our body model
-  fitted to each person's mocap joints (:func:`pipeline.mocap.fit_clips`), rendered at
+  fitted to each person's mocap joints (:func:`pipeline.mocap.clips.fit_clips`), rendered at
   ``render_scale`` of the image size; the monocular SMPL regressor is simulated from
   that proxy fit too. Ghost detections (``false_positives_per_view``) are mocap poses
   of the scene's clips at random places and headings, in one view only, without
@@ -46,12 +46,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline.body_model import BodyModel
-from pipeline.cameras import CameraRig
-from pipeline.joint_sets import COCO17, SMPL24
-from pipeline.mocap import FitParams, MocapClip, fit_clips, load_mocap_clip
-from pipeline.progress import track
-from pipeline.scene import SMPL_FIELD_WIDTH, SMPL_FIELDS, Detections, GroundTruth, write_scene
+from pipeline.body.model import BodyModel
+from pipeline.core.progress import track
+from pipeline.data.cameras import CameraRig
+from pipeline.data.joint_sets import COCO17, SMPL24
+from pipeline.data.scene import SMPL_FIELD_WIDTH, SMPL_FIELDS, Detections, GroundTruth, write_scene
+from pipeline.mocap.clips import FitParams, MocapClip, fit_clips, load_mocap_clip
 from pipeline.synth.detectors import DetectorNoise, simulate_keypoints, simulate_regressor
 from pipeline.synth.render import MeshInstance, occluded_by_other, render_meshes, visible_mask
 from pipeline.synth.scene_gen import visible_floor_area
@@ -270,7 +270,7 @@ def synthesize_from_mocap(
 ) -> tuple[MocapPeople, list[MocapClip], Detections]:
     """Plan people from the clips, render the proxy bodies for occlusion, detect.
 
-    ``clips``: already loaded clips (e.g. :func:`pipeline.mocap.clip_from_body`) instead
+    ``clips``: already loaded clips (e.g. :func:`pipeline.mocap.clips.clip_from_body`) instead
     of ``config.motions``."""
     if clips is None and not config.motions:
         raise ValueError("no motion clips given")

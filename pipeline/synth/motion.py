@@ -16,7 +16,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
-from pipeline.joint_sets import SMPL24
+from pipeline.data.joint_sets import SMPL24
 
 PARAM_LIMITS: dict[str, tuple[float, float]] = {
     "hip_flex_l": (-0.6, 2.1), "hip_flex_r": (-0.6, 2.1),  # + leg forward

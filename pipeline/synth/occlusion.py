@@ -22,7 +22,7 @@ The answer equals a full-resolution render of the same mesh read at those pixels
 :func:`~pipeline.synth.render.render_meshes`); faces are not culled, so a decimated,
 not quite closed mesh (:mod:`pipeline.synth.proxy`) works too.
 
-World millimetres; cameras as in :mod:`pipeline.cameras`.
+World millimetres; cameras as in :mod:`pipeline.data.cameras`.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.cameras import Camera, max_valid_radius2
+from pipeline.data.cameras import Camera, max_valid_radius2
 from pipeline.synth.render import NEAR_MM
 
 __all__ = ["PointOcclusion", "point_occlusion"]
@@ -74,7 +74,7 @@ class PointOcclusion:
 
 def _project_views(cameras: list[Camera], points: np.ndarray):
     """(N, 3) world mm -> per view (V, N) u, v pixels (OpenCV distortion, as
-    :func:`~pipeline.cameras.distort_and_project`), camera z, and whether the point is
+    :func:`~pipeline.data.cameras.distort_and_project`), camera z, and whether the point is
     in front of ``near`` and inside the distortion's fold (``good``); all views at once."""
     R = np.stack([c.R for c in cameras])
     t = np.stack([c.t for c in cameras])

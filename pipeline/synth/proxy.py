@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from pipeline.body_model import BodyModel, rigid_chain
-from pipeline.rotations import axis_angle_to_matrix
+from pipeline.body.model import BodyModel, rigid_chain
+from pipeline.core.rotations import axis_angle_to_matrix
 
 __all__ = ["ProxyBodies", "ProxyMesh", "pose_proxy", "proxy_bodies", "proxy_for", "proxy_mesh"]
 

@@ -1,13 +1,13 @@
 """A CPU z-buffer rasteriser for synthetic multi-view scenes, in numpy.
 
 Units and conventions: world millimetres, z up, floor at z = 0; cameras as in
-:mod:`pipeline.cameras` (``x_cam = R @ X + t``, x right, y down, z forward, OpenCV
+:mod:`pipeline.data.cameras` (``x_cam = R @ X + t``, x right, y down, z forward, OpenCV
 distortion). Pixel centres sit at integer pixel coordinates (OpenCV), so pixel
 ``(row, col)`` is sampled at ``(u, v) = (col, row)``. Depth is camera z in mm.
 
 How :func:`render_meshes` works (no Python loop over triangles):
 
-1. Project every vertex with distortion (:func:`~pipeline.cameras.distort_and_project`);
+1. Project every vertex with distortion (:func:`~pipeline.data.cameras.distort_and_project`);
    drop triangles with a vertex closer than ``near_mm`` or beyond the radius where
    the distortion polynomial folds back, and back-facing triangles (image-space
    winding; the meshes' faces wind counter-clockwise around their outward normals).
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.cameras import Camera, distort_and_project, max_valid_radius2
+from pipeline.data.cameras import Camera, distort_and_project, max_valid_radius2
 
 __all__ = [
     "MeshInstance",

@@ -1,6 +1,6 @@
 """Synthetic camera rigs: a Panoptic-like dome of HD cameras.
 
-World millimetres, z up, floor at z = 0; cameras as in :mod:`pipeline.cameras`
+World millimetres, z up, floor at z = 0; cameras as in :mod:`pipeline.data.cameras`
 (``x_cam = R @ X + t``, x right, y down, z forward).
 
 The CMU Panoptic studio has 31 HD cameras (1920 x 1080, focal length about 1400-1650
@@ -19,7 +19,7 @@ import re
 
 import numpy as np
 
-from pipeline.cameras import Camera, CameraRig
+from pipeline.data.cameras import Camera, CameraRig
 
 __all__ = ["DOME_RADIUS_MM", "dome_capture_radius", "dome_rig", "look_at", "parse_dome_spec"]
 

@@ -16,12 +16,13 @@ import cv2
 import numpy as np
 import torch
 
-from pipeline.body_keypoints import KeypointRegressor, keypoint_regressor, layout_keypoints
-from pipeline.body_model import BodyModel
-from pipeline.cameras import Camera, CameraRig
-from pipeline.joint_sets import SMPL24, JointSet, get_joint_set
-from pipeline.progress import track
-from pipeline.scene import Detections, GroundTruth, write_scene
+from pipeline.body.keypoints import KeypointRegressor, keypoint_regressor, layout_keypoints
+from pipeline.body.model import BodyModel
+from pipeline.core.progress import track
+from pipeline.core.torch_threads import torch_threads
+from pipeline.data.cameras import Camera, CameraRig
+from pipeline.data.joint_sets import SMPL24, JointSet, get_joint_set
+from pipeline.data.scene import Detections, GroundTruth, write_scene
 from pipeline.synth.detection_rows import DetectionRows
 from pipeline.synth.detectors import DetectorNoise, simulate_keypoints, simulate_regressor
 from pipeline.synth.motion import (
@@ -41,7 +42,6 @@ from pipeline.synth.render import (
     render_meshes,
     visible_mask,
 )
-from pipeline.torch_threads import torch_threads
 
 # Clothing colours (RGB), one per person; the viewer uses its own palette.
 PERSON_COLOURS = (
@@ -66,7 +66,7 @@ class SynthConfig:
     """Waypoints lie where at least this many cameras see a whole standing person."""
     joint_set: str = "coco17"
     """Layout of the ground-truth keypoints and the simulated 2D detections, read off the
-    mesh by the table of :mod:`pipeline.body_keypoints` (keypoints it cannot give are
+    mesh by the table of :mod:`pipeline.body.keypoints` (keypoints it cannot give are
     NaN in the truth and never detected)."""
     area_radius_mm: float | None = None
     """People stand within this distance (floor plane) of the mean of the camera

@@ -17,11 +17,11 @@ import pytest
 from mvviz.app import ViewerApp
 from mvviz.scene.images import FrameStore
 from mvviz.state import ViewerState
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
+from pipeline.data.scene import load_scene
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.results import run_or_load, run_pipeline
-from pipeline.scene import load_scene
+from pipeline.run.pipeline import run_or_load, run_pipeline
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tools.chromium import CHROMIUM, close_webgl_notice, launch_chromium, pinned_dpr_url
 

@@ -17,11 +17,11 @@ import pytest
 from mvviz.app import ViewerApp
 from mvviz.scene.images import mesh_residuals
 from mvviz.state import ViewerState
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
+from pipeline.data.scene import load_scene
 from pipeline.diagnose.perturb import delay_camera
-from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
+from pipeline.run.pipeline import run_pipeline
 from tests.mvviz.conftest import (
     REPO,
     free_port,

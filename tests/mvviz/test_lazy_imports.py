@@ -14,7 +14,7 @@ import numpy as np
 import trimesh
 
 from mvviz.scene.layers import icosphere
-from pipeline.results import default_results_path
+from pipeline.results.store import default_results_path
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -23,9 +23,9 @@ import json, sys
 import mvviz.cli.view  # the entry module of app.py and mvviz view
 from mvviz.app import ViewerApp  # what it imports once the server is up
 from mvviz.state import ViewerState
-from pipeline.body_arrays import load_body_model_data
-from pipeline.results import load_results
-from pipeline.scene import load_scene
+from pipeline.body.arrays import load_body_model_data
+from pipeline.results.store import load_results
+from pipeline.data.scene import load_scene
 
 model = load_body_model_data()
 results = load_results(sys.argv[1], model=model)

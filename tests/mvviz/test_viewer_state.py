@@ -28,9 +28,9 @@ from mvviz.scene.geometry import (
 from mvviz.scene.images import FrameStore, blank_frame, draw_overlay, image_overlay
 from mvviz.state import PANEL_WIDTHS, ViewerState
 from pipeline.config import PipelineConfig
+from pipeline.data.scene import Detections
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.results import run_pipeline
-from pipeline.scene import Detections
+from pipeline.run.pipeline import run_pipeline
 from tests.conftest import RIGS
 from tests.mvviz.conftest import NUM_FRAMES, free_port, wait_until
 

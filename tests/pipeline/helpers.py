@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.synth.motion import root_to_world
 from tests.conftest import REPO

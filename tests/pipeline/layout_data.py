@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.joint_sets import COCO17, SMPL24, JointSet
-from pipeline.scene import load_scene
+from pipeline.data.joint_sets import COCO17, SMPL24, JointSet
+from pipeline.data.scene import load_scene
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "sample_data" / "shelf_synth"

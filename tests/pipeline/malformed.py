@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.config import PipelineConfig, field_spec
+from pipeline.data.joint_sets import COCO17
+from pipeline.data.scene import SCENE_JSON, Detections, GroundTruth, write_scene
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.joint_sets import COCO17
-from pipeline.scene import SCENE_JSON, Detections, GroundTruth, write_scene
 from tests.conftest import CAMPUS_CALIB
 
 NUM_FRAMES = 4

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.associate import AssociationParams, associate_frame
+from pipeline.association.associate import associate_frame
+from pipeline.association.params import AssociationParams
 from tests.pipeline.helpers import observe, shelf_rig, standing_people
 
 # Floor spots inside the Shelf rig's shared view, as in the Shelf dataset.
@@ -98,7 +99,7 @@ def test_threshold_controls_merging():
 
 
 def _mirror(kp: np.ndarray, rows) -> np.ndarray:
-    from pipeline.joint_sets import SMPL24
+    from pipeline.data.joint_sets import SMPL24
 
     kp = kp.copy()
     kp[rows] = kp[rows][:, SMPL24.flip_index]
@@ -108,8 +109,8 @@ def _mirror(kp: np.ndarray, rows) -> np.ndarray:
 def test_mirrored_detections_are_found_and_unmirrored():
     """A detector that labels a person seen from behind as if from the front swaps every
     left and right joint: the cluster finds which of its detections are mirrored."""
-    from pipeline.joint_sets import SMPL24
-    from pipeline.triangulate import triangulate_people
+    from pipeline.data.joint_sets import SMPL24
+    from pipeline.stages.triangulate import triangulate_people
 
     rig = shelf_rig()
     joints = standing_people(SPOTS[:3], np.array([0.3, 2.0, -1.0]))
@@ -135,7 +136,7 @@ def test_mirrored_detections_are_found_and_unmirrored():
 
 
 def test_one_person_split_in_two_clusters_is_merged():
-    from pipeline.associate import merge_duplicates
+    from pipeline.association.associate import merge_duplicates
 
     rig = shelf_rig()
     joints = standing_people(np.array([[0.0, 0.0], [700.0, 0.0]]), np.array([0.3, 0.3]))
@@ -146,7 +147,7 @@ def test_one_person_split_in_two_clusters_is_merged():
     # one place, one person. Person 1, 700 mm away, stays apart.
     cluster = np.where(person == 0, 0, 10)
     cluster[rows0[len(rows0) // 2 :]] = 1
-    from pipeline.associate import detection_rays
+    from pipeline.association.associate import detection_rays
 
     rays = detection_rays(rig, views, kp, min_confidence=0.1)
     merged = merge_duplicates(*rays, views, cluster, AssociationParams())

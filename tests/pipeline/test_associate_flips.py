@@ -1,11 +1,11 @@
-"""The left/right resolution's pair selection (pipeline/associate_flips.py) against the
+"""The left/right resolution's pair selection (pipeline/association/flips.py) against the
 dense (n, n) form it replaced (flips themselves: tests/pipeline/test_associate.py and
 test_pose2sim_demo.py)."""
 
 import numpy as np
 import pytest
 
-from pipeline.associate_flips import _cluster_pairs
+from pipeline.association.flips import _cluster_pairs
 
 
 @pytest.mark.parametrize(

@@ -1,10 +1,10 @@
-"""The association's geometric checks (pipeline/associate_refine.py): the fast forms
+"""The association's geometric checks (pipeline/association/refine.py): the fast forms
 used every frame against the plain NumPy they replace."""
 
 import numpy as np
 import pytest
 
-from pipeline.associate_refine import (
+from pipeline.association.refine import (
     CentreRays,
     _ray_point_distance,
     cluster_centers,
@@ -105,11 +105,11 @@ def _move_state(rng, n: int, C: int, V: int, geometric: bool):
 
 @pytest.mark.parametrize("geometric", [False, True])
 def test_compiled_best_move_is_numpys(geometric):
-    """pipeline.ray_fused.best_move against the NumPy step it replaces on big frames:
+    """pipeline.association.fused.best_move against the NumPy step it replaces on big frames:
     the same (detection, cluster, gain) on random states with ties, with and without the
     centre-ray test, and with min_views making some moves strand their clusters."""
-    from pipeline.associate_refine import _best_move
-    from pipeline.ray_fused import best_move
+    from pipeline.association.fused import best_move
+    from pipeline.association.refine import _best_move
 
     rng = np.random.default_rng(7)
     kinds = set()
@@ -127,9 +127,9 @@ def test_compiled_best_move_is_numpys(geometric):
 def test_refine_takes_the_same_moves_compiled_and_not(monkeypatch):
     """refine_clusters on a frame big enough for the compiled move, both ways: the same
     labels after real moves (clusters cut in halves and misplaced detections)."""
-    import pipeline.ray_affinity as ray_affinity
-    from pipeline.associate import AssociationParams
-    from pipeline.associate_refine import refine_clusters
+    import pipeline.association.affinity as ray_affinity
+    from pipeline.association.params import AssociationParams
+    from pipeline.association.refine import refine_clusters
     from tests.pipeline.test_ray_affinity import _detections
 
     rng = np.random.default_rng(3)

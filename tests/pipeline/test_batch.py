@@ -19,13 +19,14 @@ from pipeline.batch.jobs import (
     worst_moments,
 )
 from pipeline.batch.sweep import parse_sweep, setting_slug, sweep_grid
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.scene import load_scene
+from pipeline.evaluation.evaluate import evaluate
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.results import PipelineResults, run_pipeline, save_results
-from pipeline.scene import load_scene
+from pipeline.results.store import PipelineResults, save_results
+from pipeline.run.pipeline import run_pipeline
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.conftest import CAMPUS_CALIB
 

@@ -18,20 +18,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.cameras import CameraRig, save_cameras
-from pipeline.detect import blazepose as bp
-from pipeline.detect import video as vid
-from pipeline.files import SceneFormatError
-from pipeline.joint_sets import (
+from pipeline.core.files import SceneFormatError
+from pipeline.data.cameras import CameraRig, save_cameras
+from pipeline.data.joint_sets import (
     BLAZEPOSE33,
     COCO17,
     SMPL24,
     blazepose33_to_smpl24_matrix,
     convert_keypoints,
 )
-from pipeline.restore import restore_mono_joints_2d, weak_perspective_project
-from pipeline.run import restored_joints
-from pipeline.scene import check_detections, load_scene
+from pipeline.data.scene import check_detections, load_scene
+from pipeline.detect import blazepose as bp
+from pipeline.detect import video as vid
+from pipeline.run.frames import restored_joints
+from pipeline.stages.restore import restore_mono_joints_2d, weak_perspective_project
 from tests.pipeline.helpers import shelf_rig
 
 REPO = Path(__file__).resolve().parents[2]

@@ -1,4 +1,4 @@
-"""The numpy side of the body model (pipeline/body_arrays.py) agrees with the torch model
+"""The numpy side of the body model (pipeline/body/arrays.py) agrees with the torch model
 it feeds (the viewer skins with it; the fit runs the torch one)."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body_arrays import load_body_model_data
-from pipeline.body_model import BodyModel, rigid_chain, torch_body_model
-from pipeline.rotations import axis_angle_to_matrix
+from pipeline.body.arrays import load_body_model_data
+from pipeline.body.model import BodyModel, rigid_chain, torch_body_model
+from pipeline.core.rotations import axis_angle_to_matrix
 
 
 def test_numpy_forward_kinematics_and_shape_match_torch():

@@ -1,4 +1,4 @@
-"""pipeline.body_keypoints: the table is complete, its landmarks land where anatomy puts
+"""pipeline.body.keypoints: the table is complete, its landmarks land where anatomy puts
 them (rest and posed), every layout's virtual vertices equal the table on the full LBS
 mesh, the free-joint and torso rules reproduce the COCO-17 / SMPL-24 choices, and every
 layout's fit recovers the body."""
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body_keypoints import (
+from pipeline.body.keypoints import (
     FITTABLE_JOINT_SETS,
     SMPL_VERTEX_IDS,
     keypoint_regressor,
@@ -17,12 +17,12 @@ from pipeline.body_keypoints import (
     layout_keypoints,
     layout_ties,
 )
-from pipeline.body_model import BodyModel, load_body_model, rigid_chain
-from pipeline.joint_sets import JOINT_SETS, SMPL24, get_joint_set
-from pipeline.rotations import axis_angle_to_matrix
-from pipeline.scene import load_scene
-from pipeline.smpl_fit import FitParams, fit_sequence
-from pipeline.smpl_kinematics import keypoint_buffers, predict_targets
+from pipeline.body.kinematics import keypoint_buffers, predict_targets
+from pipeline.body.model import BodyModel, load_body_model, rigid_chain
+from pipeline.core.rotations import axis_angle_to_matrix
+from pipeline.data.joint_sets import JOINT_SETS, SMPL24, get_joint_set
+from pipeline.data.scene import load_scene
+from pipeline.fit.smpl import FitParams, fit_sequence
 from tests.conftest import REPO, tiny_body_model_arrays
 
 LAYOUTS = ("body25", "body25b", "halpe26", "coco23", "coco_wholebody133", "blazepose33")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body_model import (
+from pipeline.body.model import (
     DEFAULT_MODEL_PATH,
     BodyModel,
     forward_kinematics,
@@ -18,9 +18,9 @@ from pipeline.body_model import (
     load_body_model,
     load_body_model_arrays,
 )
-from pipeline.files import SceneFormatError
-from pipeline.joint_sets import SMPL24
-from pipeline.rotations import axis_angle_to_matrix
+from pipeline.core.files import SceneFormatError
+from pipeline.core.rotations import axis_angle_to_matrix
+from pipeline.data.joint_sets import SMPL24
 
 torch.manual_seed(0)
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
 from pipeline.importers.bvh import (
     Y_UP_TO_WORLD,
     axis_rotation,

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from pipeline.config import PipelineConfig, load_config, save_config
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
 
 
 def test_round_trip(tmp_path):

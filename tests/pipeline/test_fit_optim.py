@@ -1,4 +1,4 @@
-"""pipeline.fit_optim: the fit's Adam steps are torch.optim.Adam's, bit for bit, and
+"""pipeline.fit.optim: the fit's Adam steps are torch.optim.Adam's, bit for bit, and
 fitting imports no torch._dynamo."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from pipeline.fit_optim import adam_cosine, cosine
+from pipeline.fit.optim import adam_cosine, cosine
 
 
 def _problem(seed: int):
@@ -79,7 +79,7 @@ def test_fitting_does_not_import_torch_dynamo():
     code = (
         "import sys\n"
         "from tests.pipeline.test_fit_optim import _loss, _problem\n"
-        "from pipeline.fit_optim import adam_cosine\n"
+        "from pipeline.fit.optim import adam_cosine\n"
         "groups, args = _problem(0)\n"
         "adam_cosine(groups, _loss(*args), 3, progress=False, desc='t')\n"
         "print('torch._dynamo' in sys.modules)\n"

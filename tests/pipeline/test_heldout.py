@@ -1,4 +1,4 @@
-"""The held-out protocol (pipeline/heldout.py) and the safety of the prior's correction
+"""The held-out protocol (pipeline/prior/heldout.py) and the safety of the prior's correction
 on motion the prior has not seen (issue 19)."""
 
 from __future__ import annotations
@@ -8,15 +8,20 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate
-from pipeline.heldout import check_activity_held_out, check_disjoint, scene_frames, training_frames
+from pipeline.data.scene import load_scene
+from pipeline.evaluation.evaluate import evaluate
+from pipeline.fit.prior import load_prior, save_prior
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.pose_prior import load_prior, save_prior
-from pipeline.prior_sources import sources_for, train_on
-from pipeline.results import run_or_load
-from pipeline.scene import load_scene
+from pipeline.prior.heldout import (
+    check_activity_held_out,
+    check_disjoint,
+    scene_frames,
+    training_frames,
+)
+from pipeline.prior.sources import sources_for, train_on
+from pipeline.run.pipeline import run_or_load
 from pipeline.synth.mocap_scene import MocapSceneConfig, write_mocap_scene
 from tests.conftest import REPO
 

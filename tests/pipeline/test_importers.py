@@ -17,8 +17,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from pipeline.cameras import CameraRig, make_camera
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.cameras import CameraRig, make_camera
+from pipeline.data.joint_sets import BODY25, COCO17
+from pipeline.data.scene import load_scene
 from pipeline.importers import (
     CALIBRATION_FORMATS,
     OPENPOSE_COCO18,
@@ -34,8 +36,6 @@ from pipeline.importers import (
     write_voxelpose_calibration,
 )
 from pipeline.importers.detections import frame_index
-from pipeline.joint_sets import BODY25, COCO17
-from pipeline.scene import load_scene
 from tests.conftest import SHELF_REAL
 
 # the real Shelf/Campus rigs, shipped byte-identical to ../shared/data/calibration

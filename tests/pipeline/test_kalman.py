@@ -1,4 +1,5 @@
-"""Tests for pipeline.kalman: agreement with filterpy, accuracy on synthetic walks, edge cases."""
+"""Tests for pipeline.stages.kalman: agreement with filterpy, accuracy on synthetic walks,
+edge cases."""
 
 from __future__ import annotations
 
@@ -9,7 +10,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.kalman import FilterResult, KalmanParams, kalman_filter, kalman_filter_filterpy
+from pipeline.stages.kalman import (
+    FilterResult,
+    KalmanParams,
+    kalman_filter,
+    kalman_filter_filterpy,
+)
 
 FPS = 25.0
 MEAN_FIELDS = ("filtered", "forward", "prior_mean", "innovation", "velocity")

@@ -1,6 +1,6 @@
 """SIGKILL at random points of the project's writers, repeated: afterwards the old or the
 new output is in place and complete, and no temporary file outlives the next run
-(pipeline/files.py). Small data, a few repetitions: about half a minute."""
+(pipeline/core/files.py). Small data, a few repetitions: about half a minute."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.files import load_npz, recover, save_npz_atomic
-from pipeline.scene import load_scene
+from pipeline.core.files import load_npz, recover, save_npz_atomic
+from pipeline.data.scene import load_scene
 from tests.conftest import REPO
 
 # A writer that loops forever: "results" rewrites one npz file (what mvviz run does),
@@ -24,10 +24,10 @@ from tests.conftest import REPO
 WRITER = r"""
 import sys, numpy as np
 from pathlib import Path
-from pipeline.files import save_npz_atomic
+from pipeline.core.files import save_npz_atomic
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.joint_sets import COCO17
-from pipeline.scene import Detections, write_scene
+from pipeline.data.joint_sets import COCO17
+from pipeline.data.scene import Detections, write_scene
 
 kind, out = sys.argv[1], Path(sys.argv[2])
 rig = read_voxelpose_calibration("sample_data/rigs/campus_voxelpose.json")

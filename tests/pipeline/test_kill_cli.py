@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.results import load_results
-from pipeline.scene import load_scene
+from pipeline.data.scene import load_scene
+from pipeline.results.store import load_results
 from tests.conftest import REPO
 from tests.pipeline.layout_data import layout_detections, write_openpose_tree
 
@@ -61,7 +61,7 @@ def test_killed_mvviz_run_leaves_old_or_new_results(tmp_path):
 
 @pytest.fixture(scope="module")
 def openpose_dir(tmp_path_factory):
-    from pipeline.joint_sets import BODY25B
+    from pipeline.data.joint_sets import BODY25B
 
     root = tmp_path_factory.mktemp("op") / "op"
     write_openpose_tree(root, layout_detections(BODY25B, frames=slice(0, 250, 2)), list("01234"))

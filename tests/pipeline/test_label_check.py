@@ -12,11 +12,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.body_measures import hinge_angles
-from pipeline.body_model import load_body_model
+from pipeline.body.measures import hinge_angles
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate, format_table
-from pipeline.joint_sets import (
+from pipeline.data.joint_sets import (
     BODY25,
     BODY25B,
     COCO17,
@@ -25,7 +24,9 @@ from pipeline.joint_sets import (
     convert_keypoints,
     get_joint_set,
 )
-from pipeline.label_check import (
+from pipeline.data.scene import load_scene
+from pipeline.evaluation.evaluate import evaluate, format_table
+from pipeline.evaluation.label_check import (
     KINDS,
     LabelCheckParams,
     ViewObservations,
@@ -34,15 +35,14 @@ from pipeline.label_check import (
     check_results,
     view_observations,
 )
-from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
+from pipeline.run.pipeline import run_pipeline
 from tests.conftest import REPO
 
 SCENES = ("shelf_synth", "shelf_synth_noisy", "pose2sim_demo", "pose2sim_balancing")
 NO_FIT = dataclasses.replace(PipelineConfig(), fit_smpl=False)
 P = LabelCheckParams()
 
-# The worst track of each correct scene, measured (see pipeline/label_check.py).
+# The worst track of each correct scene, measured (see pipeline/evaluation/label_check.py).
 MEASURED = {  # joints triangulated from >= 3 views (LabelCheckParams.min_views); the
     # association un-mirrors left/right-swapped detections (pose2sim_demo: 36 of them)
     "shelf_synth": dict(

@@ -14,12 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate
-from pipeline.joint_sets import get_joint_set
-from pipeline.results import FIT_JOINT_SETS, run_pipeline
-from pipeline.scene import load_scene
+from pipeline.data.joint_sets import get_joint_set
+from pipeline.data.scene import load_scene
+from pipeline.evaluation.evaluate import evaluate
+from pipeline.results.store import FIT_JOINT_SETS
+from pipeline.run.pipeline import run_pipeline
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.pipeline.helpers import shelf_rig
 

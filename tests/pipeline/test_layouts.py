@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.joint_sets import BODY25, BODY25B, COCO17, JOINT_SETS, convert_keypoints
+from pipeline.data.scene import load_scene
 from pipeline.importers import (
     SOURCE_LAYOUTS,
     convert_scene,
@@ -18,8 +20,6 @@ from pipeline.importers import (
     read_mmpose_predictions,
     read_openpose_folders,
 )
-from pipeline.joint_sets import BODY25, BODY25B, COCO17, JOINT_SETS, convert_keypoints
-from pipeline.scene import load_scene
 from tests.pipeline.layout_data import SAMPLE, layout_detections, write_openpose_tree
 
 # Cameras without a detection folder are a warning these tests provoke on purpose.

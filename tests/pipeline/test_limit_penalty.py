@@ -4,8 +4,9 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline import limit_penalty, pose_limits
-from pipeline.smpl_kinematics import rotvec_to_matrix
+from pipeline.body import limits as pose_limits
+from pipeline.body.kinematics import rotvec_to_matrix
+from pipeline.fit import limit_penalty
 
 
 @settings(max_examples=20, deadline=None)

@@ -16,12 +16,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mvviz.cli import main
-from pipeline.cameras import load_cameras
 from pipeline.config import PipelineConfig
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.cameras import load_cameras
+from pipeline.data.scene import check_detections, check_ground_truth, load_scene
+from pipeline.fit.prior import load_prior
 from pipeline.importers.detections import read_mmpose_predictions, read_openpose_folders
-from pipeline.pose_prior import load_prior
-from pipeline.scene import check_detections, check_ground_truth, load_scene
 from tests.conftest import CAMPUS_CALIB
 from tests.pipeline.malformed import copy_scene, scene_cases, write_tiny_scene
 

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.joint_sets import SMPL24, coco17_smpl24_pairs
-from pipeline.metrics import (
+from pipeline.data.joint_sets import SMPL24, coco17_smpl24_pairs
+from pipeline.evaluation.metrics import (
     PCP_LIMB_GROUPS,
     PCP_LIMBS,
     SMPL24_COCO_JOINTS,

@@ -1,4 +1,4 @@
-"""pipeline.mocap: CMU name maps, resampling, derived face points, the SMPL fit to real
+"""pipeline.mocap.clips: CMU name maps, resampling, derived face points, the SMPL fit to real
 motion (its residual is the measurement), and BVH data for the pose prior."""
 
 from __future__ import annotations
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from mvviz.cli import main
-from pipeline.joint_sets import COCO17, SMPL24
-from pipeline.mocap import (
+from pipeline.data.joint_sets import COCO17, SMPL24
+from pipeline.fit.prior import load_prior
+from pipeline.mocap.clips import (
     CMU_TO_COCO17,
     CMU_TO_SMPL24,
     FitParams,
@@ -20,7 +21,7 @@ from pipeline.mocap import (
     load_mocap_clip,
     resample,
 )
-from pipeline.pose_prior import load_pose_data, load_prior
+from pipeline.prior.training import load_pose_data
 
 CMU = Path(__file__).resolve().parents[2] / "sample_data" / "mocap" / "cmu131"
 

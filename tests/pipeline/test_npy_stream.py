@@ -1,4 +1,4 @@
-"""``.npy`` files written a piece at a time (pipeline/npy_stream.py)."""
+"""``.npy`` files written a piece at a time (pipeline/core/npy_stream.py)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from pipeline.npy_stream import (
+from pipeline.core.npy_stream import (
     NpyRowAppender,
     _mapping,
     is_mapped,

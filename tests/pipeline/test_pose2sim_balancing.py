@@ -8,12 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.body_model import load_body_model
-from pipeline.compare import per_joint_median_mm, reprojection_errors, subject_observations
+from bench.peer_compare import per_joint_median_mm, reprojection_errors, subject_observations
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
-from pipeline.smpl_fit import FitParams, fit_sequence
+from pipeline.data.scene import load_scene
+from pipeline.fit.smpl import FitParams, fit_sequence
+from pipeline.run.pipeline import run_pipeline
 from tests.conftest import REPO
 
 TRIAL = REPO / "sample_data" / "pose2sim_balancing"

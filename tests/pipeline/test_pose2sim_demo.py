@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate
-from pipeline.joint_sets import COCO17
-from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
-from pipeline.track import bone_lengths
+from pipeline.data.joint_sets import COCO17
+from pipeline.data.scene import load_scene
+from pipeline.evaluation.evaluate import evaluate
+from pipeline.run.pipeline import run_pipeline
+from pipeline.stages.track import bone_lengths
 from tests.conftest import REPO
 
 DEMO = REPO / "sample_data" / "pose2sim_demo"
@@ -52,7 +52,7 @@ def test_both_people_are_tracked_over_the_whole_clip(demo):
 
 def test_mirrored_detections_are_unmirrored(demo):
     scene, r = demo
-    from pipeline.run import frame_rows, run_frame
+    from pipeline.run.frames import frame_rows, run_frame
 
     rows = frame_rows(scene)
     flipped = [

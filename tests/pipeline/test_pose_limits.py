@@ -1,4 +1,4 @@
-"""pipeline.pose_limits: swing-twist round trip, limits against synthetic motion and
+"""pipeline.body.limits: swing-twist round trip, limits against synthetic motion and
 anatomy, skeleton plausibility measures."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from pipeline import pose_limits
-from pipeline.joint_sets import SMPL24
+from pipeline.body import limits as pose_limits
+from pipeline.data.joint_sets import SMPL24
 from pipeline.synth.motion import HIGH, LOW, pose_from_params, sample_pose_library
 
 J = SMPL24.index
@@ -108,7 +108,7 @@ def rigid_walk(num_frames: int = 30) -> np.ndarray:
     """(1, F, 24, 3) a rigid T-pose skeleton translating at constant speed, mm."""
     import torch  # noqa: PLC0415
 
-    from pipeline.body_model import load_body_model  # noqa: PLC0415
+    from pipeline.body.model import load_body_model  # noqa: PLC0415
 
     rest = 1000 * load_body_model().rest_joints(torch.zeros(1, 10))[0].numpy()
     t = np.arange(num_frames)[:, None, None]
@@ -127,7 +127,7 @@ def test_bone_length_std_and_jitter_of_a_rigid_skeleton_are_zero():
 def test_hinge_flexion_signs_knees():
     import torch  # noqa: PLC0415
 
-    from pipeline.body_model import load_body_model  # noqa: PLC0415
+    from pipeline.body.model import load_body_model  # noqa: PLC0415
 
     model = load_body_model()
     pose = torch.zeros(2, 24, 3)

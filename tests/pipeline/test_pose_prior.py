@@ -1,4 +1,4 @@
-"""pipeline.pose_prior: the shipped VAE against held-out poses and a broken wrist;
+"""pipeline.fit.prior: the shipped VAE against held-out poses and a broken wrist;
 training, checkpoints (weights_only), AMASS-style data and the train-prior command."""
 
 from __future__ import annotations
@@ -9,16 +9,9 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from mvviz.cli import main
-from pipeline import pose_limits
-from pipeline.pose_prior import (
-    BODY_JOINTS,
-    DEFAULT_PRIOR_PATH,
-    load_pose_data,
-    load_prior,
-    perturb_poses,
-    save_prior,
-    train_prior,
-)
+from pipeline.body import limits as pose_limits
+from pipeline.fit.prior import BODY_JOINTS, DEFAULT_PRIOR_PATH, load_prior, save_prior
+from pipeline.prior.training import load_pose_data, perturb_poses, train_prior
 from pipeline.synth.motion import sample_pose_library
 
 BODY = list(BODY_JOINTS)
@@ -133,9 +126,10 @@ def test_the_fit_side_loads_no_training_modules():
 
     code = (
         "import sys\n"
-        "from pipeline.pose_prior import load_prior\n"
+        "from pipeline.fit.prior import load_prior\n"
         "load_prior(None)\n"
-        "print(sorted(m for m in sys.modules if m in ('pipeline.mocap', 'pipeline.synth.motion')"
+        "print(sorted(m for m in sys.modules"
+        " if m in ('pipeline.mocap.clips', 'pipeline.synth.motion')"
         " or m.startswith('pipeline.importers')))\n"
     )
     out = subprocess.run(

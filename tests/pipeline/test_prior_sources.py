@@ -1,6 +1,6 @@
-"""pipeline.prior_sources (what the prior learns from, held-out mixes), the body-model
-clips of pipeline.mocap.clip_from_body, and the prior's in-distribution weight
-(pipeline.prior_correction.in_distribution), issue 19."""
+"""pipeline.prior.sources (what the prior learns from, held-out mixes), the body-model
+clips of pipeline.mocap.clips.clip_from_body, and the prior's in-distribution weight
+(pipeline.fit.prior_correction.in_distribution), issue 19."""
 
 from __future__ import annotations
 
@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import pose_limits
-from pipeline.body_model import load_body_model
-from pipeline.heldout import check_activity_held_out, source_activities, training_frames
-from pipeline.mocap import clip_from_body
-from pipeline.pose_prior import load_prior
-from pipeline.prior_correction import in_distribution
-from pipeline.prior_sources import (
+from pipeline.body import limits as pose_limits
+from pipeline.body.kinematics import rotvec_to_matrix
+from pipeline.body.model import load_body_model
+from pipeline.fit.prior import load_prior
+from pipeline.fit.prior_correction import in_distribution
+from pipeline.mocap.clips import clip_from_body
+from pipeline.prior.heldout import check_activity_held_out, source_activities, training_frames
+from pipeline.prior.sources import (
     BALANCING_POSES,
     DEMO_POSES,
     balancing_source,
@@ -23,7 +24,6 @@ from pipeline.prior_sources import (
     mix_poses,
     sources_for,
 )
-from pipeline.smpl_kinematics import rotvec_to_matrix
 from pipeline.synth.motion import LIBRARY_ACTIVITIES, sample_pose_library
 
 

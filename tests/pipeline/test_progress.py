@@ -5,7 +5,7 @@ from __future__ import annotations
 import io
 import sys
 
-from pipeline.progress import LatestProgress, StageBar, track
+from pipeline.core.progress import LatestProgress, StageBar, track
 
 
 class _Log(io.StringIO):

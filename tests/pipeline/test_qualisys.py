@@ -17,8 +17,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from pipeline.cameras import CameraRig, make_camera
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.cameras import CameraRig, make_camera
+from pipeline.data.scene import load_scene
 from pipeline.importers import (
     CALIBRATION_FORMATS,
     convert_scene,
@@ -28,7 +29,6 @@ from pipeline.importers import (
     write_qualisys_calibration,
 )
 from pipeline.importers.qualisys import resize_camera
-from pipeline.scene import load_scene
 
 DEMO = Path(__file__).resolve().parents[2] / "sample_data" / "pose2sim_demo"
 

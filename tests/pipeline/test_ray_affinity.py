@@ -1,4 +1,4 @@
-"""The association's kernels (pipeline.ray_affinity) against the loops they replace."""
+"""The association's kernels (pipeline.association.affinity) against the loops they replace."""
 
 from __future__ import annotations
 
@@ -8,13 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.associate import (
-    AssociationParams,
-    average_linkage_reference,
-    ray_distances_reference,
-)
-from pipeline.cameras import CameraRig
-from pipeline.ray_affinity import (
+from pipeline.association.affinity import (
     average_linkage,
     pair_ray_distances,
     pair_ray_distances_unchunked,
@@ -24,9 +18,12 @@ from pipeline.ray_affinity import (
     screen_distances,
     screen_distances_unblocked,
     screened_distances,
-    shared_joints,
 )
-from pipeline.scene import load_scene
+from pipeline.association.associate import average_linkage_reference, ray_distances_reference
+from pipeline.association.pairs import shared_joints
+from pipeline.association.params import AssociationParams
+from pipeline.data.cameras import CameraRig
+from pipeline.data.scene import load_scene
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -96,7 +93,7 @@ def test_pair_kernel_equals_the_dense_one(seed):
 
 
 def test_blocked_pair_kernel_equals_the_unchunked_one(monkeypatch):
-    import pipeline.ray_pairs as ray_pairs
+    import pipeline.association.pairs as ray_pairs
 
     o, d, w, views = _detections(np.random.default_rng(4), n_people=8, n_views=10)
     o[views == 3] = o[views == 2][0]  # two views from one camera centre: the clip
@@ -119,7 +116,7 @@ def test_blocked_pair_kernel_equals_the_unchunked_one(monkeypatch):
 
 
 def test_blocked_screen_equals_the_unblocked_one(monkeypatch):
-    import pipeline.ray_pairs as ray_pairs
+    import pipeline.association.pairs as ray_pairs
 
     o, d, w, views = _detections(np.random.default_rng(5), n_people=8, n_views=10)
     d[7], w[7] = np.nan, 0.0  # no part at all: NaN

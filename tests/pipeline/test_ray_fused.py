@@ -1,5 +1,5 @@
-"""The compiled screen and kernel (pipeline.ray_fused) against the NumPy path it replaces
-on big frames (pipeline.ray_affinity.screened_distances with COMPILED_MIN_DETECTIONS out
+"""The compiled screen and kernel (pipeline.association.fused) against the NumPy path it replaces
+on big frames (pipeline.association.affinity.screened_distances with COMPILED_MIN_DETECTIONS out
 of reach)."""
 
 from __future__ import annotations
@@ -10,16 +10,17 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import pipeline.ray_affinity as ray_affinity
-from pipeline.associate import AssociationParams, average_linkage_reference
-from pipeline.ray_affinity import (
+import pipeline.association.affinity as ray_affinity
+from pipeline.association.affinity import (
     average_linkage,
     linkage_distances_reference,
     part_groups,
     ray_distances,
     screen_distances,
 )
-from pipeline.ray_fused import fused_screened_distances, linkage_distances
+from pipeline.association.associate import average_linkage_reference
+from pipeline.association.fused import fused_screened_distances, linkage_distances
+from pipeline.association.params import AssociationParams
 from tests.pipeline.test_ray_affinity import _detections
 
 FLIP = np.array([0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15])  # COCO-17's
@@ -125,7 +126,7 @@ def test_rows_of_pairs_equal_one_pair_at_a_time_to_the_bit(seed):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_compiled_linkage_distances_equal_numpys_and_cluster_as_the_loop(seed):
-    """pipeline.ray_fused.linkage_distances against the NumPy steps it replaces, to the
+    """pipeline.association.fused.linkage_distances against the NumPy steps it replaces, to the
     bit (unknown affinities, same-view pairs, an affinity matrix not quite symmetric),
     and average_linkage on a frame big enough to take it against the greedy loop."""
     o, d, w, views = _detections(np.random.default_rng(seed), n_people=6, n_views=9)
@@ -147,7 +148,7 @@ def test_compiled_linkage_distances_equal_numpys_and_cluster_as_the_loop(seed):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_compiled_frame_affinity_equals_numpys_steps(monkeypatch, seed):
-    """pipeline.ray_fused.frame_affinity (one pass: the better distance, the affinity and
+    """pipeline.association.fused.frame_affinity (one pass: the better distance, the affinity and
     the linkage's condensed distances) against np.fmin, the affinity formula and
     linkage_distances_reference, to the bit, on a frame's real screened distances (NaN on
     the diagonal and for same-view pairs, mirrored NaN where the screen pruned) with

@@ -1,5 +1,6 @@
-"""Reference tracks in the native scene format (pipeline/references.py, pipeline/scene.py):
-round trips, frame-count policy, errors naming file and field, and attaching a TRC."""
+"""Reference tracks in the native scene format (pipeline/data/references.py,
+pipeline/data/scene.py): round trips, frame-count policy, errors naming file and field, and
+attaching a TRC."""
 
 from __future__ import annotations
 
@@ -9,8 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cameras import Camera, CameraRig
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.cameras import Camera, CameraRig
+from pipeline.data.joint_sets import BODY25B, COCO17
+from pipeline.data.references import ReferenceTrack, fit_frames
+from pipeline.data.scene import Detections, add_reference, load_scene, write_scene
 from pipeline.importers import convert_scene
 from pipeline.importers.trc import (
     POSE2SIM_MARKERS,
@@ -18,9 +22,6 @@ from pipeline.importers.trc import (
     world_mm_to_trc,
     write_trc,
 )
-from pipeline.joint_sets import BODY25B, COCO17
-from pipeline.references import ReferenceTrack, add_reference, fit_frames
-from pipeline.scene import Detections, load_scene, write_scene
 
 REPO = Path(__file__).resolve().parents[2]
 BALANCING_TRC = (

@@ -7,8 +7,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.body_model import load_body_model
-from pipeline.restore import (
+from pipeline.body.model import load_body_model
+from pipeline.stages.restore import (
     _fit_weak_perspective_row,
     crop_to_pixels,
     fit_weak_perspective,

@@ -1,4 +1,4 @@
-"""The lazy results layout (pipeline.results_dir through pipeline.results): a round trip
+"""The lazy results layout (pipeline.results.array_dir through pipeline.results.store): a round trip
 equal to the arrays written and to the .npz layout, memory-mapped on open, and an atomic
 replace (a failure mid-write leaves the previous results whole)."""
 
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from pipeline.config import PipelineConfig
-from pipeline.files import SceneFormatError
-from pipeline.results import PipelineResults, load_results, save_results
+from pipeline.core.files import SceneFormatError
+from pipeline.results.store import PipelineResults, load_results, save_results
 
 
 def random_results(seed: int = 0, *, F: int = 12, V: int = 4, J: int = 17) -> PipelineResults:
@@ -152,10 +152,11 @@ def test_a_long_scene_defaults_to_a_streamed_results_directory(tmp_path, monkeyp
     import shutil
     from pathlib import Path
 
-    import pipeline.results as results_mod
-    from pipeline.body_arrays import load_body_model_data
-    from pipeline.results import default_results_path, run_or_load
-    from pipeline.scene import load_scene
+    import pipeline.results.store as results_mod
+    from pipeline.body.arrays import load_body_model_data
+    from pipeline.data.scene import load_scene
+    from pipeline.results.store import default_results_path
+    from pipeline.run.pipeline import run_or_load
 
     src = Path(__file__).resolve().parents[2] / "sample_data" / "shelf_synth"
     shutil.copytree(src, tmp_path / "s", ignore=shutil.ignore_patterns(".mvviz"))

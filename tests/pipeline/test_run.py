@@ -8,14 +8,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate
-from pipeline.results import load_results, run_or_load, run_pipeline, save_results
-from pipeline.run import FRAMES_STAGE, run_frame, run_frames
-from pipeline.scene import Detections, Scene, load_scene
+from pipeline.data.scene import Detections, Scene, load_scene
+from pipeline.evaluation.evaluate import evaluate
+from pipeline.results.store import load_results, save_results
+from pipeline.run.frames import FRAMES_STAGE, run_frame, run_frames
+from pipeline.run.pipeline import run_or_load, run_pipeline
+from pipeline.stages.triangulate import triangulate_people
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
-from pipeline.triangulate import triangulate_people
 from tests.conftest import REPO
 from tests.pipeline.helpers import campus_rig
 

@@ -9,14 +9,15 @@ import sys
 import numpy as np
 import pytest
 
-import pipeline.ray_affinity as ray_affinity
-from pipeline.associate import AssociationParams, _average_linkage, refine_clusters
-from pipeline.body_model import load_body_model
+import pipeline.association.affinity as ray_affinity
+from pipeline.association.associate import _average_linkage, refine_clusters
+from pipeline.association.params import AssociationParams
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate
-from pipeline.results import pack_run
-from pipeline.run import run_frames, select_2d
-from pipeline.scene import Scene, load_scene
+from pipeline.data.scene import Scene, load_scene
+from pipeline.evaluation.evaluate import evaluate
+from pipeline.run.frames import run_frames, select_2d
+from pipeline.run.pipeline import pack_run
 from pipeline.synth.rigs import dome_capture_radius, dome_rig
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tools.make_ring_rig import ring_rig
@@ -144,7 +145,7 @@ def test_wide_ring_needs_the_geometric_checks(scale_scenes):
 
 @pytest.mark.parametrize("name", list(SCENES))
 def test_compiled_pass_gives_the_numpy_clusters_on_big_rigs(scale_scenes, monkeypatch, name):
-    """pipeline.ray_fused on every frame against the NumPy screen and kernel on every
+    """pipeline.association.fused on every frame against the NumPy screen and kernel on every
     frame: the same people, the same mirrored detections, distances within float32's."""
     scene = scale_scenes[name]
     config = PipelineConfig(fit_smpl=False, use_pose_prior=False)

@@ -8,9 +8,9 @@ import shutil
 import numpy as np
 import pytest
 
-from pipeline.files import SceneFormatError
-from pipeline.joint_sets import COCO17
-from pipeline.scene import Detections, load_scene, write_scene
+from pipeline.core.files import SceneFormatError
+from pipeline.data.joint_sets import COCO17
+from pipeline.data.scene import Detections, load_scene, write_scene
 from tests.pipeline.helpers import campus_rig
 
 
@@ -147,7 +147,7 @@ def test_overwrite_replaces_whole_scene(tmp_path):
 def test_monocular_columns_are_checked_in_blocks_naming_the_field(tmp_path, monkeypatch, layout):
     """The SMPL columns are checked a block of rows at a time (a long scene's stay mapped);
     a bad row in a later block is still refused, naming the field, and nothing is written."""
-    import pipeline.scene as scene_mod
+    import pipeline.data.scene as scene_mod
 
     monkeypatch.setattr(scene_mod, "CHECK_ROWS", 3)
     n = 8

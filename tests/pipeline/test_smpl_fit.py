@@ -1,4 +1,4 @@
-"""pipeline.smpl_fit: exact keypoint skinning, SMPL forward -> fit round trips on the
+"""pipeline.fit.smpl: exact keypoint skinning, SMPL forward -> fit round trips on the
 sample scene's ground truth (SMPL-24 and COCO-17 targets), missing data, the prior stage."""
 
 from __future__ import annotations
@@ -9,18 +9,18 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body_model import BodyModel, load_body_model
-from pipeline.evaluate import ground_truth_slots, gt_per_frame, stage_metrics
-from pipeline.joint_sets import SMPL24, get_joint_set
-from pipeline.rotations import axis_angle_to_matrix
-from pipeline.scene import load_scene
-from pipeline.smpl_fit import FitParams, SmplFit, fit_sequence, plausibility, target_slots
-from pipeline.smpl_kinematics import (
+from pipeline.body.kinematics import (
     keypoint_buffers,
     matrix_to_rot6d,
     predict_targets,
     rot6d_to_matrix,
 )
+from pipeline.body.model import BodyModel, load_body_model
+from pipeline.core.rotations import axis_angle_to_matrix
+from pipeline.data.joint_sets import SMPL24, get_joint_set
+from pipeline.data.scene import load_scene
+from pipeline.evaluation.evaluate import ground_truth_slots, gt_per_frame, stage_metrics
+from pipeline.fit.smpl import FitParams, SmplFit, fit_sequence, plausibility, target_slots
 from tests.conftest import REPO, tiny_body_model_arrays
 
 SCENE = REPO / "sample_data" / "shelf_synth"
@@ -196,7 +196,7 @@ def test_bad_input_raises(model):
 def test_prior_correction_makes_noisy_fits_plausible(model, gt):
     # Noisy targets (25 mm per axis): step I bends joints past their limits to follow the
     # noise; the VAE-corrected fit has no more violations and is not less accurate.
-    from pipeline.pose_prior import load_prior  # noqa: PLC0415
+    from pipeline.fit.prior import load_prior  # noqa: PLC0415
 
     F = 25
     keep = gt.frame < F

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body_model import load_body_model
-from pipeline.evaluate import ground_truth_slots, gt_per_frame, stage_metrics
-from pipeline.scene import load_scene
-from pipeline.smpl_fit import fit_sequence, target_slots
-from pipeline.smpl_fit_chunks import fit_in_chunks
+from pipeline.body.model import load_body_model
+from pipeline.data.scene import load_scene
+from pipeline.evaluation.evaluate import ground_truth_slots, gt_per_frame, stage_metrics
+from pipeline.fit.chunks import fit_in_chunks
+from pipeline.fit.smpl import fit_sequence, target_slots
 from tests.conftest import REPO
 
 SCENE = REPO / "sample_data" / "shelf_synth"
@@ -67,13 +67,13 @@ def test_fit_bodies_fits_a_long_sequence_in_chunks(monkeypatch):
     import dataclasses as dc
     from pathlib import Path
 
-    import pipeline.results as results_mod
-    from pipeline.body_model import load_body_model, torch_body_model
+    import pipeline.results.store as results_mod
+    from pipeline.body.model import load_body_model, torch_body_model
     from pipeline.config import PipelineConfig
-    from pipeline.results import fit_bodies, run_stages
-    from pipeline.run import select_2d
-    from pipeline.scene import load_scene
-    from pipeline.smpl_fit import fit_sequence
+    from pipeline.data.scene import load_scene
+    from pipeline.fit.smpl import fit_sequence
+    from pipeline.run.frames import select_2d
+    from pipeline.run.pipeline import fit_bodies, run_stages
 
     scene = load_scene(Path(__file__).resolve().parents[2] / "sample_data" / "shelf_synth")
     config = dc.replace(PipelineConfig(), use_pose_prior=False)

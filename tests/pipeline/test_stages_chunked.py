@@ -1,4 +1,4 @@
-"""The chunked stages (what ``pipeline.results.run_stages`` runs) give the same results as
+"""The chunked stages (what ``pipeline.run.pipeline.run_stages`` runs) give the same results as
 the stages that keep every frame (``pack_run(run_frames(...))``)."""
 
 from dataclasses import fields
@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from pipeline.config import PipelineConfig
-from pipeline.results import EDGE_FIELDS, PipelineResults, pack_run, run_stages
-from pipeline.run import run_frames, select_2d
-from pipeline.scene import load_scene
-from pipeline.stages_chunked import run_stages_chunked
+from pipeline.data.scene import load_scene
+from pipeline.results.store import EDGE_FIELDS, PipelineResults
+from pipeline.run.chunked import run_stages_chunked
+from pipeline.run.frames import run_frames, select_2d
+from pipeline.run.pipeline import pack_run, run_stages
 
 SCENES = Path(__file__).resolve().parents[2] / "sample_data"
 

@@ -1,4 +1,4 @@
-"""The stages streamed into a results directory (pipeline/stages_streamed.py) write the
+"""The stages streamed into a results directory (pipeline/run/streamed.py) write the
 arrays the in-memory stages give, bit for bit, and read a lazily loaded scene."""
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import pipeline.stages_streamed as streamed
+import pipeline.run.streamed as streamed
 from pipeline.config import PipelineConfig
-from pipeline.files import SceneFormatError
-from pipeline.npy_stream import is_mapped
-from pipeline.results import EDGE_FIELDS, save_results, scene_fingerprint
-from pipeline.run import select_2d
-from pipeline.scene import load_scene, write_scene
-from pipeline.stages_chunked import run_stages_chunked
+from pipeline.core.files import SceneFormatError
+from pipeline.core.npy_stream import is_mapped
+from pipeline.data.scene import load_scene, write_scene
+from pipeline.results.store import EDGE_FIELDS, save_results, scene_fingerprint
+from pipeline.run.chunked import run_stages_chunked
+from pipeline.run.frames import select_2d
 
 SCENES = Path(__file__).resolve().parents[2] / "sample_data"
 
@@ -152,8 +152,8 @@ def test_a_bad_detections_directory_names_the_file_and_field(tmp_path):
 def test_run_or_load_into_a_directory_streams_and_equals_the_saved_run(tmp_path):
     """``mvviz run --out DIR``: the streamed stages plus the SMPL fits write the files
     that saving the in-memory run writes, and a second call loads them (cached)."""
-    from pipeline.body_model import load_body_model
-    from pipeline.results import run_or_load, run_pipeline
+    from pipeline.body.model import load_body_model
+    from pipeline.run.pipeline import run_or_load, run_pipeline
 
     scene = load_scene(SCENES / "shelf_synth")
     config = PipelineConfig()

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.assignment import gated_assignment
-from pipeline.track import TrackingParams, match_to_tracks, track_people
+from pipeline.core.assignment import gated_assignment
+from pipeline.stages.track import TrackingParams, match_to_tracks, track_people
 
 
 def _walkers(num_frames: int, sep_mm: float, seed: int = 0) -> np.ndarray:

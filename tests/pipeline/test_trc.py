@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.joint_sets import BODY25B, get_joint_set
 from pipeline.importers.trc import (
     POSE2SIM_MARKERS,
     read_trc,
@@ -17,7 +18,6 @@ from pipeline.importers.trc import (
     world_mm_to_trc,
     write_trc,
 )
-from pipeline.joint_sets import BODY25B, get_joint_set
 
 REPO = Path(__file__).resolve().parents[2]
 SHIPPED = REPO / "sample_data" / "pose2sim_balancing" / "ref3d"

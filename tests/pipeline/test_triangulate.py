@@ -1,4 +1,5 @@
-"""Tests of pipeline.triangulate: weighted DLT and the per-person stage with outlier rejection.
+"""Tests of pipeline.stages.triangulate: weighted DLT and the per-person stage with outlier
+rejection.
 
 Units: world millimetres, pixels. Noise-free round trips must come back to 1e-6 mm; noisy
 ones are judged against the first-order (linearised) error of the view geometry.
@@ -13,9 +14,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.cameras import Camera, CameraRig, make_camera
+from pipeline.data.cameras import Camera, CameraRig, make_camera
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.triangulate import Triangulation, triangulate_dlt, triangulate_people
+from pipeline.stages.triangulate import Triangulation, triangulate_dlt, triangulate_people
 from tests.conftest import REPO
 
 SHELF = REPO / "sample_data" / "rigs" / "shelf_voxelpose.json"

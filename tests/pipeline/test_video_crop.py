@@ -1,4 +1,4 @@
-"""Videos that do not match the calibration to the pixel (pipeline/video_crop.py): the size
+"""Videos that do not match the calibration to the pixel (pipeline/detect/video_crop.py): the size
 rule, the pixel mapping, frames placed on the calibrated image, and the mapping applied
 where video pixels become detections (mvviz detect) and where the viewer shows frames."""
 
@@ -15,9 +15,9 @@ import pipeline.detect.blazepose as bp
 import pipeline.detect.video as vid
 from mvviz.cli import main
 from mvviz.scene.images import FrameStore
-from pipeline.cameras import Camera, CameraRig, save_cameras
-from pipeline.scene import load_scene
-from pipeline.video_crop import (
+from pipeline.data.cameras import Camera, CameraRig, save_cameras
+from pipeline.data.scene import load_scene
+from pipeline.detect.video_crop import (
     FILL,
     CalibratedFrames,
     VideoSizeError,

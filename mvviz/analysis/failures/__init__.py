@@ -1,7 +1,7 @@
 """Failure review: rank what went wrong in a run, worst first, and keep notes on frames.
 
-Pure functions over a :class:`~pipeline.scene.Scene` and its
-:class:`~pipeline.results.PipelineResults`; the GUI is :mod:`mvviz.panels.failure_panel`.
+Pure functions over a :class:`~pipeline.data.scene.Scene` and its
+:class:`~pipeline.results.store.PipelineResults`; the GUI is :mod:`mvviz.panels.failure_panel`.
 :func:`find_failures` returns :class:`Failure` entries for one criterion: one per
 problem, its consecutive frames merged into a span (``first..last``, the worst frame
 ``frame`` to jump to), naming, where they apply, the track, the joint (an index into the
@@ -26,7 +26,7 @@ criterion                 a problem (``kind``)                                 s
 ``smpl``                  (track, joint) with a fit residual >= 2x that       see below
                           joint's usual; rotation outside its
                           ``pose_limits.LIMITS`` box
-``labels``                finding of :mod:`pipeline.label_check` (scene,      measured /
+``labels``                finding of :mod:`pipeline.evaluation.label_check` (scene,      measured /
                           track or camera)                                     threshold
 ========================  ==================================================  ===========
 

@@ -27,14 +27,15 @@ from mvviz.analysis.failures.entries import (
     usual_level,
     where_label,
 )
-from pipeline import metrics, pose_limits
-from pipeline.evaluate import evaluate, ground_truth_slots, gt_per_frame, to_smpl_slots
-from pipeline.joint_sets import SMPL24, get_joint_set, mapping_indices
-from pipeline.label_check import check_results
-from pipeline.npy_stream import release_pages
-from pipeline.results import PipelineResults
-from pipeline.run import row_frames
-from pipeline.scene import Scene
+from pipeline.body import limits as pose_limits
+from pipeline.core.npy_stream import release_pages
+from pipeline.data.joint_sets import SMPL24, get_joint_set, mapping_indices
+from pipeline.data.scene import Scene
+from pipeline.evaluation import metrics
+from pipeline.evaluation.evaluate import evaluate, ground_truth_slots, gt_per_frame, to_smpl_slots
+from pipeline.evaluation.label_check import check_results
+from pipeline.results.store import PipelineResults
+from pipeline.run.frames import row_frames
 
 
 def reprojection_failures(
@@ -162,7 +163,7 @@ def mpjpe_failures(
     level: float = RELATIVE_LEVEL,
 ) -> list[Failure]:
     """Per frame, match the filtered tracks to ground truth (Hungarian on MPJPE, as
-    :func:`pipeline.evaluate.evaluate` does); list every matched (frame, track) whose
+    :func:`pipeline.evaluation.evaluate.evaluate` does); list every matched (frame, track) whose
     MPJPE is at least ``level`` times the run's median MPJPE (score = that ratio), with
     its worst joint. A ground-truth person or a track left unmatched is one entry per
     run of frames, scored as ``gate_mm`` / median (above any matched pair)."""
@@ -487,7 +488,7 @@ def _unassigned(
 
 def id_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
     """Track births after the first frame and deaths before the last (score 1 to 2,
-    higher for shorter tracks), and ID switches of :func:`pipeline.evaluate.evaluate`
+    higher for shorter tracks), and ID switches of :func:`pipeline.evaluation.evaluate.evaluate`
     when the scene has ground truth (score :data:`SWITCH_SCORE`)."""
     F = results.num_frames
     pres = present(results)
@@ -599,7 +600,7 @@ def smpl_failures(
 
 
 def label_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
-    """One entry per finding of :func:`pipeline.label_check.check_results` (raw tracks,
+    """One entry per finding of :func:`pipeline.evaluation.label_check.check_results` (raw tracks,
     and each camera's associated 2D against the triangulation), spanning the frames that
     show it, naming its track (None for the scene) and camera; score = measured value /
     threshold (threshold / value for a ratio below its lower bound)."""

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.joint_sets import get_joint_set
-from pipeline.results import PipelineResults
+from pipeline.data.joint_sets import get_joint_set
+from pipeline.results.store import PipelineResults
 
 CRITERIA = ("reprojection", "mpjpe", "association", "id", "kalman", "smpl", "labels")
 MAHALANOBIS_THRESHOLD = 3.0
@@ -21,7 +21,7 @@ MAHALANOBIS_THRESHOLD = 3.0
 AFFINITY_THRESHOLD = 0.5
 CLOSE_MARGIN = 0.2
 UNASSIGNED_CONFIDENCE = 0.3  # mean joint confidence of an unassigned detection worth a look
-MATCH_GATE_MM = 500.0  # as pipeline.evaluate: pairs above this MPJPE never match
+MATCH_GATE_MM = 500.0  # as pipeline.evaluation.evaluate: pairs above this MPJPE never match
 LIMIT_SCALE_DEG = 10.0
 SWITCH_SCORE = 3.0
 # A measure this many times its usual level (the run's median for that joint and camera)

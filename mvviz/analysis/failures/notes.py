@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass
 from datetime import datetime
 from pathlib import Path
 
-from pipeline.files import CACHE_DIR, SceneFormatError, atomic_write
+from pipeline.core.files import CACHE_DIR, SceneFormatError, atomic_write
 
 NOTES_VERSION = 1
 NOTES_FILE = "notes.json"  # in the scene's CACHE_DIR
@@ -35,7 +35,7 @@ def notes_path(scene_root: str | os.PathLike) -> Path:
 
 def load_notes(path: str | os.PathLike) -> list[Note]:
     """The notes in ``path`` (none if it does not exist). A file that is not valid notes
-    JSON raises :class:`~pipeline.files.SceneFormatError` naming it and the bad field."""
+    JSON raises :class:`~pipeline.core.files.SceneFormatError` naming it and the bad field."""
     path = Path(path)
     if not path.exists():
         return []

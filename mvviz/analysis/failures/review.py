@@ -26,8 +26,8 @@ from mvviz.analysis.failures.entries import (
     UNASSIGNED_CONFIDENCE,
     Failure,
 )
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
+from pipeline.data.scene import Scene
+from pipeline.results.store import PipelineResults
 
 
 def find_failures(

@@ -87,10 +87,10 @@ from mvviz.export.rerun.layout import (
 )
 from mvviz.export.rerun.logger import MESH_CHUNK_FRAMES, ImageLike, SceneLogger
 from mvviz.export.rerun.meshes import decimate_mesh, display_mesh, skin_subset
-from pipeline.body_model import BodyModel
-from pipeline.diagnose.retime import picture_frame
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
+from pipeline.body.model import BodyModel
+from pipeline.data.scene import Scene
+from pipeline.results.store import PipelineResults
+from pipeline.stages.retime import picture_frame
 
 __all__ = [
     "APP_ID", "AXIS_COLORS", "BODY_STAGES", "DEFAULT_PLOT_JOINTS", "GREY_UNASSIGNED",
@@ -124,7 +124,7 @@ def log_scene(
         images: camera name -> ``read(frame)`` returning JPEG bytes or a BGR image (e.g.
             :class:`mvviz.export.rrd.FrameSource`), or True to read the scene's videos
             and image folders, or False (default) for no images.
-        body_model: skins the GT meshes (``pipeline.body_model.load_body_model()``).
+        body_model: skins the GT meshes (``pipeline.body.model.load_body_model()``).
         progress: wraps the frame loop (e.g. ``tqdm``).
         options: of :class:`SceneLogger` (``image_width``, ``mesh_cell_mm``, ...).
     Returns:

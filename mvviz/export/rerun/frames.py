@@ -16,7 +16,7 @@ from mvviz.export.rerun.layout import (
     scaled_intrinsics,
     track_color,
 )
-from pipeline.scene import Scene
+from pipeline.data.scene import Scene
 
 
 def resize(image: np.ndarray, width: int, height: int) -> np.ndarray:

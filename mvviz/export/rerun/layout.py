@@ -11,11 +11,11 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from pipeline.cameras import Camera
-from pipeline.joint_sets import SMPL24, JointSet
-from pipeline.palette import track_rgb
-from pipeline.results import PipelineResults
-from pipeline.scene import Scene
+from pipeline.core.palette import track_rgb
+from pipeline.data.cameras import Camera
+from pipeline.data.joint_sets import SMPL24, JointSet
+from pipeline.data.scene import Scene
+from pipeline.results.store import PipelineResults
 
 APP_ID = "mvviz"
 MM_TO_M = 1e-3
@@ -108,7 +108,7 @@ class ClassLayout:
 
 
 def track_color(track: int, *, raw: bool = False) -> tuple[int, int, int]:
-    """The track's colour, as the viewer draws it (:func:`pipeline.palette.track_rgb`);
+    """The track's colour, as the viewer draws it (:func:`pipeline.core.palette.track_rgb`);
     ``raw`` is a darker shade of it."""
     rgb = track_rgb(track)
     return tuple(int(c * RAW_SHADE) for c in rgb) if raw else rgb

@@ -39,13 +39,13 @@ from mvviz.export.rerun.layout import (
 )
 from mvviz.export.rerun.meshes import display_mesh, skin_subset
 from mvviz.export.rerun.series import _log_plots
-from pipeline.body_model import BodyModel, torch_body_model
-from pipeline.joint_sets import get_joint_set
-from pipeline.npy_stream import mapped_arrays, release_pages
-from pipeline.results import PipelineResults
-from pipeline.run import row_frames
-from pipeline.scene import Scene
-from pipeline.smpl_fit_types import SmplFit
+from pipeline.body.model import BodyModel, torch_body_model
+from pipeline.core.npy_stream import mapped_arrays, release_pages
+from pipeline.data.joint_sets import get_joint_set
+from pipeline.data.scene import Scene
+from pipeline.fit.types import SmplFit
+from pipeline.results.store import PipelineResults
+from pipeline.run.frames import row_frames
 
 SKIN_BATCH = 128  # meshes skinned per torch call
 MESH_CHUNK_FRAMES = 64

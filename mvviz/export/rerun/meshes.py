@@ -7,8 +7,8 @@ import numpy as np
 import torch
 
 from mvviz.export.rerun.layout import MM_TO_M
-from pipeline.body_model import BodyModel, rigid_chain
-from pipeline.rotations import axis_angle_to_matrix
+from pipeline.body.model import BodyModel, rigid_chain
+from pipeline.core.rotations import axis_angle_to_matrix
 
 
 def decimate_mesh(

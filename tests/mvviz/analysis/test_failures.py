@@ -33,16 +33,17 @@ from mvviz.analysis.failures import (
 from mvviz.app import ViewerApp
 from mvviz.panels.failure_panel import MAX_ENTRIES, make_failure_panel
 from mvviz.state import ViewerState
-from pipeline import metrics, pose_limits
-from pipeline.body_model import load_body_model
+from pipeline.body import limits as pose_limits
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate
-from pipeline.files import SceneFormatError
+from pipeline.core.files import SceneFormatError
+from pipeline.data.joint_sets import COCO17, SMPL24, mapping_indices
+from pipeline.data.scene import load_scene
+from pipeline.evaluation import metrics
+from pipeline.evaluation.evaluate import evaluate
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.joint_sets import COCO17, SMPL24, mapping_indices
-from pipeline.results import run_pipeline, run_stages
-from pipeline.run import run_frames, select_2d
-from pipeline.scene import load_scene
+from pipeline.run.frames import run_frames, select_2d
+from pipeline.run.pipeline import run_pipeline, run_stages
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.mvviz.conftest import (
     CAMPUS,
@@ -729,7 +730,7 @@ def test_association_failures_read_the_edges_in_blocks(monkeypatch, tmp_path):
     ~200 M): blocks of 997 edges and the whole in one block find the same failures, with
     the same own-affinity figures, also on a results directory (memory-mapped)."""
     import mvviz.analysis.failures.criteria as criteria
-    from pipeline.results import load_results, save_results
+    from pipeline.results.store import load_results, save_results
 
     scene = load_scene(REPO / "sample_data" / "shelf_synth_noisy")
     config = PipelineConfig()
@@ -765,7 +766,7 @@ def test_reprojection_failures_read_the_errors_in_blocks(monkeypatch, tmp_path):
     """The usual error per joint and camera and the hits over it, a few cameras / rows at
     a time (a 10,000-frame run's errors are 850 MB): the failures of one block."""
     import mvviz.analysis.failures.criteria as criteria
-    from pipeline.results import load_results, save_results
+    from pipeline.results.store import load_results, save_results
 
     scene = load_scene(REPO / "sample_data" / "shelf_synth_noisy")
     config = PipelineConfig()

@@ -9,10 +9,10 @@ import pytest
 
 import mvviz.analysis.filter_runs as filter_runs
 from pipeline.config import PipelineConfig
-from pipeline.kalman import KalmanParams
-from pipeline.results import run_stages
-from pipeline.run import select_2d
-from pipeline.scene import load_scene
+from pipeline.data.scene import load_scene
+from pipeline.run.frames import select_2d
+from pipeline.run.pipeline import run_stages
+from pipeline.stages.kalman import KalmanParams
 from tests.conftest import REPO
 
 

@@ -11,7 +11,7 @@ import pytest
 from mvviz.analysis.joint_views import joint_views, joint_views_markdown
 from mvviz.scene.geometry import prepare
 from pipeline.config import PipelineConfig
-from pipeline.results import run_pipeline
+from pipeline.run.pipeline import run_pipeline
 
 
 @pytest.fixture(scope="module")

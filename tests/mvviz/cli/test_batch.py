@@ -20,11 +20,12 @@ from mvviz.cli import main
 from pipeline.batch import ray_run
 from pipeline.batch.ray_run import EMBEDDED_RAY_CONFIG, start_ray, stop_ray
 from pipeline.batch.report import load_report
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.files import SceneFormatError
-from pipeline.results import load_results, run_pipeline
-from pipeline.scene import load_scene
+from pipeline.core.files import SceneFormatError
+from pipeline.data.scene import load_scene
+from pipeline.results.store import load_results
+from pipeline.run.pipeline import run_pipeline
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.pipeline.helpers import campus_rig
 from tools.chromium import CHROMIUM, launch_chromium

@@ -25,7 +25,7 @@ import pytest
 
 from mvviz.cli import main
 from pipeline.batch.report import load_report
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.mvviz.conftest import wait_until
 from tests.pipeline.helpers import campus_rig

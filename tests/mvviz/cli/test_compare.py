@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from mvviz.cli import main
-from pipeline.files import CACHE_DIR
-from pipeline.results import load_results
+from pipeline.core.files import CACHE_DIR
+from pipeline.results.store import load_results
 from tests.pipeline.helpers import REPO
 
 SHELF = REPO / "sample_data" / "shelf_synth"
@@ -101,7 +101,7 @@ def test_view_opens_at_the_frame_and_track_compare_prints():
     from argparse import Namespace
 
     from mvviz.cli.view import _open_at
-    from pipeline.files import SceneFormatError
+    from pipeline.core.files import SceneFormatError
 
     calls = []
 

@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 
 from mvviz.cli import main
-from pipeline.cameras import CameraRig
+from pipeline.data.cameras import CameraRig
+from pipeline.data.joint_sets import BODY25, COCO17
+from pipeline.data.scene import load_scene
 from pipeline.importers import (
     read_voxelpose_calibration,
     write_easymocap_calibration,
     write_pose2sim_calibration,
     write_voxelpose_calibration,
 )
-from pipeline.joint_sets import BODY25, COCO17
-from pipeline.scene import load_scene
 
 # the real Shelf/Campus rigs, shipped byte-identical to ../shared/data/calibration
 CALIBRATION_DIR = Path(__file__).resolve().parents[3] / "sample_data" / "rigs"
@@ -220,7 +220,7 @@ def test_missing_camera_folder_is_a_warning(tmp_path, shelf, capsys):
 
 
 def test_layout_identified_printed_or_refused_and_nothing_written(tmp_path, shelf, capsys):
-    from pipeline.joint_sets import BODY25B
+    from pipeline.data.joint_sets import BODY25B
     from tests.pipeline.layout_data import layout_detections, write_openpose_tree
 
     dets = layout_detections(BODY25B, frames=slice(0, 100, 10))

@@ -11,11 +11,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mvviz.cli import main
-from pipeline.body_model import load_body_model
-from pipeline.cameras import load_cameras
+from pipeline.body.model import load_body_model
+from pipeline.data.cameras import load_cameras
+from pipeline.data.scene import load_scene, write_scene
 from pipeline.diagnose.floor import transform_scene
 from pipeline.diagnose.perturb import delay_camera, perturb_camera_pose
-from pipeline.scene import load_scene, write_scene
 from tests.pipeline.helpers import REPO
 
 NOISY = REPO / "sample_data" / "shelf_synth_noisy"

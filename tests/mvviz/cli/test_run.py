@@ -8,7 +8,7 @@ import re
 import pytest
 
 from mvviz.cli import main
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.conftest import REPO
 from tests.pipeline.helpers import campus_rig
@@ -74,8 +74,8 @@ def test_bad_override_and_missing_scene_fail_cleanly(scene_dir, tmp_path, capsys
 def test_eval_reports_sync(tmp_path, capsys):
     """A camera of the shipped Shelf scene delayed by 2 frames: ``mvviz eval`` prints it
     LATE with the setting that applies it; ``--no-sync`` leaves the check out."""
+    from pipeline.data.scene import load_scene, write_scene
     from pipeline.diagnose.perturb import delay_camera
-    from pipeline.scene import load_scene, write_scene
 
     scene = delay_camera(load_scene(REPO / "sample_data" / "shelf_synth"), "2", 2)
     root = tmp_path / "late"

@@ -27,8 +27,8 @@ from mvviz.export.rrd import (
     resolve_plot_joint,
     select_frames,
 )
-from pipeline.body_model import load_body_model
-from pipeline.joint_sets import COCO17
+from pipeline.body.model import load_body_model
+from pipeline.data.joint_sets import COCO17
 from tests.mvviz.conftest import synth_campus_scene
 
 REPO = Path(__file__).resolve().parents[3]
@@ -620,8 +620,8 @@ def test_drains_hand_back_the_pages_of_mapped_results(tiny, tmp_path, monkeypatc
     for every file map under the scene and its results, and the file is the same as one
     exported from the results in memory."""
     from mvviz.export.rerun import logger as logger_module  # noqa: PLC0415
-    from pipeline.npy_stream import is_mapped  # noqa: PLC0415
-    from pipeline.results import load_results, save_results  # noqa: PLC0415
+    from pipeline.core.npy_stream import is_mapped  # noqa: PLC0415
+    from pipeline.results.store import load_results, save_results  # noqa: PLC0415
 
     scene, results, model = tiny
     save_results(results, tmp_path / "results")

@@ -30,7 +30,7 @@ from mvviz.panels.view_panels import (
 from mvviz.scene.geometry import ViewerData, prepare
 from mvviz.state import ViewerState
 from pipeline.config import load_config
-from pipeline.results import PipelineResults
+from pipeline.results.store import PipelineResults
 from tests.mvviz.conftest import free_port
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")

@@ -14,10 +14,11 @@ from mvviz.cli.view_batch import first_row, scene_args, start_batch
 from mvviz.panels.dataset_panel import make_dataset_panel, sort_rows
 from pipeline.batch.jobs import summarize
 from pipeline.batch.report import build_report, write_report
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.results import cache_key, run_pipeline, save_results
-from pipeline.scene import load_scene
+from pipeline.data.scene import load_scene
+from pipeline.results.store import cache_key, save_results
+from pipeline.run.pipeline import run_pipeline
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.mvviz.conftest import free_port
 from tests.mvviz.panels.test_contract import FakeHost

@@ -14,12 +14,12 @@ import pytest
 from mvviz.analysis.diagnose_plots import field_scale
 from mvviz.panels.diagnose_panel import GO_STEP, GO_WORST, NOT_RUN, make_diagnose_panel
 from mvviz.state import ViewerState
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
+from pipeline.data.scene import load_scene
 from pipeline.diagnose.calibration import GRID
 from pipeline.diagnose.perturb import delay_camera
-from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
+from pipeline.run.pipeline import run_pipeline
 from tests.mvviz.panels.test_contract import FakeHost
 from tests.pipeline.helpers import REPO
 

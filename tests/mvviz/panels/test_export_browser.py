@@ -11,9 +11,9 @@ import numpy as np
 import viser
 import viser.transforms as vtf
 
+from pipeline.core.palette import track_rgb
 from pipeline.exports import export_results
 from pipeline.importers.bvh import Y_UP_TO_WORLD
-from pipeline.palette import track_rgb
 from tests.mvviz.conftest import (
     canvas_image,
     close_webgl_notice,

@@ -31,8 +31,8 @@ from mvviz.panels.filter_panel import (
 from mvviz.scene.geometry import bone_segments
 from mvviz.state import ViewerState
 from pipeline.config import load_config
-from pipeline.evaluate import evaluate
-from pipeline.kalman import KalmanParams, kalman_filter
+from pipeline.evaluation.evaluate import evaluate
+from pipeline.stages.kalman import KalmanParams, kalman_filter
 from tests.mvviz.conftest import free_port, keep_screenshot, open_tab, settle, wait_rendered
 from tools.chromium import pinned_dpr_url
 

@@ -24,15 +24,10 @@ from mvviz.panels.pipeline_panel import (
 from mvviz.scene.geometry import frame_geometry, prepare
 from mvviz.state import ViewerState
 from pipeline.config import PipelineConfig, load_config
-from pipeline.results import (
-    PipelineResults,
-    default_results_path,
-    load_results,
-    run_or_load,
-    run_pipeline,
-)
-from pipeline.run import run_frame
-from pipeline.scene import load_scene
+from pipeline.data.scene import load_scene
+from pipeline.results.store import PipelineResults, default_results_path, load_results
+from pipeline.run.frames import run_frame
+from pipeline.run.pipeline import run_or_load, run_pipeline
 from tests.mvviz.conftest import (
     canvas_image,
     free_port,

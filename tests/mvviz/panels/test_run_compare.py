@@ -17,8 +17,8 @@ from mvviz.app import ViewerApp
 from mvviz.panels.run_compare import figures_table, moment_label
 from mvviz.state import ViewerState
 from pipeline.config import save_config
+from pipeline.data.scene import load_scene
 from pipeline.diagnose.compare_runs import Difference
-from pipeline.scene import load_scene
 from tests.mvviz.conftest import free_port, keep_screenshot, open_tab, open_viewer, settle
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")

@@ -15,8 +15,8 @@ from mvviz.scene.geometry import LayerToggles, frame_geometry
 from mvviz.scene.images import image_overlay
 from mvviz.scene.lazy_rows import RowBlocks
 from mvviz.state import ViewerState
-from pipeline.results import load_results, save_results
-from pipeline.run import frame_rows
+from pipeline.results.store import load_results, save_results
+from pipeline.run.frames import frame_rows
 
 FRAME = 7
 

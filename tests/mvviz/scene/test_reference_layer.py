@@ -15,8 +15,8 @@ from mvviz.app import ViewerApp
 from mvviz.cli import main
 from mvviz.scene.geometry import MM, REFERENCE_SKELETON, frame_geometry
 from mvviz.state import ViewerState
+from pipeline.data.scene import load_scene
 from pipeline.importers.trc import POSE2SIM_MARKERS, world_mm_to_trc, write_trc
-from pipeline.scene import load_scene
 from tests.mvviz.conftest import (
     CAMPUS,
     NUM_FRAMES,

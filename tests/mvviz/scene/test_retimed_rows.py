@@ -14,7 +14,7 @@ from mvviz.scene.images import blank_frame, draw_overlay, image_overlay, video_f
 from mvviz.state import ViewerState
 from pipeline.config import PipelineConfig
 from pipeline.diagnose.perturb import delay_camera
-from pipeline.results import run_pipeline
+from pipeline.run.pipeline import run_pipeline
 from tests.mvviz.conftest import free_port
 
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import functools
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
+from pipeline.data.scene import load_scene
+from pipeline.run.pipeline import run_pipeline
 from tests.pipeline.helpers import REPO
 
 CLEAN = REPO / "sample_data" / "shelf_synth"

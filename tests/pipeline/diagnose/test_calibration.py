@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from pipeline.config import PipelineConfig
 from pipeline.diagnose.calibration import check_calibration, find_step, replace_camera
 from pipeline.diagnose.perturb import perturb_camera_pose
-from pipeline.evaluate import evaluate
+from pipeline.evaluation.evaluate import evaluate
 from tests.pipeline.diagnose.shipped import run_without_fit, shipped_scene
 
 CONFIG = PipelineConfig(fit_smpl=False)

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.config import PipelineConfig
 from pipeline.diagnose.floor import estimate_floor, level_rotation, transform_scene
-from pipeline.results import run_pipeline
+from pipeline.run.pipeline import run_pipeline
 from tests.pipeline.diagnose.shipped import body_model, shipped_scene
 from tests.pipeline.helpers import REPO
 

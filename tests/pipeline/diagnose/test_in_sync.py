@@ -15,7 +15,7 @@ from pipeline.diagnose.in_sync import check_calibration_in_sync, retimed_run
 from pipeline.diagnose.perturb import delay_camera, perturb_camera_pose
 from pipeline.diagnose.report import diagnose
 from pipeline.diagnose.sync import estimate_offsets
-from pipeline.results import run_pipeline
+from pipeline.run.pipeline import run_pipeline
 from tests.pipeline.diagnose.shipped import body_model, run_without_fit, shipped_scene
 
 CONFIG = PipelineConfig(fit_smpl=False)

@@ -1,4 +1,4 @@
-"""pipeline.diagnose.retime and ``sync.offsets``: a camera's 2D re-timed before
+"""pipeline.stages.retime and ``sync.offsets``: a camera's 2D re-timed before
 association. Unit cases on hand-made rows; then the shipped Shelf scene with one camera
 delayed on purpose (pipeline.diagnose.perturb), the offset diagnose finds applied, and
 the MPJPE compared with the undelayed run."""
@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from pipeline.config import PipelineConfig
+from pipeline.core.files import SceneFormatError
 from pipeline.diagnose.perturb import delay_camera
-from pipeline.diagnose.retime import partners, retimed_rows, split_offset
 from pipeline.diagnose.sync import estimate_offsets
-from pipeline.evaluate import evaluate
-from pipeline.files import SceneFormatError
-from pipeline.results import run_pipeline
-from pipeline.run import frame_rows, row_frames
+from pipeline.evaluation.evaluate import evaluate
+from pipeline.run.frames import frame_rows, row_frames
+from pipeline.run.pipeline import run_pipeline
+from pipeline.stages.retime import partners, retimed_rows, split_offset
 from tests.pipeline.diagnose.shipped import body_model, shipped_scene
 from tests.pipeline.helpers import REPO
 

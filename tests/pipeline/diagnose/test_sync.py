@@ -10,12 +10,12 @@ import functools
 import numpy as np
 import pytest
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
+from pipeline.data.scene import load_scene
 from pipeline.diagnose.perturb import delay_camera
 from pipeline.diagnose.sync import OFFSET_TOLERANCE, estimate_offsets, offsets_over_windows
-from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
+from pipeline.run.pipeline import run_pipeline
 from tests.pipeline.helpers import REPO
 
 NOISY = REPO / "sample_data" / "shelf_synth_noisy"

@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
+from pipeline.data.joint_sets import get_joint_set
+from pipeline.data.scene import load_scene
+from pipeline.fit.smpl import SmplFit
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.joint_sets import get_joint_set
-from pipeline.results import PipelineResults, run_or_load
-from pipeline.scene import load_scene
-from pipeline.smpl_fit import SmplFit
+from pipeline.results.store import PipelineResults
+from pipeline.run.pipeline import run_or_load
 from pipeline.synth.motion import root_to_world
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.conftest import REPO

@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
+from pipeline.core.palette import TRACK_PALETTE, track_rgb
 from pipeline.exports import ExportError, available_stages, export_results, stages_for
 from pipeline.exports.common import gap_note, hold_indices, per_track_paths, select_tracks
-from pipeline.palette import TRACK_PALETTE, track_rgb
 
 
 def test_hold_indices_hold_the_last_present_frame_and_the_first_before_it():

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
+from pipeline.data.scene import Detections
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.scene import Detections
 from pipeline.synth import scene_gen
 from pipeline.synth.detection_stats import detection_statistics
 from pipeline.synth.detectors import DetectorNoise

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from mvviz.cli import main
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
-from pipeline.evaluate import evaluate, format_table
-from pipeline.joint_sets import COCO17, SMPL24
-from pipeline.mocap import CMU_TO_SMPL24, load_mocap_clip
-from pipeline.results import run_pipeline
-from pipeline.scene import load_scene
+from pipeline.data.joint_sets import COCO17, SMPL24
+from pipeline.data.scene import load_scene
+from pipeline.evaluation.evaluate import evaluate, format_table
+from pipeline.mocap.clips import CMU_TO_SMPL24, load_mocap_clip
+from pipeline.run.pipeline import run_pipeline
 from pipeline.synth.mocap_scene import _segments, place_on_floor
 from pipeline.synth.scene_gen import visible_floor_area
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
 from pipeline.synth.motion import plan_people
 from pipeline.synth.occlusion import point_occlusion
 from pipeline.synth.proxy import pose_proxy, proxy_bodies, proxy_for

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 import pipeline.synth.render as render_module
-from pipeline.cameras import Camera, make_camera
+from pipeline.data.cameras import Camera, make_camera
 from pipeline.synth.render import (
     MeshInstance,
     Render,

@@ -6,10 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.body_model import load_body_model
+from pipeline.body.model import load_body_model
+from pipeline.data.joint_sets import SMPL24
+from pipeline.data.scene import load_scene
 from pipeline.importers.calibration import read_voxelpose_calibration
-from pipeline.joint_sets import SMPL24
-from pipeline.scene import load_scene
 from pipeline.synth.scene_gen import (
     PERSON_COLOURS,
     SynthConfig,
@@ -92,7 +92,7 @@ def test_keypoints_are_near_the_truth(campus_scene):
     assert real.sum() > 30 and (d.gt_person_id == -1).sum() >= 0
     # Restored SMPL joints vs projected truth: the weak-perspective fit + pose noise
     # keeps them within tens of pixels (Campus people are ~120 px tall).
-    from pipeline.restore import restore_joints_2d
+    from pipeline.stages.restore import restore_joints_2d
 
     r = restore_joints_2d(d.smpl_pose, d.smpl_betas, d.cam_weak, d.bbox, load_body_model())
     errs = []

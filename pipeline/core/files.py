@@ -1,0 +1,183 @@
+"""File plumbing shared by every reader and writer: format errors and atomic writes.
+
+Every output the project writes goes through :func:`atomic_write` or
+:func:`atomic_directory`, so an interrupted or failed write never leaves a
+half-written file or scene behind.
+
+Temporary names carry the writer's process id: ``.NAME.<pid>.<random>.tmp`` beside
+``NAME``. A process killed mid-write (SIGKILL runs no cleanup) leaves one behind; the
+next write of ``NAME`` (and :func:`recover`, which :func:`~pipeline.data.scene.load_scene`
+calls) removes those of dead processes. Replacing a directory takes two renames
+(``NAME -> .NAME.old-<pid>``, then ``.NAME.new-<pid> -> NAME``); a kill between them
+is completed by :func:`recover`: the complete new directory is put in place (the old
+one is restored only if the new one is gone), so afterwards either the old or the new
+directory is at ``NAME``, whole.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+CACHE_DIR = ".mvviz"
+"""``SCENE/.mvviz/``: what mvviz computes for a scene (results, caches, notes, exports)."""
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+class SceneFormatError(ValueError):
+    """Bad input: names the file, the field and what was expected."""
+
+    def __init__(self, path: str | os.PathLike, field: str | None, message: str) -> None:
+        self.path = str(path)
+        self.field = field
+        where = f"{self.path}: field '{field}'" if field else self.path
+        super().__init__(f"{where}: {message}")
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (another user's counts: it cannot be signalled,
+    but it is there)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's live process
+    return True
+
+
+def _remove(p: Path) -> None:
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+
+
+def recover(path: str | os.PathLike) -> None:
+    """Finish what dead writers of ``path`` left: remove their temporary files and
+    complete (or roll back) an interrupted directory replacement (see the module
+    docstring). Leftovers of live processes are not touched."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        return
+    pattern = re.compile(r"^\." + re.escape(path.name) + r"\.(?:(\d+)\..*\.tmp|(old|new)-(\d+))$")
+    stale: dict[str, list[Path]] = {"tmp": [], "old": [], "new": []}
+    for entry in path.parent.iterdir():
+        m = pattern.match(entry.name)
+        if m is None:
+            continue
+        pid = int(m.group(1) or m.group(3))
+        if not process_alive(pid):
+            stale[m.group(2) or "tmp"].append(entry)
+    for p in stale["tmp"]:
+        _remove(p)
+    for p in stale["new"]:  # complete: only ever renamed from a finished temporary
+        if not path.exists():
+            os.replace(p, path)
+        else:
+            _remove(p)  # the kill came before the old one moved away: the old one stays
+    for p in stale["old"]:
+        if not path.exists():
+            os.replace(p, path)  # no new one to complete with: roll back
+        else:
+            _remove(p)
+
+
+def read_text_lines(path: str | os.PathLike) -> list[str]:
+    """A UTF-8 text file's lines; a missing or binary file is a :class:`SceneFormatError`
+    naming it (the line-based importers: TRC, BVH)."""
+    path = Path(path)
+    if not path.is_file():
+        raise SceneFormatError(path, None, "file not found")
+    try:
+        return path.read_text(encoding="utf-8", errors="strict").splitlines()
+    except UnicodeDecodeError as exc:
+        raise SceneFormatError(path, None, f"not a text file ({exc})") from None
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator:
+    """Open a temporary file beside ``path``; it replaces ``path`` only if the block succeeds."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    recover(path)
+    prefix = f".{path.name}.{os.getpid()}."
+    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, mode) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def save_npz_atomic(path: str | os.PathLike, **arrays: np.ndarray) -> None:
+    """``np.savez_compressed`` through :func:`atomic_write`."""
+    with atomic_write(path) as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+@contextlib.contextmanager
+def atomic_directory(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a fresh temporary directory that becomes ``path`` only if the block succeeds.
+
+    An existing non-empty ``path`` is an error unless ``overwrite``; then it is
+    replaced as a whole after the new one is complete.
+    """
+    path = Path(path)
+    recover(path)
+    if path.exists() and any(path.iterdir()) and not overwrite:
+        raise FileExistsError(f"{path} exists and is not empty (pass overwrite to replace it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    prefix = f".{path.name}.{os.getpid()}."
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=path.parent))
+    old = path.with_name(f".{path.name}.old-{os.getpid()}")
+    try:
+        yield tmp
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700
+        if path.exists():
+            new = path.with_name(f".{path.name}.new-{os.getpid()}")
+            os.replace(tmp, new)  # complete, under a name recover() knows
+            tmp = new
+            os.replace(path, old)
+            os.replace(new, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        if old.exists() and not path.exists():
+            os.replace(old, path)  # failed between the renames: put the old one back
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def load_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """All arrays of an npz file, with a clear error if it is missing or unreadable."""
+    path = Path(path)
+    if not path.is_file():
+        raise SceneFormatError(path, None, "file not found")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except Exception as exc:  # zipfile/pickle/format errors all mean "not a valid npz"
+        raise SceneFormatError(path, None, f"not a readable .npz file ({exc})") from exc

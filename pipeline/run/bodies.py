@@ -1,0 +1,66 @@
+"""The body stages of a run: the step-I SMPL fit to the smoothed tracks and its
+VAE-corrected version, on results the earlier stages packed.
+
+torch and the fit's modules are imported only once a fit runs: loading cached results
+never needs them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING
+
+from pipeline.config import PipelineConfig
+from pipeline.core.progress import Progress
+from pipeline.results.store import FIT_JOINT_SETS, PipelineResults
+
+if TYPE_CHECKING:
+    from pipeline.body.arrays import BodyModelData
+    from pipeline.body.model import BodyModel
+
+
+# A sequence of more frames is fit in chunks (pipeline.fit.chunks): the batch fit's
+# graph grows with the person-frames (10,000 frames x 20 people: 200,000 rows, GBs); chunks
+# of 125 frames cost 0.03 mm of MPJPE on the 250-frame sample (7.36 -> 7.39), longer ones
+# have fewer seams.
+LONG_FIT_FRAMES = 1000
+LONG_FIT_CHUNK_FRAMES = 500
+
+
+def fit_bodies(
+    results: PipelineResults,
+    config: PipelineConfig,
+    model: BodyModel | BodyModelData,
+    *,
+    progress: Progress = True,
+) -> PipelineResults:
+    """Step I SMPL fit to the RTS-smoothed tracks, and its VAE-corrected version.
+
+    The fit is a batch over the whole sequence (its smoothness term looks at t - 1 and
+    t + 1), so it takes the smoothed tracks whatever ``kalman.smoother`` shows as "the"
+    filtered ones: the forward filter lags (on a mocap walk 15.3 mm where RTS is 11.0).
+    A sequence of more than :data:`LONG_FIT_FRAMES` frames is fit in chunks of
+    :data:`LONG_FIT_CHUNK_FRAMES`, each warm-started by the last."""
+    if not config.fit_smpl or results.joint_set not in FIT_JOINT_SETS or results.num_tracks == 0:
+        return results
+    # torch (~3-7 s to import) only once a fit runs: loading cached results never needs it
+    from pipeline.body.model import torch_body_model  # noqa: PLC0415
+    from pipeline.fit.prior import load_prior  # noqa: PLC0415
+    from pipeline.fit.smpl import fit_sequence  # noqa: PLC0415
+
+    prior = load_prior(config.pose_prior or None) if config.use_pose_prior else None
+    fit, chunks = fit_sequence, {}
+    if results.num_frames > LONG_FIT_FRAMES:
+        from pipeline.fit.chunks import fit_in_chunks  # noqa: PLC0415
+
+        fit, chunks = fit_in_chunks, {"chunk_frames": LONG_FIT_CHUNK_FRAMES}
+    fit_i, fit_vae = fit(
+        results.track_smoothed,
+        results.joint_set,
+        torch_body_model(model),
+        prior=prior,
+        params=config.smpl_fit,
+        progress=progress,
+        **chunks,
+    )
+    return dataclasses.replace(results, smpl=fit_i, smpl_vae=fit_vae)
