@@ -165,7 +165,7 @@ def child_streamed(scene_dir: str, mode: str, chunk: int) -> dict:
     from pipeline.config import PipelineConfig
     from pipeline.data.scene import load_scene
     from pipeline.run.frames import select_2d
-    from pipeline.run.streamed import DEFAULT_CHUNK_FRAMES, run_stages_streamed
+    from pipeline.run.streamed import STREAMED_CHUNK_FRAMES, run_stages_streamed
 
     config = PipelineConfig()
     model = None
@@ -182,7 +182,7 @@ def child_streamed(scene_dir: str, mode: str, chunk: int) -> dict:
     with tempfile.TemporaryDirectory(dir=Path(scene_dir).parent) as tmp:
         res = run_stages_streamed(
             scene, config, j2d, Path(tmp) / "results", restored=None,
-            chunk_frames=chunk or DEFAULT_CHUNK_FRAMES, keep_edges=mode == "streamedges",
+            chunk_frames=chunk or STREAMED_CHUNK_FRAMES, keep_edges=mode == "streamedges",
             progress=False,
         )  # fmt: skip
         t_stages = time.process_time() - t0

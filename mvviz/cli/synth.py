@@ -9,15 +9,16 @@ from pathlib import Path
 
 from mvviz.cli import at_least
 from mvviz.cli.synth_mocap import add_motion_options, run_motion
-from pipeline.body.kinematics import SUPPORTED_JOINT_SETS
+from pipeline.body.keypoints import FITTABLE_JOINT_SETS
 from pipeline.body.model import load_body_model
+from pipeline.core.units import SAMPLE_DATA
 from pipeline.data.cameras import load_cameras
 from pipeline.importers.calibration import read_voxelpose_calibration
 from pipeline.synth.detectors import DetectorNoise
 from pipeline.synth.rigs import dome_capture_radius, dome_rig, parse_dome_spec
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 
-RIGS_DIR = Path(__file__).resolve().parents[2] / "sample_data" / "rigs"  # from mvviz/cli/
+RIGS_DIR = SAMPLE_DATA / "rigs"
 
 
 def load_rig(spec: str):
@@ -72,7 +73,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--joint-set",
         default="coco17",
-        choices=SUPPORTED_JOINT_SETS,
+        choices=FITTABLE_JOINT_SETS,
         help="layout of the ground-truth keypoints and simulated 2D detections, read off the "
         "mesh by pipeline/body/keypoints.py (default: coco17)",
     )

@@ -15,12 +15,12 @@ from typing import TYPE_CHECKING
 import viser
 
 from pipeline.core.files import CACHE_DIR, SceneFormatError
+from pipeline.core.units import REPO_ROOT, SAMPLE_DATA
 
 if TYPE_CHECKING:
     from mvviz.app import FirstTab, ViewerApp
 
-REPO_ROOT = Path(__file__).resolve().parents[2]  # mvviz/cli/view.py -> the repository
-DEFAULT_SCENE = REPO_ROOT / "sample_data" / "shelf_synth"
+DEFAULT_SCENE = SAMPLE_DATA / "shelf_synth"
 
 
 def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False) -> None:

@@ -38,6 +38,7 @@ from mvviz.panels.contract import PanelHost
 from mvviz.panels.run_compare import RunCompare, make_run_compare
 from mvviz.scene.geometry import ViewerData, lazy_detection_rays, person_indices
 from pipeline.body.arrays import BodyModelData, load_body_model_data
+from pipeline.body.keypoints import FITTABLE_JOINT_SETS
 from pipeline.config import CONFIG_FILE, PipelineConfig, save_config
 from pipeline.core.files import CACHE_DIR
 from pipeline.core.progress import LatestProgress
@@ -45,7 +46,6 @@ from pipeline.data.joint_sets import get_joint_set
 from pipeline.data.scene import Scene
 from pipeline.results.store import (
     EDGE_FIELDS,
-    FIT_JOINT_SETS,
     PERSON_FIELDS,
     FrameResult,
     PipelineResults,
@@ -643,7 +643,7 @@ class PipelinePanel:
         with self._lock:
             joints2d = self._joints2d(config)
         js = source_joint_set(self.scene, config).name
-        fits = config.fit_smpl and js in FIT_JOINT_SETS
+        fits = config.fit_smpl and js in FITTABLE_JOINT_SETS
         key = cache_key(self.scene, config, self.model)
         res = run_stages(
             self.scene, config, joints2d, restored=self._restored,

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 
 from pipeline.core.files import SceneFormatError
+from pipeline.core.units import SAMPLE_DATA
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_MODEL_PATH = REPO_ROOT / "sample_data" / "body_models" / "open_body_24.npz"
+DEFAULT_MODEL_PATH = SAMPLE_DATA / "body_models" / "open_body_24.npz"
 MODEL_ENV_VAR = "MVVIZ_SMPL_MODEL"
 NUM_JOINTS = 24
 NUM_BETAS = 10

@@ -34,10 +34,9 @@ from pipeline.core.rotations import (  # noqa: F401  (re-exported: the fit's and
 from pipeline.data.joint_sets import SMPL24, get_joint_set
 
 NUM_JOINTS = SMPL24.num_joints
-SUPPORTED_JOINT_SETS = FITTABLE_JOINT_SETS
-"""Every joint set whose table anchors all limbs (``body_keypoints.FITTABLE_JOINT_SETS``).
-Joints the set leaves free and its torso points follow from the table by the rules of
-``body_keypoints.free_joints`` and ``body_keypoints.torso_points``."""
+# A fit's target is any joint set whose table anchors all limbs (FITTABLE_JOINT_SETS).
+# Joints the set leaves free and its torso points follow from the table by the rules of
+# pipeline.body.keypoints.free_joints and torso_points.
 _J = SMPL24.index
 OFFSET_FRAMES = ("pelvis", "spine1", "spine2", "spine3", "neck", "head", "left_collar",
                  "right_collar")  # fmt: skip
@@ -124,8 +123,8 @@ def _fold_regressor(model: BodyModel, Rv: torch.Tensor, Rj: torch.Tensor):
 def keypoint_buffers(model: BodyModel, joint_set: str) -> KeypointBuffers:
     """Precompute (once per model and joint set) the kinematic tree and target regressor."""
     js = get_joint_set(joint_set)
-    if js.name not in SUPPORTED_JOINT_SETS:
-        raise ValueError(f"SMPL fit targets must be one of {SUPPORTED_JOINT_SETS}, got {js.name!r}")
+    if js.name not in FITTABLE_JOINT_SETS:
+        raise ValueError(f"SMPL fit targets must be one of {FITTABLE_JOINT_SETS}, got {js.name!r}")
     key = (model.fingerprint, js.name)
     if key in _BUFFER_CACHE:
         return _BUFFER_CACHE[key]

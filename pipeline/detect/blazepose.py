@@ -39,9 +39,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from pipeline.core.units import SAMPLE_DATA
 from pipeline.data.joint_sets import BLAZEPOSE33, blazepose33_to_smpl24_matrix
 
-MODEL_DIR = Path(__file__).resolve().parents[2] / "sample_data" / "models" / "blazepose"
+MODEL_DIR = SAMPLE_DATA / "models" / "blazepose"
 DETECTOR_FILE = "pose_detection.tflite"
 LANDMARK_FILE = "pose_landmark_full.tflite"
 

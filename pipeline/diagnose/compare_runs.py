@@ -41,6 +41,7 @@ from pipeline.core.files import CACHE_DIR, SceneFormatError
 from pipeline.core.progress import Progress
 from pipeline.data.scene import Scene
 from pipeline.evaluation.evaluate import evaluate
+from pipeline.evaluation.metrics import MATCH_GATE_MM
 from pipeline.results.store import PipelineResults, cache_key, default_results_path, load_results
 from pipeline.run.pipeline import run_or_load
 
@@ -48,7 +49,6 @@ RUNS_DIR = "runs"  # SCENE/.mvviz/runs/results_<cache key>.npz, one per configur
 MIN_DIFF_MM = 20.0
 """Two runs' joints of one person closer than this (mean over joints) are "the same":
 a few times the detector noise a triangulated joint keeps (~5-10 mm on the samples)."""
-MATCH_GATE_MM = 500.0  # two people farther apart than this are different people
 MERGE_GAP = 2  # spans of one person this many frames apart are one span
 
 if TYPE_CHECKING:

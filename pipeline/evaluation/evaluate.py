@@ -34,8 +34,6 @@ from pipeline.fit.types import plausibility
 from pipeline.results.store import PipelineResults
 from pipeline.run.frames import row_frames
 
-STAGES = ("raw", "kalman", "rts", "smpl", "smpl_vae")
-
 
 @dataclass(frozen=True, eq=False)
 class Evaluation:
@@ -135,7 +133,7 @@ def gt_per_frame(
 
 
 def stage_metrics(
-    tracks: np.ndarray, gt_dense: np.ndarray, *, max_mpjpe: float = 500.0
+    tracks: np.ndarray, gt_dense: np.ndarray, *, max_mpjpe: float = metrics.MATCH_GATE_MM
 ) -> tuple[dict[str, float], metrics.SequenceMatch]:
     """Score one stage.
 

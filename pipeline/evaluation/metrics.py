@@ -69,6 +69,10 @@ SMPL24_COCO_JOINTS: np.ndarray = coco17_smpl24_pairs()[1]
 SMPL24_ALL_JOINTS: np.ndarray = np.arange(SMPL24.num_joints)
 
 
+MATCH_GATE_MM = 500.0
+"""Two people whose MPJPE is above this are different people: the gate of every
+person matching (against ground truth, between runs, in the failure review)."""
+
 def _limb(a: str, b: str) -> tuple[int, int]:
     return SMPL24.index[a], SMPL24.index[b]
 
@@ -205,7 +209,7 @@ def mpjpe_matrix(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
 
 
 def match_people(
-    pred: np.ndarray, gt: np.ndarray, *, max_mpjpe: float = 500.0
+    pred: np.ndarray, gt: np.ndarray, *, max_mpjpe: float = MATCH_GATE_MM
 ) -> list[tuple[int, int]]:
     """One frame's one-to-one matching of predicted to ground-truth people.
 
@@ -270,7 +274,7 @@ def match_sequence(
     preds: Sequence[np.ndarray] | np.ndarray,
     gts: Sequence[np.ndarray] | np.ndarray,
     *,
-    max_mpjpe: float = 500.0,
+    max_mpjpe: float = MATCH_GATE_MM,
 ) -> SequenceMatch:
     """Run :func:`match_people` on every frame.
 

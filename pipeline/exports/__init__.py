@@ -22,7 +22,7 @@ import os
 from pathlib import Path
 
 from pipeline.exports.common import (
-    FIT_STAGES,
+    BODY_STAGES,
     STAGES,
     ExportedFile,
     ExportError,
@@ -41,7 +41,7 @@ BODY_FORMATS = ("bvh", "smpl-npz", "glb")
 """Formats of fitted bodies: they need an SMPL stage."""
 
 __all__ = [
-    "BODY_FORMATS", "EXTENSIONS", "FIT_STAGES", "FORMATS", "STAGES", "ExportError",
+    "BODY_FORMATS", "EXTENSIONS", "BODY_STAGES", "FORMATS", "STAGES", "ExportError",
     "ExportedFile", "available_stages", "default_stage", "export_results", "stages_for",
 ]  # fmt: skip
 
@@ -49,7 +49,7 @@ __all__ = [
 def stages_for(results: PipelineResults, fmt: str) -> tuple[str, ...]:
     """The stages of this run that ``fmt`` can write."""
     have = available_stages(results)
-    return tuple(s for s in have if s in FIT_STAGES) if fmt in BODY_FORMATS else have
+    return tuple(s for s in have if s in BODY_STAGES) if fmt in BODY_FORMATS else have
 
 
 def export_results(

@@ -17,12 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.fit.types import SmplFit
-from pipeline.results.store import PipelineResults
-
-STAGES = ("raw", "kalman", "rts", "smpl", "smpl_vae")
-"""Stage names of ``--stage``: raw triangulation, Kalman forward filter, RTS smoother,
-SMPL fit (step I) and SMPL fit corrected by the VAE pose prior."""
-FIT_STAGES = ("smpl", "smpl_vae")
+from pipeline.results.store import BODY_STAGES, STAGES, PipelineResults
 
 WORLD_TO_Y_UP = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
 """(3, 3) rotation from our z-up world to a Y-up file's axes: ``out = M @ world``."""
@@ -49,7 +44,7 @@ def available_stages(results: PipelineResults) -> tuple[str, ...]:
     if results.num_tracks == 0:
         return ()
     out = ["raw", "kalman", "rts"]
-    out += [s for s in FIT_STAGES if getattr(results, s) is not None]
+    out += [s for s in BODY_STAGES if getattr(results, s) is not None]
     return tuple(out)
 
 
@@ -61,7 +56,7 @@ def _check_stage(results: PipelineResults, stage: str) -> None:
         if not have:
             raise ExportError("the run has no tracks: nothing to export")
         why = ""
-        if stage in FIT_STAGES and results.smpl is None:
+        if stage in BODY_STAGES and results.smpl is None:
             why = (
                 " (the run fitted no SMPL bodies: config fit_smpl=false)"
                 if not results.config.fit_smpl
@@ -76,7 +71,7 @@ def stage_points(results: PipelineResults, stage: str) -> np.ndarray:
     """(K, F, J, 3) world mm of ``stage`` in the run's joint set (an SMPL stage: the
     fitted body's prediction of those joints); NaN where missing."""
     _check_stage(results, stage)
-    if stage in FIT_STAGES:
+    if stage in BODY_STAGES:
         return getattr(results, stage).keypoints
     return {"raw": results.track_raw, "kalman": results.track_forward,
             "rts": results.track_smoothed}[stage]  # fmt: skip
@@ -84,9 +79,9 @@ def stage_points(results: PipelineResults, stage: str) -> np.ndarray:
 
 def stage_fit(results: PipelineResults, stage: str, *, fmt: str) -> SmplFit:
     """The :class:`SmplFit` of an SMPL stage; other stages are refused for ``fmt``."""
-    if stage not in FIT_STAGES and stage in STAGES:
+    if stage not in BODY_STAGES and stage in STAGES:
         raise ExportError(
-            f"{fmt} holds fitted bodies: --stage must be one of {', '.join(FIT_STAGES)}, "
+            f"{fmt} holds fitted bodies: --stage must be one of {', '.join(BODY_STAGES)}, "
             f"not {stage!r}"
         )
     _check_stage(results, stage)
@@ -97,7 +92,7 @@ def default_stage(results: PipelineResults, *, bodies: bool) -> str:
     """The last stage the run has: of the fits if ``bodies``, else of the joints
     (``rts`` when the config smooths, else ``kalman``)."""
     if bodies:
-        for s in reversed(FIT_STAGES):
+        for s in reversed(BODY_STAGES):
             if getattr(results, s) is not None:
                 return s
         return "smpl"  # absent: the writer's check says so

@@ -25,11 +25,10 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from pipeline.body.model import torch_body_model
+from pipeline.core.units import MM_PER_M
 from pipeline.data.joint_sets import SMPL24
 from pipeline.exports.common import WORLD_TO_Y_UP, hold_indices
 from pipeline.fit.types import SmplFit
-
-MM_PER_M = 1000.0
 
 
 @dataclass(frozen=True, eq=False)

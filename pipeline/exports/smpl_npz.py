@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.core.files import save_npz_atomic
+from pipeline.core.units import MM_PER_M
 from pipeline.exports.common import gap_note, hold_indices
 from pipeline.fit.types import SmplFit
 
-MM_PER_M = 1000.0
 WORLD_CONVENTION = (
     "world z up, metres; vertices = body_model(poses, betas) + trans (AMASS / smplx); "
     "the model's canonical frame is y up and poses[:, :3] (the root) rotates it into "

@@ -51,7 +51,6 @@ from pipeline.body.kinematics import (
 from pipeline.core.files import SceneFormatError
 from pipeline.fit.prior_path import DEFAULT_PRIOR_PATH, resolve_prior_path  # noqa: F401
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 BODY_JOINTS = tuple(range(1, 22))
 """SMPL joints the prior models (hips .. wrists)."""
 CHECKPOINT_VERSION = 1

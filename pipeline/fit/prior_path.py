@@ -6,8 +6,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_PRIOR_PATH = REPO_ROOT / "sample_data" / "priors" / "pose_vae.pt"
+from pipeline.core.units import SAMPLE_DATA
+
+DEFAULT_PRIOR_PATH = SAMPLE_DATA / "priors" / "pose_vae.pt"
 
 
 def resolve_prior_path(path: str | os.PathLike | None = None) -> Path:

@@ -101,6 +101,7 @@ from pipeline.body.kinematics import (
 from pipeline.body.model import BodyModel
 from pipeline.core.progress import Progress
 from pipeline.core.torch_threads import torch_threads
+from pipeline.core.units import MM_PER_M
 from pipeline.data.joint_sets import SMPL24, get_joint_set
 from pipeline.fit.limit_penalty import limit_penalty
 from pipeline.fit.optim import adam_cosine
@@ -115,7 +116,6 @@ from pipeline.fit.types import (  # noqa: F401  (re-exported)
 if TYPE_CHECKING:
     from pipeline.fit.prior import PosePrior
 
-MM_PER_M = 1000.0
 _J = SMPL24.index
 
 
@@ -484,7 +484,8 @@ def fit_sequence(
 
     Args:
         tracks_mm: (num_tracks, num_frames, num_joints, 3) world mm, NaN = missing.
-        joint_set: the set of ``tracks_mm``, one of ``smpl_kinematics.SUPPORTED_JOINT_SETS``.
+        joint_set: the set of ``tracks_mm``, one of
+            :data:`pipeline.body.keypoints.FITTABLE_JOINT_SETS`.
         model: the body model.
         prior: a trained :class:`~pipeline.fit.prior.PosePrior`; with it the
             corrected fit (phases 2a-2c) is returned too.

@@ -13,13 +13,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pipeline.body import limits as pose_limits
+from pipeline.core.units import MM_PER_M
 from pipeline.data.joint_sets import SMPL24, get_joint_set, mapping_indices
 
 if TYPE_CHECKING:
     from pipeline.body.arrays import BodyModelData
     from pipeline.body.model import BodyModel
 
-MM_PER_M = 1000.0
 
 
 @dataclass(frozen=True)
@@ -98,7 +98,8 @@ class SmplFit:
     track is absent. Millimetres, world (z up).
 
     Attributes:
-        joint_set: the target joint set (any of ``smpl_kinematics.SUPPORTED_JOINT_SETS``).
+        joint_set: the target joint set (any of
+            :data:`pipeline.body.keypoints.FITTABLE_JOINT_SETS`).
         pose_rotvecs: (K, F, 24, 3) local axis-angle, root in the world frame.
         betas: (K, 10) shape, shared over a track's frames.
         transl: (K, F, 3) mm; the body is ``1000 * model(pose, betas) + transl``.

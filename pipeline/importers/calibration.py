@@ -40,9 +40,8 @@ import numpy as np
 from pipeline.core.files import SceneFormatError, atomic_write
 from pipeline.core.rotations import matrix_to_rotvec, rotvec_to_matrix
 from pipeline.core.schema import check_numbers
+from pipeline.core.units import MM_PER_M
 from pipeline.data.cameras import Camera, CameraRig, make_camera
-
-MM_PER_M = 1000.0
 
 # VoxelPose json files carry no image size; its dataset configs hard-code it
 # (e.g. ORI_IMAGE_WIDTH: 1032 / ORI_IMAGE_HEIGHT: 776 for Shelf). Known rigs are

@@ -40,15 +40,15 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.core.units import REPO_ROOT, SAMPLE_DATA
 from pipeline.fit.prior import PosePrior
 from pipeline.prior.training import default_training_poses, train_prior
 from pipeline.synth.motion import LIBRARY_ACTIVITIES
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-CMU_DIR = REPO_ROOT / "sample_data" / "mocap" / "cmu131"
-BALANCING_DIR = REPO_ROOT / "sample_data" / "mocap" / "pose2sim_balancing"
+CMU_DIR = SAMPLE_DATA / "mocap" / "cmu131"
+BALANCING_DIR = SAMPLE_DATA / "mocap" / "pose2sim_balancing"
 BALANCING_POSES = BALANCING_DIR / "balancing_trial_poses.npz"
-DEMO_DIR = REPO_ROOT / "sample_data" / "mocap" / "pose2sim_demo"
+DEMO_DIR = SAMPLE_DATA / "mocap" / "pose2sim_demo"
 DEMO_POSES = DEMO_DIR / "demo_people_poses.npz"
 DEMO_ACTIVITIES = ("stand", "walk")
 SOURCE_NAMES = ("library", "cmu", "balancing", "demo")
@@ -156,7 +156,7 @@ def _step_one_fit(scene_dir: Path):
 
 
 def make_balancing_poses(
-    scene_dir: str | os.PathLike = REPO_ROOT / "sample_data" / "pose2sim_balancing",
+    scene_dir: str | os.PathLike = SAMPLE_DATA / "pose2sim_balancing",
     out: str | os.PathLike = BALANCING_POSES,
 ) -> Path:
     """Run the pipeline (no prior) on the balancing trial and store its subject's step-I
@@ -191,7 +191,7 @@ def make_balancing_poses(
 
 
 def make_demo_poses(
-    scene_dir: str | os.PathLike = REPO_ROOT / "sample_data" / "pose2sim_demo",
+    scene_dir: str | os.PathLike = SAMPLE_DATA / "pose2sim_demo",
     out: str | os.PathLike = DEMO_POSES,
     *,
     min_frames: int = 50,

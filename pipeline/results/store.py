@@ -25,9 +25,9 @@ import numpy as np
 
 from pipeline.association.associate import Association
 from pipeline.body.arrays import BodyModelData, load_body_model_data
-from pipeline.body.keypoints import FITTABLE_JOINT_SETS
 from pipeline.config import PipelineConfig
 from pipeline.core.files import CACHE_DIR, SceneFormatError, load_npz, save_npz_atomic
+from pipeline.core.units import PIPELINE_DIR
 from pipeline.data.scene import Scene
 from pipeline.fit.prior_path import resolve_prior_path
 from pipeline.fit.types import SmplFit
@@ -39,6 +39,12 @@ from pipeline.stages.triangulate import Triangulation
 if TYPE_CHECKING:
     from pipeline.body.model import BodyModel
 
+STAGES = ("raw", "kalman", "rts", "smpl", "smpl_vae")
+"""The stages whose joints results hold: raw triangulation, Kalman forward filter, RTS
+smoother, SMPL fit (step I) and SMPL fit corrected by the VAE pose prior (the names of
+``--stage``, of the evaluation's rows and of the exports)."""
+BODY_STAGES = ("smpl", "smpl_vae")
+"""The stages that give bodies: :class:`PipelineResults` fields holding a ``SmplFit``."""
 RESULTS_VERSION = 6  # 6: edges only where a reader uses them, int32 / float32 (5: track_rejected)
 RESULTS_FILE = "results.npz"  # in the scene's CACHE_DIR
 RESULTS_DIR = "results"  # ... for a long scene: a directory of memory-mapped columns
@@ -47,9 +53,6 @@ LONG_SCENE_VIEW_FRAMES = 50_000
 stages as they go, opened lazily; :mod:`pipeline.run.streamed`) rather than one
 compressed file: a 10,000-frame dome:31 x 20 run in memory took ~11 GB, streamed 1.8 GB,
 and its compressed file alone would take longer to write than the run."""
-FIT_JOINT_SETS = FITTABLE_JOINT_SETS  # = smpl_kinematics.SUPPORTED_JOINT_SETS, read torch-free
-"""Joint sets whose tracks get SMPL bodies: every set the body-model table
-(:mod:`pipeline.body.keypoints`) ties all limbs of."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -347,7 +350,7 @@ def code_digest() -> str:
     """A digest of the pipeline's own source: results made by other code are recomputed
     (a cache that outlives an upgrade of the stages would show the old stages' numbers)."""
     h = hashlib.sha256()
-    root = Path(__file__).resolve().parent
+    root = PIPELINE_DIR
     for path in sorted(root.rglob("*.py")):
         h.update(path.relative_to(root).as_posix().encode())
         h.update(path.read_bytes())

@@ -10,9 +10,10 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING
 
+from pipeline.body.keypoints import FITTABLE_JOINT_SETS
 from pipeline.config import PipelineConfig
 from pipeline.core.progress import Progress
-from pipeline.results.store import FIT_JOINT_SETS, PipelineResults
+from pipeline.results.store import PipelineResults
 
 if TYPE_CHECKING:
     from pipeline.body.arrays import BodyModelData
@@ -41,7 +42,8 @@ def fit_bodies(
     filtered ones: the forward filter lags (on a mocap walk 15.3 mm where RTS is 11.0).
     A sequence of more than :data:`LONG_FIT_FRAMES` frames is fit in chunks of
     :data:`LONG_FIT_CHUNK_FRAMES`, each warm-started by the last."""
-    if not config.fit_smpl or results.joint_set not in FIT_JOINT_SETS or results.num_tracks == 0:
+    fittable = results.joint_set in FITTABLE_JOINT_SETS
+    if not config.fit_smpl or not fittable or results.num_tracks == 0:
         return results
     # torch (~3-7 s to import) only once a fit runs: loading cached results never needs it
     from pipeline.body.model import torch_body_model  # noqa: PLC0415

@@ -45,7 +45,7 @@ from pipeline.run.frames import (
     source_joint_set,
 )
 
-DEFAULT_CHUNK_FRAMES = 256
+PACKED_CHUNK_FRAMES = 256  # frames packed into columns before they are joined
 
 
 def _without_edges(c: FrameColumns) -> FrameColumns:
@@ -64,7 +64,7 @@ def run_stages_chunked(
     restored: np.ndarray | None,
     key: str = "",
     rows_per_frame: list[np.ndarray] | None = None,
-    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    chunk_frames: int = PACKED_CHUNK_FRAMES,
     keep_edges: bool = True,
     cancelled: Callable[[], bool] | None = None,
     progress: Progress = True,

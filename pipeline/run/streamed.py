@@ -69,7 +69,9 @@ if TYPE_CHECKING:
     from pipeline.body.arrays import BodyModelData
     from pipeline.body.model import BodyModel
 
-DEFAULT_CHUNK_FRAMES = 64  # at 31 x 20 a frame's columns are ~110 KB: ~7 MB a chunk
+# frames whose columns are held before they are written (at 31 x 20 a frame's columns are
+# ~110 KB: ~7 MB a chunk)
+STREAMED_CHUNK_FRAMES = 64
 # Frames x joints x tracks per block of the Kalman filter: it holds ~25 arrays of
 # (frames, tracks x joints, 3) float64 while it runs, ~80 MB a block at this size.
 FILTER_BLOCK_STEPS = 1 << 17
@@ -153,7 +155,7 @@ def stream_stages(
     restored: np.ndarray | None,
     key: str = "",
     rows_per_frame: list[np.ndarray] | None = None,
-    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    chunk_frames: int = STREAMED_CHUNK_FRAMES,
     keep_edges: bool = True,
     cancelled: Callable[[], bool] | None = None,
     progress: Progress = True,
@@ -251,7 +253,7 @@ def run_stages_streamed(
     *,
     restored: np.ndarray | None,
     key: str = "",
-    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    chunk_frames: int = STREAMED_CHUNK_FRAMES,
     keep_edges: bool = True,
     cancelled: Callable[[], bool] | None = None,
     progress: Progress = True,

@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.body.keypoints import FITTABLE_JOINT_SETS
 from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.data.joint_sets import get_joint_set
 from pipeline.data.scene import load_scene
 from pipeline.evaluation.evaluate import evaluate
-from pipeline.results.store import FIT_JOINT_SETS
 from pipeline.run.pipeline import run_pipeline
 from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.pipeline.helpers import shelf_rig
@@ -51,7 +51,7 @@ def scores(tmp_path_factory):
 
 
 def test_every_layout_is_fitted():
-    assert set(LAYOUTS) <= set(FIT_JOINT_SETS)
+    assert set(LAYOUTS) <= set(FITTABLE_JOINT_SETS)
 
 
 @pytest.mark.parametrize("joint_set", LAYOUTS)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.data.joint_sets import get_joint_set
+from pipeline.evaluation.metrics import MATCH_GATE_MM  # noqa: F401  (re-exported)
 from pipeline.results.store import PipelineResults
 
 CRITERIA = ("reprojection", "mpjpe", "association", "id", "kalman", "smpl", "labels")
@@ -21,7 +22,6 @@ MAHALANOBIS_THRESHOLD = 3.0
 AFFINITY_THRESHOLD = 0.5
 CLOSE_MARGIN = 0.2
 UNASSIGNED_CONFIDENCE = 0.3  # mean joint confidence of an unassigned detection worth a look
-MATCH_GATE_MM = 500.0  # as pipeline.evaluation.evaluate: pairs above this MPJPE never match
 LIMIT_SCALE_DEG = 10.0
 SWITCH_SCORE = 3.0
 # A measure this many times its usual level (the run's median for that joint and camera)

@@ -87,6 +87,7 @@ from mvviz.export.rerun.layout import (
 )
 from mvviz.export.rerun.logger import MESH_CHUNK_FRAMES, ImageLike, SceneLogger
 from mvviz.export.rerun.meshes import decimate_mesh, display_mesh, skin_subset
+from mvviz.export.rerun.sources import scene_frame_sources
 from pipeline.body.model import BodyModel
 from pipeline.data.scene import Scene
 from pipeline.results.store import PipelineResults
@@ -122,7 +123,7 @@ def log_scene(
 
     Args:
         images: camera name -> ``read(frame)`` returning JPEG bytes or a BGR image (e.g.
-            :class:`mvviz.export.rrd.FrameSource`), or True to read the scene's videos
+            :class:`mvviz.export.rerun.sources.FrameSource`), or True to read the scene's videos
             and image folders, or False (default) for no images.
         body_model: skins the GT meshes (``pipeline.body.model.load_body_model()``).
         progress: wraps the frame loop (e.g. ``tqdm``).
@@ -133,8 +134,6 @@ def log_scene(
     readers: Mapping[str, Callable[[int], ImageLike | None]] = {}
     opened = []
     if images is True:
-        from mvviz.export.rrd import scene_frame_sources  # noqa: PLC0415  (cv2 video I/O)
-
         opened = list(scene_frame_sources(scene).values())
         readers = {src.camera: src.read for src in opened}
     elif images:

@@ -15,7 +15,10 @@ from pipeline.core.palette import track_rgb
 from pipeline.data.cameras import Camera
 from pipeline.data.joint_sets import SMPL24, JointSet
 from pipeline.data.scene import Scene
-from pipeline.results.store import PipelineResults
+from pipeline.results.store import (
+    BODY_STAGES,  # noqa: F401  (re-exported)
+    PipelineResults,
+)
 
 APP_ID = "mvviz"
 MM_TO_M = 1e-3
@@ -30,7 +33,6 @@ JOINT_ALIASES: dict[str, tuple[tuple[str, ...], ...]] = {
 GREY_UNASSIGNED = (110, 110, 110)
 GREY_UNTRACKED = (210, 210, 210)
 GT_COLOR = (120, 225, 140)
-BODY_STAGES = ("smpl", "smpl_vae")  # PipelineResults fields holding SmplFit bodies
 AXIS_COLORS = ((230, 80, 80), (80, 200, 90), (80, 130, 235))
 RAW_SHADE = 0.6  # a raw track's colour: its filtered colour this much darker
 
