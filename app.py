@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.batch is not None:
         # the report's modules (matplotlib) load only with --batch: the start stays fast
-        from mvviz.cli.view_batch import run_batch  # noqa: PLC0415
+        from mvviz.cli.view_batch import run_batch
 
         return run_command("app.py", run_batch, args)
     return run_command("app.py", run, args)

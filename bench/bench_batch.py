@@ -288,7 +288,7 @@ def timeline(rows: list[dict], t0: float, t1: float) -> dict:
     the report's task timeline (:func:`pipeline.batch.report.task_timeline`): start-up
     (command to first task), tail (last task to exit), the workers that ran scenes, and
     the core-seconds idle between the first and the last task."""
-    from pipeline.batch.report import task_timeline  # noqa: PLC0415  (matplotlib)
+    from pipeline.batch.report import task_timeline  # matplotlib
 
     tl = task_timeline(rows, t0)
     if tl is None:

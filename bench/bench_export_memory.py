@@ -142,7 +142,7 @@ def main() -> int:
                     choices=["chunked", "before", "at_once", "no_index"])  # fmt: skip
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    from mvviz.export.rrd import MESH_CHUNK_FRAMES  # noqa: PLC0415
+    from mvviz.export.rrd import MESH_CHUNK_FRAMES
 
     modes = {"chunked": MESH_CHUNK_FRAMES, "before": MESH_CHUNK_FRAMES, "at_once": 0,
              "no_index": MESH_CHUNK_FRAMES}  # fmt: skip

@@ -24,10 +24,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
+from bench.reference_kalman import kalman_filter_filterpy  # noqa: E402
 from pipeline.stages.kalman import (  # noqa: E402
     KalmanParams,
     kalman_filter,
-    kalman_filter_filterpy,
 )
 
 NUM_FRAMES, NUM_PEOPLE, NUM_JOINTS, FPS = 250, 4, 24, 25.0

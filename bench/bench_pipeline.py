@@ -7,7 +7,7 @@ the median of --repeats runs. In the same run, on the same clustered 2D input:
 
 - aniposelib's CameraGroup.triangulate (time and MPJPE against the true keypoints),
   if aniposelib is installed (``pip install -e ".[bench]"``);
-- the filterpy loop (pipeline.stages.kalman.kalman_filter_filterpy, one trajectory at a time)
+- the filterpy loop (bench/reference_kalman.py's kalman_filter_filterpy, one trajectory at a time)
   against the vectorised filter, on every track and joint of the run.
 
 Usage:
@@ -30,12 +30,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_triangulate import anipose_group  # noqa: E402
 
 from bench.common import write_json  # noqa: E402
+from bench.reference_kalman import kalman_filter_filterpy  # noqa: E402
 from pipeline.association.associate import associate_frame  # noqa: E402
 from pipeline.body.model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.data.scene import load_scene  # noqa: E402
 from pipeline.run.frames import frame_rows, restored_joints, run_frame, run_sequence  # noqa: E402
-from pipeline.stages.kalman import kalman_filter, kalman_filter_filterpy  # noqa: E402
+from pipeline.stages.kalman import kalman_filter  # noqa: E402
 from pipeline.stages.triangulate import triangulate_people  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

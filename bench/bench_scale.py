@@ -10,7 +10,7 @@ part-ray screen, then the per-joint kernel on the pairs it keeps, in one compile
 the NumPy screen and kernel on every frame ("numpy": by cache-sized blocks,
 ``pipeline.association.pairs``), with the screen and kernel before the blocks
 ("unblocked": ``screen_distances_unblocked``, ``pair_ray_distances_unchunked``), with
-the association before the screen (``pipeline.association.associate.dense_frame_distances``: every
+the association before the screen (``bench.reference_association.dense_frame_distances``: every
 pair, patched in), and
 with --reference also the kernels as first written (``ray_distances_reference`` /
 ``average_linkage_reference``). Reported: the median CPU time per frame of association
@@ -47,6 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import pipeline.association.affinity as ray_affinity  # noqa: E402
 import pipeline.association.associate as associate  # noqa: E402
 import pipeline.run.frames as run  # noqa: E402
+from bench import reference_association as reference  # noqa: E402
 from bench.common import write_json  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402
 from pipeline.data.scene import Scene, load_scene  # noqa: E402
@@ -63,26 +64,27 @@ def kernels(mode: str):
     """Association as today ("new": the compiled screen and kernel where a frame has
     ``COMPILED_MIN_DETECTIONS`` detections), with the NumPy screen and kernel on every
     frame ("numpy": today's before the compiled pass), with those before they went
-    by cache-sized blocks ("unblocked": ``ray_affinity.screen_distances_unblocked``,
+    by cache-sized blocks ("unblocked": ``reference.screen_distances_unblocked``,
     ``pair_ray_distances_unchunked``), with every pair's distance ("dense", the kernels
-    before the screen) or with the kernels as first written ("reference")."""
-    saved = associate._frame_distances, associate.ray_distances, associate._average_linkage
+    before the screen) or with the kernels as first written ("reference"); the kernels
+    of the last three are bench/reference_association.py's."""
+    saved = associate._frame_distances, reference.ray_distances, associate._average_linkage
     saved_screen = ray_affinity._pair_kernel, ray_affinity._screen
     saved_min = ray_affinity.COMPILED_MIN_DETECTIONS
     if mode != "new":  # every other mode is a NumPy one
         ray_affinity.COMPILED_MIN_DETECTIONS = sys.maxsize
     if mode == "unblocked":
-        ray_affinity._pair_kernel = ray_affinity.pair_ray_distances_unchunked
-        ray_affinity._screen = ray_affinity.screen_distances_unblocked
+        ray_affinity._pair_kernel = reference.pair_ray_distances_unchunked
+        ray_affinity._screen = reference.screen_distances_unblocked
     if mode in ("dense", "reference"):
-        associate._frame_distances = associate.dense_frame_distances
+        associate._frame_distances = reference.dense_frame_distances
     if mode == "reference":
-        associate.ray_distances = associate.ray_distances_reference
-        associate._average_linkage = associate.average_linkage_reference
+        reference.ray_distances = reference.ray_distances_reference
+        associate._average_linkage = reference.average_linkage_reference
     try:
         yield
     finally:
-        associate._frame_distances, associate.ray_distances, associate._average_linkage = saved
+        associate._frame_distances, reference.ray_distances, associate._average_linkage = saved
         ray_affinity._pair_kernel, ray_affinity._screen = saved_screen
         ray_affinity.COMPILED_MIN_DETECTIONS = saved_min
 

@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"{args.scene.name}: {args.runs} starts after a warm-up; load {load:.1f} per CPU")
     pw_ctx = browser = None
     if CHROMIUM.exists():
-        from playwright.sync_api import sync_playwright  # noqa: PLC0415  (dev extra)
+        from playwright.sync_api import sync_playwright  # dev extra
 
         pw_ctx = sync_playwright().start()
         browser = launch_chromium(pw_ctx)
@@ -219,7 +219,7 @@ def compare(args: argparse.Namespace) -> dict:
     print(f"{scene_rel}: {args.runs} alternated starts of {REPO} and {other}; load {load:.1f}")
     pw_ctx = browser = None
     if CHROMIUM.exists():
-        from playwright.sync_api import sync_playwright  # noqa: PLC0415  (dev extra)
+        from playwright.sync_api import sync_playwright  # dev extra
 
         pw_ctx = sync_playwright().start()
         browser = launch_chromium(pw_ctx)

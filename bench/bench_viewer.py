@@ -165,7 +165,7 @@ class WireClient:
     """A headless websocket client counting the bytes it receives (--client)."""
 
     def __init__(self, url: str) -> None:
-        from websockets.sync.client import connect  # noqa: PLC0415  (optional tool)
+        from websockets.sync.client import connect  # optional tool
 
         self.bytes = 0
         self._ws = connect(
@@ -247,7 +247,7 @@ def rerun_overhead(start, changes: np.ndarray, warm: np.ndarray) -> dict:
     """The same frame changes in one app without, with and again without ``--rerun``'s
     live logging (mvviz/export/rerun_live.py into a rerun server), then 5 s of 1x playback with
     it: what the logging adds to a frame change and whether it keeps up."""
-    from mvviz.export.rerun_live import LiveRerun, RerunWebServer  # noqa: PLC0415
+    from mvviz.export.rerun_live import LiveRerun, RerunWebServer
 
     app, tap = start()
     server = RerunWebServer(web_port=free_port())
@@ -303,7 +303,7 @@ def rerun_overhead(start, changes: np.ndarray, warm: np.ndarray) -> dict:
 
 def browser_playback(scene, results, model, frames, seconds: float) -> dict:
     """1x playback of the default app in headless chromium: the page's lag."""
-    from playwright.sync_api import sync_playwright  # noqa: PLC0415  (dev extra)
+    from playwright.sync_api import sync_playwright  # dev extra
 
     state = ViewerState.create(scene, results, model)
     app = ViewerApp(state, host="127.0.0.1", port=free_port(), frames=frames, model=model)

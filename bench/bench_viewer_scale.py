@@ -74,8 +74,8 @@ EVERY_LAYER = {"detections2d_panel_camera_only": False}
 def dome_scene(out: Path, cams: int, people: int, frames: int, seed: int, video: float) -> Scene:
     """The scene, synthesised once (``video`` > 0: with videos at that scale)."""
     if not (out / "scene.json").exists():
-        from pipeline.synth.rigs import dome_rig  # noqa: PLC0415
-        from pipeline.synth.scene_gen import SynthConfig, write_synth_scene  # noqa: PLC0415
+        from pipeline.synth.rigs import dome_rig
+        from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 
         t0 = time.perf_counter()
         cfg = SynthConfig(

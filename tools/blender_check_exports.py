@@ -22,10 +22,10 @@ import numpy as np
 
 
 def write_reference(scene_dir: str, out: str) -> None:
-    from pipeline.body.model import load_body_model  # noqa: PLC0415
-    from pipeline.config import PipelineConfig  # noqa: PLC0415
-    from pipeline.data.scene import load_scene  # noqa: PLC0415
-    from pipeline.run.pipeline import run_or_load  # noqa: PLC0415
+    from pipeline.body.model import load_body_model
+    from pipeline.config import PipelineConfig
+    from pipeline.data.scene import load_scene
+    from pipeline.run.pipeline import run_or_load
 
     model = load_body_model()
     scene = load_scene(scene_dir)
@@ -49,7 +49,7 @@ def to_blender(p_mm: np.ndarray) -> np.ndarray:
 
 
 def check(ref_path: str, bvh: str, glb: str) -> None:
-    import bpy  # noqa: PLC0415
+    import bpy
 
     ref = np.load(ref_path)
     names = [str(n) for n in ref["names"]]

@@ -27,8 +27,8 @@ ARROW_RGB, CELL_RGB = (255, 200, 40), (90, 90, 90)
 
 def _figure(size: tuple[int, int] = PLOT_SIZE, dpi: int = PLOT_DPI):
     # matplotlib (~0.5 s to import) loads with the first plot, not with the viewer
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
-    from matplotlib.figure import Figure  # noqa: PLC0415
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     fig = Figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi, facecolor="white")
     canvas = FigureCanvasAgg(fig)

@@ -137,7 +137,7 @@ def plan(
 
 def _stale(job: SceneJob) -> bool:
     """The job's results or their report figures are not stored with its key."""
-    from pipeline.batch.ray_run import cached_summary  # noqa: PLC0415  (Ray)
+    from pipeline.batch.ray_run import cached_summary  # Ray
 
     return cached_summary(job)[1] is None
 
@@ -174,7 +174,7 @@ class _RayStart:
     def _run(self) -> None:
         ray_run = None
         try:
-            from pipeline.batch import ray_run  # noqa: PLC0415  (Ray)
+            from pipeline.batch import ray_run  # Ray
 
             logging.getLogger("ray").setLevel(logging.ERROR)  # no "not the main thread" note
             args = self.args
@@ -253,7 +253,7 @@ def _run_jobs(args, ray_start: _RayStart, jobs, scenes, model, bad) -> list:
         print(f"{row['label']}: failed to load: {row['error']}", file=sys.stderr)
     if not jobs:
         return []
-    from pipeline.batch.ray_run import run_jobs  # noqa: PLC0415  (Ray)
+    from pipeline.batch.ray_run import run_jobs  # Ray
 
     if ray_start.started:  # Ray only when something is to be computed
         cpus = ray_start.wait()
@@ -269,11 +269,11 @@ def _run_jobs(args, ray_start: _RayStart, jobs, scenes, model, bad) -> list:
 def _import_report() -> None:
     """The report's modules (matplotlib, ~0.4 s) imported while the last scenes run,
     not after them."""
-    import pipeline.batch.report  # noqa: F401, PLC0415
+    import pipeline.batch.report  # noqa: F401
 
 
 def _report(args, outcomes, bad, t0: float, started_at: float) -> int:
-    from pipeline.batch.report import build_report, write_report  # noqa: PLC0415  (matplotlib)
+    from pipeline.batch.report import build_report, write_report  # matplotlib
 
     rows = [_row(o) for o in outcomes] + bad
     for o in outcomes:

@@ -70,7 +70,7 @@ def prepare(
     model = load_body_model_data(args.smpl_model)
     if config.fit_smpl and config.use_pose_prior:
         if read_prior:
-            from pipeline.fit.prior import load_prior  # noqa: PLC0415  (torch)
+            from pipeline.fit.prior import load_prior  # torch
 
             load_prior(config.pose_prior or None)
         elif not resolve_prior_path(config.pose_prior or None).is_file():
@@ -85,7 +85,7 @@ def cached_results(args: argparse.Namespace):
     scene, config, model = prepare(args)
     results, cached = run_or_load(scene, config, model)
     print(f"{'reused cached' if cached else 'computed'} results: {results.num_tracks} tracks")
-    from pipeline.body.model import torch_body_model  # noqa: PLC0415  (the exports skin)
+    from pipeline.body.model import torch_body_model  # the exports skin
 
     return scene, results, torch_body_model(model)
 

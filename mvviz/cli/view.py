@@ -115,11 +115,11 @@ def _build_viewer(
     first_tab: FirstTab | None = None,
 ) -> ViewerApp:
     # The heavy imports (torch, scipy, trimesh, OpenCV) come after the server is up.
-    from mvviz.app import ViewerApp  # noqa: PLC0415
-    from mvviz.cli.run import prepare  # noqa: PLC0415  (shares --config/--set)
-    from mvviz.scene.images import FrameStore  # noqa: PLC0415
-    from mvviz.state import ViewerState  # noqa: PLC0415
-    from pipeline.run.pipeline import run_or_load  # noqa: PLC0415
+    from mvviz.app import ViewerApp
+    from mvviz.cli.run import prepare  # shares --config/--set
+    from mvviz.scene.images import FrameStore
+    from mvviz.state import ViewerState
+    from pipeline.run.pipeline import run_or_load
 
     scene, config, model = prepare(args, read_prior=False)
     print(f"scene {scene.name}: {len(scene.rig)} cameras, {scene.num_frames} frames")
@@ -138,7 +138,7 @@ def _build_viewer(
     app.rerun_live = None
     if getattr(args, "rerun", False):
         # rerun (~0.3 s to import) loads only with --rerun
-        from mvviz.export.rerun_live import LiveRerun, RerunWebServer  # noqa: PLC0415
+        from mvviz.export.rerun_live import LiveRerun, RerunWebServer
 
         rerun_server = RerunWebServer(host=args.host, web_port=args.rerun_port)
         app.rerun_live = LiveRerun(app, server=rerun_server, save=args.rerun_save)

@@ -26,7 +26,7 @@ def use_one_icon_zip() -> None:
         if _installed:
             return
         try:
-            from viser import _gui_api, _gui_handles, _icons  # noqa: PLC0415
+            from viser import _gui_api, _gui_handles, _icons
         except ImportError:
             return
         if not all(hasattr(m, "svg_from_icon") for m in (_gui_api, _gui_handles, _icons)):

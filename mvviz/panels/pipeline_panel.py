@@ -730,7 +730,7 @@ class PipelinePanel:
             watch.start()
             try:
                 # rerun (~0.3 s to import) loads on the first export, not at every start
-                from mvviz.export.rrd import export_rrd  # noqa: PLC0415
+                from mvviz.export.rrd import export_rrd
 
                 export_rrd(self.scene, results, self.model, path, progress=latest)
             finally:

@@ -7,9 +7,9 @@
   same-view cannot-links, by SciPy's O(n^2) hierarchical clustering instead of a
   Python loop that rebuilds an (n, n) view-conflict matrix per merge (O(n^3 V)).
 
-Both give what :mod:`pipeline.association.associate` computed before (its
-``ray_distances_reference`` / ``average_linkage_reference``, kept for the tests and
-``bench/bench_scale.py``). Units: mm.
+Both give what the association computed before (``ray_distances_reference`` /
+``average_linkage_reference`` of bench/reference_association.py, which the tests and
+``bench/bench_scale.py`` compare with). Units: mm.
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pipeline.association.pairs import (
-    PARALLEL_SIN2,
     pair_ray_distances,
     screen_distances,
     shared_joints,
@@ -36,12 +35,10 @@ __all__ = [
     "frame_affinity",
     "linkage_distances_reference",
     "pair_ray_distances",
-    "pair_ray_distances_unchunked",
     "pinhole_rays",
     "part_groups",
     "ray_distances",
     "screen_distances",
-    "screen_distances_unblocked",
     "screened_distances",
 ]
 
@@ -64,7 +61,7 @@ def ray_distances(
 
     Every term is a product over the 3 coordinates, so each joint's (n, m) block is a
     3-deep matrix product instead of an (n, m, J, 3) array (10-30 times less memory
-    traffic than :func:`ray_distances_reference`, which gives the same numbers): with
+    traffic than ``ray_distances_reference``, which gives the same numbers): with
     unit directions ``da``, ``db`` through camera centres ``a``, ``b`` and the lines'
     moments ``m = d x o`` (Plucker coordinates),
     ``(b - a) . (da x db) = da . m_b + db . m_a`` and ``|da x db|^2 = 1 - (da . db)^2``.
@@ -110,7 +107,7 @@ def frame_affinity(
     ``COMPILED_MIN_DETECTIONS`` detections get all three from one compiled pass
     (:func:`pipeline.association.fused.frame_affinity`, the same numbers to the bit)."""
     if len(views) >= COMPILED_MIN_DETECTIONS:
-        from pipeline.association.fused import frame_affinity as compiled  # noqa: PLC0415  (numba)
+        from pipeline.association.fused import frame_affinity as compiled  # numba
 
         return compiled(
             np.ascontiguousarray(dist, dtype=np.float64),
@@ -131,7 +128,7 @@ def _scipy_linkage() -> tuple:
     scipy.spatial cost ~0.2 s of imports to every process that imports the stages (the
     batch's driver, which only plans)."""
     try:
-        from scipy.cluster._hierarchy import cluster_dist, nn_chain  # noqa: PLC0415
+        from scipy.cluster._hierarchy import cluster_dist, nn_chain
     except ImportError:
         return None, None
     return nn_chain, cluster_dist
@@ -168,7 +165,7 @@ def average_linkage(
     if condensed is not None:
         pass
     elif n >= COMPILED_MIN_DETECTIONS:  # the same numbers in one compiled pass
-        from pipeline.association.fused import linkage_distances  # noqa: PLC0415  (numba)
+        from pipeline.association.fused import linkage_distances  # numba
 
         condensed = linkage_distances(affinity, np.asarray(views, np.int64))
     else:
@@ -178,7 +175,7 @@ def average_linkage(
         flat = np.zeros(n, np.intc)
         cluster_dist(nn_chain(condensed, n, 2), flat, 1.0 - threshold, n)  # 2: average
     else:
-        from scipy.cluster.hierarchy import fcluster, linkage  # noqa: PLC0415
+        from scipy.cluster.hierarchy import fcluster, linkage
 
         Z = linkage(condensed, method="average")
         flat = fcluster(Z, t=1.0 - threshold, criterion="distance")
@@ -197,7 +194,7 @@ def linkage_distances_reference(affinity: np.ndarray, views: np.ndarray) -> np.n
     dist[np.asarray(views)[:, None] == np.asarray(views)[None, :]] = 4.0 * n * n + 10.0
     np.fill_diagonal(dist, 0.0)
     dist = 0.5 * (dist + dist.T)  # >= 0: affinities are <= 1
-    from scipy.spatial.distance import squareform  # noqa: PLC0415  (see _scipy_linkage)
+    from scipy.spatial.distance import squareform  # see _scipy_linkage
 
     return squareform(dist, checks=False)
 
@@ -217,90 +214,6 @@ def _part_groups(flip: tuple[int, ...], num_joints: int, parts: int) -> tuple[np
     orbits = sorted({tuple(sorted({j, flip[j]})) for j in range(num_joints)})
     chunks = np.array_split(np.arange(len(orbits)), min(parts, len(orbits)))
     return tuple(np.array([j for k in c for j in orbits[k]], int) for c in chunks if len(c))
-
-
-def screen_distances_unblocked(
-    origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray, groups: list[np.ndarray],
-    clip: float,
-) -> np.ndarray:  # fmt: skip
-    """(n, n) a cheap stand-in for :func:`ray_distances`: the same clipped, weighted mean,
-    over each body part's mean ray (``groups``) instead of every joint, and without the
-    behind-the-camera test (which only raises a distance). Float32, NaN where two
-    detections share no part. Each part is 3 matrix products of depth 3 on (n, n): the
-    screen before :func:`pipeline.association.pairs.screen_distances` (the same numbers by row
-    blocks), kept for its test and bench/bench_scale.py's ratio."""
-    o = (origins - origins.mean(0)).astype(np.float32)  # centred: float32 keeps 0.01 mm
-    ray = np.stack([(np.nan_to_num(dirs[:, g]) * weights[:, g, None]).sum(1) for g in groups])
-    norm = np.linalg.norm(ray, axis=-1)  # (K, n)
-    u = (ray / np.maximum(norm, 1e-12)[..., None]).astype(np.float32)  # (K, n, 3) part rays
-    w = np.where(norm > 1e-9, np.stack([weights[:, g].sum(1) for g in groups]), 0.0)
-    w = w.astype(np.float32)
-    m = np.cross(u, o)  # line moments
-    cos, um = _outer_dot(u, u), _outer_dot(u, m)  # (K, n, n)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = np.abs(um + np.swapaxes(um, 1, 2)) / np.sqrt(np.maximum(1.0 - cos * cos, 0.0))
-    pw = w[:, :, None] * w[:, None, :]
-    num = (pw * np.fmin(d, clip)).sum(0)  # fmin: a NaN (parallel rays) is the clip
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return num / pw.sum(0)
-
-
-def pair_ray_distances_unchunked(
-    origins: np.ndarray,
-    dirs: np.ndarray,
-    weights: np.ndarray,
-    ia: np.ndarray,
-    ib: np.ndarray,
-    params: AssociationParams,
-    *,
-    flip: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """(P,) :func:`ray_distances` of the pairs ``(ia[k], ib[k])`` only, and (P,) the same
-    with ``ib``'s detection left/right mirrored (``flip``; None without it), mm: the pair
-    kernel before :func:`pipeline.association.pairs.pair_ray_distances` (which gives the same
-    numbers in cache-sized blocks), kept for its test and bench/bench_scale.py's ratio.
-
-    The Plucker form of :func:`ray_distances` in float32 over (3, J, P) arrays, pairs
-    last: a dot product is 3 whole-array products and the mean over joints adds J rows
-    (an einsum over a length-3 axis or a sum over a length-J one is 3-5 times slower).
-    Origins are centred on their mean so a moment's rounding stays ~1e-3 mm; the signs
-    of the closest points' parameters decide the behind-the-camera clip, so the distance
-    is the only division.
-    """
-    o = (origins - (origins.mean(0) if len(origins) else 0.0)).astype(np.float32)
-    ok = np.isfinite(dirs).all(-1)
-    D = np.where(ok[..., None], dirs, 0.0).astype(np.float32).transpose(2, 1, 0)  # (3, J, n)
-    W = np.where(ok, weights, 0.0).astype(np.float32).T  # (J, n)
-    oc = o.T[:, None, :]  # (3, 1, n)
-    M = np.stack([D[1] * oc[2] - D[2] * oc[1], D[2] * oc[0] - D[0] * oc[2],
-                  D[0] * oc[1] - D[1] * oc[0]])  # (3, J, n) moments d x o  # fmt: skip
-    own = _dot(D, oc)  # (J, n) d . o
-    take = lambda x, rows: np.take(x, rows, axis=-1)  # noqa: E731
-    A, MA, Wa, oa, ob = take(D, ia), take(M, ia), take(W, ia), take(oc, ia), take(oc, ib)
-    w0 = _dot(A, ob) - take(own, ia)  # (ob - oa) . da
-    centre_id = np.unique(origins, axis=0, return_inverse=True)[1].ravel()
-    one_centre = centre_id[ia] == centre_id[ib]
-    clip = np.float32(params.joint_clip_mm)
-    out = []
-    for perm in (None,) if flip is None else (None, np.asarray(flip)):
-        Dv, Mv, Wv, ov = (D, M, W, own) if perm is None else (
-            D[:, perm], M[:, perm], W[perm], own[perm])  # fmt: skip
-        B, MB = take(Dv, ib), take(Mv, ib)
-        dd = _dot(A, B)
-        num = np.abs(_dot(A, MB) + _dot(MA, B))
-        w1 = take(ov, ib) - _dot(B, oa)  # (ob - oa) . db
-        sin2 = 1.0 - dd * dd
-        d = np.fmin(num / np.sqrt(np.maximum(sin2, PARALLEL_SIN2)), clip)
-        behind = (w0 - dd * w1 <= 0) | (dd * w0 - w1 <= 0)
-        behind[:, one_centre] = True
-        d[behind] = clip
-        w = Wa * take(Wv, ib)
-        w[sin2 <= PARALLEL_SIN2] = 0.0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = (w * d).sum(0) / w.sum(0)
-        mean[np.count_nonzero(w, axis=0) < params.min_shared_joints] = np.nan
-        out.append(mean.astype(float))
-    return out[0], (out[1] if flip is not None else None)
 
 
 def _outer_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -352,7 +265,7 @@ def screened_distances(
     """
     n, J = dirs.shape[:2]
     if n >= COMPILED_MIN_DETECTIONS:
-        from pipeline.association.fused import fused_screened_distances  # noqa: PLC0415  (numba)
+        from pipeline.association.fused import fused_screened_distances  # numba
 
         return fused_screened_distances(origins, dirs, weights, views, flip, part_groups(flip, J),
                                         params)  # fmt: skip

@@ -51,7 +51,6 @@ from pipeline.association.affinity import (
     camera_centres,
     frame_affinity,
     pinhole_rays,
-    ray_distances,
     screened_distances,
 )
 from pipeline.association.flips import resolve_flips
@@ -123,52 +122,6 @@ def detection_rays(
     dirs[~ok] = np.nan
     origins = camera_centres(rig)[views] if n else np.zeros((0, 3))
     return origins, dirs, weights
-
-
-def ray_distances_reference(
-    origins: np.ndarray,
-    dirs: np.ndarray,
-    weights: np.ndarray,
-    params: AssociationParams,
-    *,
-    other: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-) -> np.ndarray:
-    """:func:`pipeline.association.affinity.ray_distances` (which :func:`associate_frame` uses)
-    as first written, over (n, m, J, 3) arrays: the reference its tests and
-    bench/bench_scale.py compare with.
-
-    (n, m) confidence-weighted mean of clipped ray-to-ray distances, mm.
-
-    Between the n detections ``(origins, dirs, weights)`` and the m of ``other`` (the
-    same n when None; the diagonal is then NaN). NaN where two detections share fewer
-    than ``min_shared_joints`` joints.
-    """
-    o2, d2, w2 = (origins, dirs, weights) if other is None else other
-    # Closest points of lines a + s da and b + t db; distance |(b - a) . (da x db)| / |da x db|.
-    cross = np.cross(dirs[:, None], d2[None, :])  # (n, m, J, 3)
-    norm = np.linalg.norm(cross, axis=-1)
-    base = o2[None, :] - origins[:, None]  # (n, m, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = np.abs(np.einsum("abc,abjc->abj", base, cross)) / norm
-        # Both closest points must lie in front of their cameras, else the rays diverge.
-        dd = np.einsum("ajc,bjc->abj", dirs, d2)
-        w0 = np.einsum("abc,ajc->abj", base, dirs)
-        w1 = np.einsum("abc,bjc->abj", base, d2)
-        denom = 1 - dd**2
-        s = (w0 - dd * w1) / denom
-        t = (dd * w0 - w1) / denom
-    behind = (s <= 0) | (t <= 0)
-    clip = params.joint_clip_mm
-    d = np.where(behind | ~np.isfinite(d), clip, np.minimum(d, clip))
-    w = weights[:, None, :] * w2[None, :, :]
-    w = np.where(np.isfinite(norm) & (norm > 1e-6), w, 0.0)
-    shared = (w > 0).sum(-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = (w * d).sum(-1) / w.sum(-1)
-    mean[shared < params.min_shared_joints] = np.nan
-    if other is None:
-        mean[np.arange(len(origins)), np.arange(len(origins))] = np.nan
-    return mean
 
 
 def flip_candidates(
@@ -301,26 +254,6 @@ def associate_frame(
     )
 
 
-def dense_frame_distances(
-    origins: np.ndarray,
-    dirs: np.ndarray,
-    weights: np.ndarray,
-    views: np.ndarray,
-    flip: np.ndarray | None,
-    params: AssociationParams,
-) -> tuple[np.ndarray, np.ndarray]:
-    """(n, n) ray distances as labelled and with one of the pair mirrored (NaN where not
-    scored, and for pairs of one view), every pair by :func:`ray_distances`: what
-    :func:`associate_frame` did before the screen
-    (:func:`pipeline.association.affinity.screened_distances`), kept for bench_scale."""
-    dist = ray_distances(origins, dirs, weights, params)
-    mirrored = np.full_like(dist, np.nan)
-    if flip is not None:
-        mirrored = _mirrored_distances(origins, dirs, weights, views, flip, params)
-    dist[views[:, None] == views[None, :]] = np.nan  # as the screened ones: no same-view pair
-    return dist, mirrored
-
-
 _frame_distances = screened_distances  # bench/bench_scale.py swaps in the dense one
 
 
@@ -379,44 +312,9 @@ def _people(
 def _average_linkage(
     affinity: np.ndarray, views: np.ndarray, threshold: float, *, condensed=None
 ) -> np.ndarray:
-    """:func:`pipeline.association.affinity.average_linkage` (SciPy's hierarchical clustering):
-    the same clusters as :func:`average_linkage_reference` in O(n^2)."""
+    """:func:`pipeline.association.affinity.average_linkage` (SciPy's hierarchical
+    clustering): the same clusters as ``average_linkage_reference``
+    (bench/reference_association.py) in O(n^2)."""
     return average_linkage(affinity, views, threshold, condensed=condensed)
 
 
-def average_linkage_reference(
-    affinity: np.ndarray, views: np.ndarray, threshold: float, *, condensed=None
-) -> np.ndarray:
-    """Agglomerative clustering with average linkage and same-view cannot-links, as first
-    written (a Python loop over merges): the reference of the tests and bench_scale.
-
-    Returns (n,) cluster labels. Merges the pair of clusters with the highest mean
-    cross affinity while it is >= threshold; pairs with an unknown affinity (NaN)
-    count as 0 in the mean, so a detection must agree with most of a cluster.
-    ``condensed`` is not read (the reference makes its own means).
-    """
-    n = len(views)
-    A = np.nan_to_num(affinity, nan=0.0)
-    sums = A.copy()  # sum of affinities between clusters i and j
-    counts = np.ones((n, n))
-    view_sets = np.zeros((n, int(views.max()) + 1), bool)
-    view_sets[np.arange(n), views] = True
-    alive = np.ones(n, bool)
-    label = np.arange(n)
-    while True:
-        mean = sums / counts
-        conflict = (view_sets.astype(int) @ view_sets.T.astype(int)) > 0
-        mean[conflict | ~alive[:, None] | ~alive[None, :]] = -np.inf
-        np.fill_diagonal(mean, -np.inf)
-        i, j = np.unravel_index(np.argmax(mean), mean.shape)
-        if mean[i, j] < threshold:
-            break
-        # Merge j into i.
-        label[label == j] = i
-        sums[i, :] += sums[j, :]
-        sums[:, i] += sums[:, j]
-        counts[i, :] += counts[j, :]
-        counts[:, i] += counts[:, j]
-        view_sets[i] |= view_sets[j]
-        alive[j] = False
-    return label

@@ -11,7 +11,8 @@ The NumPy kernels are ~90 whole-array operations on blocks of pairs; at 16 camer
 people every one of them costs more in NumPy's per-call overhead and memory traffic than
 its arithmetic (bench/bench_scale.py times both). Each row's loops run over b with no
 branch and contiguous reads, so the compiler vectorises them (AVX-512: 8 pairs a square
-root); one pair at a time with a branch per joint (:func:`_fused_pairwise`, the pass before)
+root); one pair at a time with a branch per joint (the pass before, kept in
+bench/reference_association.py)
 was scalar and ~2.5x slower at 31 cameras x 20 people, and gives the same numbers to the
 bit (each lane sums its joints in the same order). Numba compiles it once per machine
 (cached beside this module) and loads it where a frame has
@@ -28,7 +29,7 @@ import math
 import numba
 import numpy as np
 
-from pipeline.association.pairs import PARALLEL_SIN2, shared_joints
+from pipeline.association.pairs import PARALLEL_SIN2
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -235,74 +236,6 @@ def _fused(U, M, PW, joints, o, views, flip, has_flip, prune, clip, min_shared):
     return dist, mirrored
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _pair_mean(joints, o, a, b, perm, clip, min_shared):
-    """The per-joint kernel of :func:`pipeline.association.pairs._block` for one pair, with a
-    branch per joint: joint j of a against joint ``perm[j]`` of b (a mirror, or the
-    identity). NaN where fewer than ``min_shared`` joints both see. The pass before
-    :func:`_kernel_row`, which must give its numbers to the bit."""
-    one_centre = o[a, 0] == o[b, 0] and o[a, 1] == o[b, 1] and o[a, 2] == o[b, 2]
-    bx = o[b, 0] - o[a, 0]
-    by = o[b, 1] - o[a, 1]
-    bz = o[b, 2] - o[a, 2]
-    num = 0.0
-    den = 0.0
-    shared = 0
-    for j in range(joints.shape[2]):
-        jb = perm[j]
-        wj = joints[a, 3, j] * joints[b, 3, jb]
-        if wj <= 0.0:
-            continue
-        ax, ay, az = joints[a, 0, j], joints[a, 1, j], joints[a, 2, j]
-        cx, cy, cz = joints[b, 0, jb], joints[b, 1, jb], joints[b, 2, jb]
-        dd = ax * cx + ay * cy + az * cz
-        sin2 = 1.0 - dd * dd
-        if sin2 <= PARALLEL_SIN2:
-            continue  # parallel rays say nothing
-        # |(ob - oa) . (da x db)| / |da x db|
-        tri = bx * (ay * cz - az * cy) + by * (az * cx - ax * cz) + bz * (ax * cy - ay * cx)
-        dist = min(abs(tri) / math.sqrt(sin2), clip)
-        w0 = bx * ax + by * ay + bz * az  # (ob - oa) . da
-        w1 = bx * cx + by * cy + bz * cz  # (ob - oa) . db
-        # the closest points' parameters (times sin^2 > 0) must both be > 0
-        if one_centre or w0 - dd * w1 <= 0.0 or dd * w0 - w1 <= 0.0:
-            dist = clip
-        num += wj * dist
-        den += wj
-        shared += 1
-    if shared < min_shared:
-        return np.nan
-    return num / den
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fused_pairwise(U, M, PW, joints, o, views, flip, has_flip, shared, prune, clip, min_shared):
-    """:func:`_fused` one pair at a time (the pass before it, scalar code: the reference
-    tests/pipeline/test_ray_fused.py holds it to, bit for bit)."""
-    n = joints.shape[0]
-    dist = np.full((n, n), np.nan)
-    mirrored = np.full((n, n), np.nan)
-    ident = np.arange(joints.shape[2])
-    num = np.empty(n)
-    den = np.empty(n)
-    for a in range(n):
-        _screen_row(U, M, PW, a, clip, num, den)
-        for b in range(a + 1, n):
-            if views[a] == views[b]:
-                continue
-            i = b - a - 1
-            s = num[i] / den[i] if den[i] > 0.0 else np.nan
-            if s < prune:
-                v = _pair_mean(joints, o, a, b, ident, clip, min_shared)
-                dist[a, b] = dist[b, a] = v
-                if has_flip:
-                    v = _pair_mean(joints, o, a, b, flip, clip, min_shared)
-                    mirrored[a, b] = mirrored[b, a] = v
-            elif shared[a, b]:
-                dist[a, b] = dist[b, a] = s
-    return dist, mirrored
-
-
 def fused_screened_distances(
     origins: np.ndarray,
     dirs: np.ndarray,
@@ -311,13 +244,9 @@ def fused_screened_distances(
     flip: np.ndarray | None,
     groups: list[np.ndarray],
     params,
-    *,
-    pairwise: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(n, n) straight and mirrored ray distances (mm) of
-    :func:`pipeline.association.affinity.screened_distances`, given its part ``groups``.
-    ``pairwise``: by the pass one pair at a time (:func:`_fused_pairwise`, for the tests;
-    it takes the pairs' shared joints from :func:`pipeline.association.pairs.shared_joints`)."""
+    :func:`pipeline.association.affinity.screened_distances`, given its part ``groups``."""
     n, J = dirs.shape[:2]
     if n == 0:
         return np.zeros((0, 0)), np.zeros((0, 0))
@@ -332,10 +261,6 @@ def fused_screened_distances(
     perm = np.arange(J) if flip is None else np.asarray(flip, dtype=np.int64)
     views = np.ascontiguousarray(views, dtype=np.int64)
     scalars = float(params.prune_mm), float(params.joint_clip_mm), int(params.min_shared_joints)
-    if pairwise:
-        shared = shared_joints(joints[:, 3] > 0.0) >= params.min_shared_joints
-        return _fused_pairwise(U, M, PW, joints, o, views, perm, flip is not None, shared,
-                               *scalars)  # fmt: skip
     return _fused(U, M, PW, joints, o, views, perm, flip is not None, *scalars)
 
 

@@ -1,8 +1,8 @@
 """The per-joint ray distance of a list of detection pairs, in blocks that stay in cache.
 
-:func:`pair_ray_distances` computes what
-:func:`pipeline.association.affinity.pair_ray_distances_unchunked` does (the float32 Plucker form
-of :func:`pipeline.association.affinity.ray_distances` on the pairs a screen kept), laid out
+:func:`pair_ray_distances` computes what ``pair_ray_distances_unchunked``
+(bench/reference_association.py) does (the float32 Plucker form of
+:func:`pipeline.association.affinity.ray_distances` on the pairs a screen kept), laid out
 for the memory hierarchy rather than for the fewest NumPy calls: the per-detection
 arrays are (coordinates, detections, joints), so gathering a block of pairs takes whole
 rows of J values (a gather across the last axis, as before, costs 5-8 times as much),
@@ -58,8 +58,8 @@ def pair_ray_distances(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """(P,) ray distances of the pairs ``(ia[k], ib[k])``, mm, and (P,) the same with
     ``ib``'s detection left/right mirrored (``flip``; None without it): the numbers of
-    :func:`pipeline.association.affinity.pair_ray_distances_unchunked` (float32, NaN where a pair
-    shares fewer than ``min_shared_joints`` joints)."""
+    ``pair_ray_distances_unchunked``, bench/reference_association.py (float32, NaN where a
+    pair shares fewer than ``min_shared_joints`` joints)."""
     straight = _detection_arrays(origins, dirs, weights)
     mirror = None if flip is None else straight[:, :, np.asarray(flip)]
     o = (origins - (origins.mean(0) if len(origins) else 0.0)).astype(np.float32)
@@ -130,7 +130,7 @@ def screen_distances(
     origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray, groups: list[np.ndarray],
     clip: float,
 ) -> np.ndarray:  # fmt: skip
-    """(n, n) :func:`pipeline.association.affinity.screen_distances_unblocked` (the clipped,
+    """(n, n) ``screen_distances_unblocked`` of bench/reference_association.py (the clipped,
     weighted mean ray distance over each body part's mean ray, float32, NaN where two
     detections share no part) by blocks of rows (:data:`SCREEN_BLOCK`) against the columns
     from the block on (the upper triangle; the lower is its mirror), each term

@@ -274,7 +274,7 @@ def refine_clusters(
     has_ray = geometry.has_ray if geometry is not None else np.ones(n, bool)
     choose = _best_move
     if n >= ray_affinity.COMPILED_MIN_DETECTIONS:  # the same move, one compiled pass
-        from pipeline.association.fused import best_move as choose  # noqa: PLC0415  (numba)
+        from pipeline.association.fused import best_move as choose  # numba
     for _ in range(n):
         i, c, gained = choose(
             gain, col, seen, views, size, dist if dist is not None else np.zeros((0, 0)),

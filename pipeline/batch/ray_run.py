@@ -122,7 +122,7 @@ def _loopback_node():
     ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER``, read once when ray is imported): both are
     set while the node starts (its processes inherit the variable), then restored, so a
     later ``--address`` run in this process still reports its reachable address."""
-    from ray._private import ray_constants  # noqa: PLC0415
+    from ray._private import ray_constants
 
     name = ray_constants.ENABLE_RAY_CLUSTERS_ENV_VAR
     saved_env, saved_flag = os.environ.get(name), ray_constants.ENABLE_RAY_CLUSTER
@@ -201,8 +201,8 @@ def _lean_head():
     the log monitor (``RayParams.no_monitor``, ``include_log_monitor``, which ``ray.init``
     does not pass on) are set, and the node's API server start is skipped; both restored
     after. A Ray without these hooks starts its full head: slower, never wrong."""
-    from ray._private import node as ray_node  # noqa: PLC0415
-    from ray._private import parameter  # noqa: PLC0415
+    from ray._private import node as ray_node
+    from ray._private import parameter
 
     params_cls = parameter.RayParams
     names = inspect.signature(params_cls.__init__).parameters
@@ -270,7 +270,7 @@ def prune_ray_sessions(
 
 
 def _set_threads(n: int) -> None:
-    import torch  # noqa: PLC0415  (workers only: the driver never imports torch)
+    import torch  # workers only: the driver never imports torch
 
     torch.set_num_threads(n)
 
@@ -280,10 +280,10 @@ def _warm_task(model_path: str | None) -> tuple[int, str | None]:
     task reads it) loaded while the driver still plans. Returns (the worker's process
     id, the error if loading failed: the scene tasks, which load the same, report it)."""
     try:
-        import pipeline.fit.prior  # noqa: F401, PLC0415  (torch, the fit's modules)
-        import pipeline.fit.smpl  # noqa: F401, PLC0415
-        import pipeline.stages.restore  # noqa: F401, PLC0415
-        from pipeline.body.model import load_body_model  # noqa: PLC0415
+        import pipeline.fit.prior  # noqa: F401  (torch, the fit's modules)
+        import pipeline.fit.smpl  # noqa: F401
+        import pipeline.stages.restore  # noqa: F401
+        from pipeline.body.model import load_body_model
 
         load_body_model(model_path)  # once per process: the scene tasks find it loaded
     except Exception as exc:  # noqa: BLE001  (reported by the scene tasks)
@@ -303,7 +303,7 @@ def check_prior(path: str | None) -> None:
     """Read the pose prior checkpoint ``path`` (None: the shipped one) as the fit will
     (a bad file raises :class:`SceneFormatError` naming it): on a worker, so the driver
     never imports torch."""
-    from pipeline.fit.prior import load_prior  # noqa: PLC0415
+    from pipeline.fit.prior import load_prior
 
     load_prior(path)
 
@@ -324,7 +324,7 @@ def _model(model):
     """The body model of a task: the one shipped, or the file's (read once per worker)."""
     if not isinstance(model, ModelFile):
         return model
-    from pipeline.body.model import load_body_model  # noqa: PLC0415  (torch)
+    from pipeline.body.model import load_body_model  # torch
 
     loaded = load_body_model(model.path)  # once per worker process
     if loaded.fingerprint != model.fingerprint:

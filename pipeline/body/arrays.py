@@ -119,7 +119,7 @@ class BodyModelData:
         """
         # scipy.spatial loads ~0.3 s of modules: only where a pose is posed, not in every
         # process that reads a body model (the batch's driver, the viewer's start)
-        from scipy.spatial.transform import Rotation  # noqa: PLC0415
+        from scipy.spatial.transform import Rotation
 
         B = len(pose_rotvecs)
         rot = Rotation.from_rotvec(np.asarray(pose_rotvecs, np.float64).reshape(-1, 3))

@@ -352,7 +352,7 @@ def landmark_regressors(model: BodyModel) -> dict[str, Landmark]:
     of :data:`SMPL_VERTEX_IDS` replace the rules' picks. A landmark a rule cannot place
     (e.g. a model without a segment) is absent, and the keypoints tied to it are not fitted.
     """
-    import torch  # noqa: PLC0415
+    import torch
 
     with torch.no_grad():
         v = model.v_template.double().numpy()
@@ -455,7 +455,7 @@ def keypoint_regressor(model: BodyModel, joint_set: str) -> KeypointRegressor:
     COCO rows are copied from ``coco_regressor`` unchanged (float32), so a COCO-17
     layout reproduces :meth:`BodyModel.coco_keypoints` exactly.
     """
-    import torch  # noqa: PLC0415
+    import torch
 
     js = get_joint_set(joint_set)
     key = (id(model), js.name)
@@ -497,7 +497,7 @@ def layout_keypoints(
     reg: KeypointRegressor, vertices: torch.Tensor, joints: torch.Tensor
 ) -> torch.Tensor:
     """(B, V, 3) vertices and (B, 24, 3) joints -> (B, T, 3) keypoints; NaN where not fitted."""
-    import torch  # noqa: PLC0415
+    import torch
 
     kp = torch.einsum("kv,nvc->nkc", reg.vertex_weights.to(vertices.dtype), vertices)
     kp = kp + torch.einsum("kj,njc->nkc", reg.joint_weights.to(joints.dtype), joints)

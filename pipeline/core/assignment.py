@@ -27,7 +27,7 @@ def gated_assignment(
     if not valid.any():
         return np.zeros(0, int), np.zeros(0, int)
     # scipy.optimize (~0.1 s of imports) where a matching runs, not wherever this is imported
-    from scipy.optimize import linear_sum_assignment  # noqa: PLC0415
+    from scipy.optimize import linear_sum_assignment
 
     big = (np.abs(cost[valid]).max() + 1.0) * (min(cost.shape) + 1)
     rows, cols = linear_sum_assignment(np.where(valid, cost, big))

@@ -85,7 +85,7 @@ class Camera:
             # Through inv(K) first: cv2.undistortPoints ignores K's skew, project() does not.
             homo = np.concatenate([flat[finite, 0], np.ones((int(finite.sum()), 1))], 1)
             distorted = (homo @ np.linalg.inv(self.K).T)[:, None, :2]
-            import cv2  # noqa: PLC0415  (OpenCV's ~0.05 s import: here, not in every process)
+            import cv2  # OpenCV's ~0.05 s import: here, not in every process
 
             criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
             out[finite] = cv2.undistortPoints(distorted, np.eye(3), self.dist, criteria=criteria)

@@ -64,19 +64,19 @@ def load_interpreter_class():
     """The first TFLite interpreter class found: ``ai_edge_litert`` (the ``[video]`` extra),
     ``tflite_runtime`` or ``tensorflow.lite``."""
     try:
-        from ai_edge_litert.interpreter import Interpreter  # noqa: PLC0415  (optional)
+        from ai_edge_litert.interpreter import Interpreter  # optional
 
         return Interpreter
     except ImportError:
         pass
     try:
-        from tflite_runtime.interpreter import Interpreter  # noqa: PLC0415  (optional)
+        from tflite_runtime.interpreter import Interpreter  # optional
 
         return Interpreter
     except ImportError:
         pass
     try:
-        import tensorflow as tf  # noqa: PLC0415  (optional)
+        import tensorflow as tf  # optional
 
         return tf.lite.Interpreter
     except ImportError:

@@ -79,7 +79,7 @@ def export_results(
     stage = stage or default_stage(results, bodies=bodies)
     path = Path(path)
     if fmt in ("trc", "c3d"):
-        from pipeline.exports.markers import write_c3d_tracks, write_trc_tracks  # noqa: PLC0415
+        from pipeline.exports.markers import write_c3d_tracks, write_trc_tracks
 
         points = stage_points(results, stage)
         present = (points == points).all(-1).any(-1)  # (K, F): a finite joint
@@ -99,14 +99,14 @@ def export_results(
     fit = stage_fit(results, stage, fmt=fmt)
     tracks = select_tracks(fit.present, track)
     if fmt == "glb":
-        from pipeline.exports.gltf import write_glb  # noqa: PLC0415
+        from pipeline.exports.gltf import write_glb
 
         notes = write_glb(path, fit, tracks, fps=fps)
         return [ExportedFile(path, tuple(tracks), tuple(notes))]
     if fmt == "bvh":
-        from pipeline.exports.bvh import write_bvh_track as write_one  # noqa: PLC0415
+        from pipeline.exports.bvh import write_bvh_track as write_one
     else:
-        from pipeline.exports.smpl_npz import write_smpl_npz_track as write_one  # noqa: PLC0415
+        from pipeline.exports.smpl_npz import write_smpl_npz_track as write_one
     out = []
     for p, k in zip(per_track_paths(path, tracks), tracks, strict=True):
         notes = write_one(p, fit, k, fps=fps)

@@ -80,7 +80,7 @@ def write_c3d_tracks(
 ) -> Path:
     """Write ``tracks`` of ``points`` (K, F, J, 3) world mm into one C3D file (mm, z up),
     atomically; a missing marker has residual -1 (and zero coordinates)."""
-    import c3d  # noqa: PLC0415  (its import is only paid by C3D exports)
+    import c3d  # its import is only paid by C3D exports
 
     prefix = len(tracks) > 1 if prefix is None else prefix
     names, pts = _columns(points, joint_set, tracks, prefix=prefix)
@@ -111,7 +111,7 @@ def write_c3d_tracks(
 def read_c3d_points(path: str | os.PathLike) -> tuple[list[str], np.ndarray, float]:
     """(labels, points (F, M, 3) mm with NaN where the residual is negative, rate): the
     ``c3d`` package's reader, for checking what :func:`write_c3d_tracks` wrote."""
-    import c3d  # noqa: PLC0415
+    import c3d
 
     with open(path, "rb") as fh, warnings.catch_warnings():
         warnings.filterwarnings("ignore", "No analog data", UserWarning)  # none is written

@@ -66,7 +66,7 @@ def fit_in_chunks(
     K, F = x.shape[:2]
     buf = keypoint_buffers(model, joint_set)
     if params.limb_offsets:
-        import torch  # noqa: PLC0415
+        import torch
 
         buf = dataclasses.replace(buf, offset_mask=torch.as_tensor(buf.fitted, dtype=torch.float32))
     out: list[dict[str, np.ndarray] | None] = [None, None]

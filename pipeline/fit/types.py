@@ -137,9 +137,9 @@ class SmplFit:
         if not self.present[k, f]:
             return np.full((self.model.num_vertices, 3), np.nan)
         # torch only here (exports): loading a results file must not import it
-        import torch  # noqa: PLC0415
+        import torch
 
-        from pipeline.body.model import torch_body_model  # noqa: PLC0415
+        from pipeline.body.model import torch_body_model
 
         with torch.no_grad():
             out = torch_body_model(self.model)(

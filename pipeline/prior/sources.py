@@ -104,7 +104,7 @@ def library_source(
 
 @functools.cache
 def _bvh_poses(path: str) -> tuple[np.ndarray, dict]:
-    from pipeline.mocap.clips import bvh_training_poses  # noqa: PLC0415  (mocap imports smpl_fit)
+    from pipeline.mocap.clips import bvh_training_poses  # mocap imports smpl_fit
 
     poses, info, _ = bvh_training_poses(path)
     return poses, info
@@ -143,10 +143,10 @@ def demo_source(path: str | os.PathLike = DEMO_POSES) -> PoseSource:
 def _step_one_fit(scene_dir: Path):
     """The scene and the pipeline's step-I SMPL fit of it (no prior: a prior's output would
     be the prior learning from itself)."""
-    from pipeline.body.model import load_body_model  # noqa: PLC0415  (heavy imports)
-    from pipeline.config import PipelineConfig  # noqa: PLC0415
-    from pipeline.data.scene import load_scene  # noqa: PLC0415
-    from pipeline.run.pipeline import run_pipeline  # noqa: PLC0415
+    from pipeline.body.model import load_body_model  # heavy imports
+    from pipeline.config import PipelineConfig
+    from pipeline.data.scene import load_scene
+    from pipeline.run.pipeline import run_pipeline
 
     scene = load_scene(scene_dir)
     results = run_pipeline(

@@ -46,14 +46,14 @@ def fit_bodies(
     if not config.fit_smpl or not fittable or results.num_tracks == 0:
         return results
     # torch (~3-7 s to import) only once a fit runs: loading cached results never needs it
-    from pipeline.body.model import torch_body_model  # noqa: PLC0415
-    from pipeline.fit.prior import load_prior  # noqa: PLC0415
-    from pipeline.fit.smpl import fit_sequence  # noqa: PLC0415
+    from pipeline.body.model import torch_body_model
+    from pipeline.fit.prior import load_prior
+    from pipeline.fit.smpl import fit_sequence
 
     prior = load_prior(config.pose_prior or None) if config.use_pose_prior else None
     fit, chunks = fit_sequence, {}
     if results.num_frames > LONG_FIT_FRAMES:
-        from pipeline.fit.chunks import fit_in_chunks  # noqa: PLC0415
+        from pipeline.fit.chunks import fit_in_chunks
 
         fit, chunks = fit_in_chunks, {"chunk_frames": LONG_FIT_CHUNK_FRAMES}
     fit_i, fit_vae = fit(

@@ -49,8 +49,8 @@ def restored_joints(scene: Scene, model: BodyModel | BodyModelData) -> np.ndarra
     if not det.has_mono3d:
         return None
     # torch (the SMPL regressor's joints) only when a scene has monocular predictions
-    from pipeline.body.model import torch_body_model  # noqa: PLC0415
-    from pipeline.stages.restore import restore_joints_2d, restore_mono_joints_2d  # noqa: PLC0415
+    from pipeline.body.model import torch_body_model
+    from pipeline.stages.restore import restore_joints_2d, restore_mono_joints_2d
 
     conf = det.keypoints[..., 2]
     score = np.where((conf > 0).any(1), conf.sum(1) / np.maximum((conf > 0).sum(1), 1), 1.0)

@@ -193,7 +193,7 @@ def _timed_row(label, pid, start, end, fit):
 
 
 def test_task_timeline_numbers_the_workers_and_measures_their_busy_share():
-    from pipeline.batch.report import build_report, render_html, task_timeline  # noqa: PLC0415
+    from pipeline.batch.report import build_report, render_html, task_timeline
 
     rows = [
         _timed_row("b", 77, 1000.0, 1004.0, 3.0),
@@ -237,10 +237,10 @@ def test_timeline_labels_are_shortened_to_their_bars():
     """A task's label is drawn inside its bar: whole where it fits, cut short with an
     ellipsis where it does not, left out where not three letters fit (the labels of
     short scenes with a sweep setting ran over their neighbours')."""
-    import base64  # noqa: PLC0415
-    import re  # noqa: PLC0415
+    import base64
+    import re
 
-    from pipeline.batch.report import build_report, render_html  # noqa: PLC0415
+    from pipeline.batch.report import build_report, render_html
 
     long = "shelf_synth_noisy [kalman.q=100, association.max_distance_mm=120]"
     rows = [
@@ -261,10 +261,10 @@ def test_timeline_labels_are_shortened_to_their_bars():
 def test_report_figures_are_inline_svg_with_their_text_as_text():
     """The figures are vector images inside the page (nothing fetched), and their words
     are text a browser lays out and a reader can search, not glyph outlines."""
-    import base64  # noqa: PLC0415
-    import re  # noqa: PLC0415
+    import base64
+    import re
 
-    from pipeline.batch.report import build_report, render_html  # noqa: PLC0415
+    from pipeline.batch.report import build_report, render_html
 
     rows = [
         _timed_row("b", 77, 1000.0, 1004.0, 3.0),

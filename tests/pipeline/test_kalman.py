@@ -10,11 +10,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from bench.reference_kalman import kalman_filter_filterpy
 from pipeline.stages.kalman import (
     FilterResult,
     KalmanParams,
     kalman_filter,
-    kalman_filter_filterpy,
 )
 
 FPS = 25.0

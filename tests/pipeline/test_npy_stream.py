@@ -86,7 +86,7 @@ def test_filled_map_has_the_fill_everywhere(tmp_path):
 def test_mapped_arrays_finds_each_file_map_once_however_nested(tmp_path):
     """Views of one map count once; plain arrays, scalars and strings are not maps; a
     map inside a dataclass inside a dict inside a tuple is found."""
-    import dataclasses  # noqa: PLC0415
+    import dataclasses
 
     paths = []
     for name in ("a", "b"):

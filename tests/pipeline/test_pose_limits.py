@@ -106,9 +106,9 @@ def test_swing_twist_separates_bone_twist():
 
 def rigid_walk(num_frames: int = 30) -> np.ndarray:
     """(1, F, 24, 3) a rigid T-pose skeleton translating at constant speed, mm."""
-    import torch  # noqa: PLC0415
+    import torch
 
-    from pipeline.body.model import load_body_model  # noqa: PLC0415
+    from pipeline.body.model import load_body_model
 
     rest = 1000 * load_body_model().rest_joints(torch.zeros(1, 10))[0].numpy()
     t = np.arange(num_frames)[:, None, None]
@@ -125,9 +125,9 @@ def test_bone_length_std_and_jitter_of_a_rigid_skeleton_are_zero():
 
 
 def test_hinge_flexion_signs_knees():
-    import torch  # noqa: PLC0415
+    import torch
 
-    from pipeline.body.model import load_body_model  # noqa: PLC0415
+    from pipeline.body.model import load_body_model
 
     model = load_body_model()
     pose = torch.zeros(2, 24, 3)

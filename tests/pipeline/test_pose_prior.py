@@ -119,10 +119,10 @@ def test_the_fit_side_loads_no_training_modules():
     """Importing the prior and reading the shipped checkpoint, what every fit does (a
     batch worker before its first scene), loads neither the motion library nor the BVH
     importers (~0.2 s of a worker's warm-up); the training functions import them."""
-    import subprocess  # noqa: PLC0415
-    import sys  # noqa: PLC0415
+    import subprocess
+    import sys
 
-    from tests.conftest import REPO  # noqa: PLC0415
+    from tests.conftest import REPO
 
     code = (
         "import sys\n"

@@ -425,7 +425,7 @@ def test_missing_file_and_undeclared_bytes(tmp_path):
 
 
 def test_cli_convert(tmp_path, capsys):
-    from mvviz.cli import main  # noqa: PLC0415  (the CLI is tested end to end once)
+    from mvviz.cli import main  # the CLI is tested end to end once
 
     path = write_qca(tmp_path)
     out = tmp_path / "scene"

@@ -8,18 +8,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.reference_association import (
+    average_linkage_reference,
+    pair_ray_distances_unchunked,
+    ray_distances_reference,
+    screen_distances_unblocked,
+)
 from pipeline.association.affinity import (
     average_linkage,
     pair_ray_distances,
-    pair_ray_distances_unchunked,
     part_groups,
     pinhole_rays,
     ray_distances,
     screen_distances,
-    screen_distances_unblocked,
     screened_distances,
 )
-from pipeline.association.associate import average_linkage_reference, ray_distances_reference
 from pipeline.association.pairs import shared_joints
 from pipeline.association.params import AssociationParams
 from pipeline.data.cameras import CameraRig

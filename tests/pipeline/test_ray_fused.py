@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import pipeline.association.affinity as ray_affinity
+from bench.reference_association import average_linkage_reference, fused_pairwise_distances
 from pipeline.association.affinity import (
     average_linkage,
     linkage_distances_reference,
@@ -18,7 +19,6 @@ from pipeline.association.affinity import (
     ray_distances,
     screen_distances,
 )
-from pipeline.association.associate import average_linkage_reference
 from pipeline.association.fused import fused_screened_distances, linkage_distances
 from pipeline.association.params import AssociationParams
 from tests.pipeline.test_ray_affinity import _detections
@@ -113,7 +113,7 @@ def test_rows_of_pairs_equal_one_pair_at_a_time_to_the_bit(seed):
     ):
         groups = part_groups(flip, 17)
         rows = fused_screened_distances(o, d, w, views, flip, groups, p)
-        pairs = fused_screened_distances(o, d, w, views, flip, groups, p, pairwise=True)
+        pairs = fused_pairwise_distances(o, d, w, views, flip, groups, p)
         for got, want in zip(rows, pairs, strict=True):
             assert got.shape == want.shape == (n, n)
             np.testing.assert_array_equal(got, want)  # NaN where NaN; the same floats

@@ -196,7 +196,7 @@ def test_bad_input_raises(model):
 def test_prior_correction_makes_noisy_fits_plausible(model, gt):
     # Noisy targets (25 mm per axis): step I bends joints past their limits to follow the
     # noise; the VAE-corrected fit has no more violations and is not less accurate.
-    from pipeline.fit.prior import load_prior  # noqa: PLC0415
+    from pipeline.fit.prior import load_prior
 
     F = 25
     keep = gt.frame < F

@@ -119,7 +119,7 @@ def test_one_task_scene_equals_mvviz_run(dataset, reference, tmp_path, ship):
 def test_embedded_ray_listens_on_loopback_only():
     """Every server of the embedded Ray (GCS, raylet, agents, workers, the driver's own)
     on 127.0.0.1: without mvviz's loopback node Ray listens on every interface."""
-    import psutil  # noqa: PLC0415
+    import psutil
 
     start_ray(num_cpus=1)
     try:
@@ -140,8 +140,8 @@ def test_embedded_ray_starts_a_lean_head_and_restores_ray():
     """The embedded head runs without the autoscaler monitor, the log monitor and the
     dashboard's API server (ray_run.LEAN_HEAD_SKIPS), still runs tasks and returns their
     errors, and Ray's classes are as before once it is up (a cluster keeps its head)."""
-    from ray._private import node as ray_node  # noqa: PLC0415
-    from ray._private import parameter  # noqa: PLC0415
+    from ray._private import node as ray_node
+    from ray._private import parameter
 
     params_cls, api = parameter.RayParams, ray_node.Node.__dict__["start_api_server"]
     start_ray(num_cpus=1)
@@ -166,7 +166,7 @@ def test_embedded_ray_config_reaches_its_processes(monkeypatch):
     """The embedded node's processes get EMBEDDED_RAY_CONFIG (10 ms socket retries, the
     same 10 s bound; workers prestarted with the raylet) unless the user set a value,
     which is kept; this process's environment is as before once the node is up."""
-    import psutil  # noqa: PLC0415
+    import psutil
 
     user = "RAY_raylet_client_num_connect_attempts"
     monkeypatch.setenv(user, "700")
@@ -197,7 +197,7 @@ def _worker_priority() -> int:
 def test_embedded_ray_workers_run_at_the_normal_priority(monkeypatch):
     """A task runs at the priority ``mvviz run`` gets (nice 0), not at Ray's default 15,
     under which any other runnable thread takes the core first; a user's value is kept."""
-    import ray  # noqa: PLC0415
+    import ray
 
     monkeypatch.delenv("RAY_worker_niceness", raising=False)
     start_ray(num_cpus=1)
@@ -254,8 +254,8 @@ def test_idle_cpu_hook_and_automatic_split(dataset, reference, tmp_path, monkeyp
     fewer scenes are left than CPUs: after the second is done, before the last. One
     scene alone on 2 CPUs is split into frame chunks (auto chunks of 5 frames here),
     with mvviz run's results bit for bit."""
-    from mvviz.cli import build_parser  # noqa: PLC0415
-    from mvviz.cli.batch import plan  # noqa: PLC0415
+    from mvviz.cli import build_parser
+    from mvviz.cli.batch import plan
 
     dirs = []
     for name in ("s1", "s2", "s3"):

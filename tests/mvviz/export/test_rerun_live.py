@@ -110,7 +110,7 @@ def test_live_stream_holds_the_visited_frames_and_the_branches(viewer_scene, liv
 
 
 def test_rerun_server_binds_loopback_and_serves_its_web_viewer(live_run, browser):
-    from PIL import Image  # noqa: PLC0415
+    from PIL import Image
 
     app, live, _ = live_run
     server = live.server
@@ -174,7 +174,7 @@ def test_log_scene_into_the_global_recording(viewer_scene, tmp_path):
 def test_rerun_server_stop_ends_rerun_itself():
     """``python -m rerun`` runs rerun's binary as its child: stop() ends both, and the
     ports are free again (ending the wrapper alone had left the binary serving)."""
-    from mvviz.export.rerun_live import RerunWebServer, _session_alive, port_is_free  # noqa: PLC0415
+    from mvviz.export.rerun_live import RerunWebServer, _session_alive, port_is_free
 
     server = RerunWebServer(web_port=free_port())
     sid = server.process.pid

@@ -533,7 +533,7 @@ def test_chunks_follow_the_exports_flushes_not_its_speed(tiny, tmp_path, monkeyp
     frames), however slowly it runs: on rerun's 200 ms clock a slow export wrote a chunk
     per frame, and rerun keeps a little of every chunk until the recording closes."""
     scene, results, model = tiny
-    from mvviz.export.rerun.logger import SceneLogger  # noqa: PLC0415
+    from mvviz.export.rerun.logger import SceneLogger
 
     log_frame = SceneLogger.log_frame
 
@@ -585,9 +585,9 @@ def test_plots_sent_in_pieces_are_the_plots_sent_at_once(tiny, tmp_path):
     """The time series go out 4 frames at a time (a long scene's plots wait in rerun's
     queue one piece at a time): the same value per series and frame as in one piece,
     each series cut in one chunk per piece, its line style logged once."""
-    import rerun as rr  # noqa: PLC0415
+    import rerun as rr
 
-    from mvviz.export.rerun.logger import SceneLogger  # noqa: PLC0415
+    from mvviz.export.rerun.logger import SceneLogger
 
     scene, results, model = tiny
     paths = {}
@@ -619,9 +619,9 @@ def test_drains_hand_back_the_pages_of_mapped_results(tiny, tmp_path, monkeypatc
     each plot piece, every ``mesh_chunk_frames`` frames) hands the pages read so far back
     for every file map under the scene and its results, and the file is the same as one
     exported from the results in memory."""
-    from mvviz.export.rerun import logger as logger_module  # noqa: PLC0415
-    from pipeline.core.npy_stream import is_mapped  # noqa: PLC0415
-    from pipeline.results.store import load_results, save_results  # noqa: PLC0415
+    from mvviz.export.rerun import logger as logger_module
+    from pipeline.core.npy_stream import is_mapped
+    from pipeline.results.store import load_results, save_results
 
     scene, results, model = tiny
     save_results(results, tmp_path / "results")

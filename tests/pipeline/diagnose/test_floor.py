@@ -100,7 +100,7 @@ def test_level_rotation_keeps_world_x_when_it_can():
 def test_people_standing_still_fall_back_to_the_body_axis():
     """One person, every frame frame 60's 2D: the feet never move, so they cannot tilt a
     plane (four people standing apart do: they span the floor)."""
-    import dataclasses  # noqa: PLC0415
+    import dataclasses
 
     scene = _scene()
     det = scene.detections

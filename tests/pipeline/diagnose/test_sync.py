@@ -120,6 +120,6 @@ def test_drift_shows_in_windows():
 
 
 def _concat(a, b):
-    from pipeline.diagnose.perturb import _concat as concat  # noqa: PLC0415
+    from pipeline.diagnose.perturb import _concat as concat
 
     return concat(a, b)

@@ -45,8 +45,8 @@ def test_per_track_paths(tmp_path):
 
 def test_one_palette_for_viewer_rerun_and_exports():
     """Track k has one colour: the viewer's, the rerun recording's and the file exports'."""
-    from mvviz.export.rerun.layout import track_color  # noqa: PLC0415
-    from mvviz.scene.geometry import track_color as viewer_color  # noqa: PLC0415
+    from mvviz.export.rerun.layout import track_color
+    from mvviz.scene.geometry import track_color as viewer_color
 
     for k in range(2 * len(TRACK_PALETTE) + 1):
         assert tuple(int(c) for c in viewer_color(k)) == track_rgb(k) == track_color(k)
@@ -98,7 +98,7 @@ def test_a_failed_write_keeps_the_old_file(fitted_run, tmp_path, monkeypatch):
     scene, res = fitted_run
     out = tmp_path / "x.glb"
     out.write_bytes(b"old")
-    import pipeline.exports.gltf as gltf  # noqa: PLC0415
+    import pipeline.exports.gltf as gltf
 
     def boom(*a, **k):
         raise RuntimeError("disk on fire")
