@@ -37,7 +37,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_json  # noqa: E402
-from pipeline.body import limits as pose_limits  # noqa: E402
+from pipeline.body import pose_limits  # noqa: E402
 from pipeline.body.kinematics import keypoint_buffers, matrix_to_rotvec  # noqa: E402
 from pipeline.body.model import load_body_model  # noqa: E402
 from pipeline.config import PipelineConfig  # noqa: E402

@@ -5,7 +5,7 @@
 - ``kinematics``: 6D / axis-angle rotations and the keypoints of a posed body;
   ``keypoints``: how each joint set's keypoints are regressed from the body, and which
   sets a fit can target (``FITTABLE_JOINT_SETS``).
-- ``limits``: anatomical joint limits (swing-twist boxes); ``measures``: bone lengths
+- ``pose_limits``: anatomical joint limits (swing-twist boxes); ``measures``: bone lengths
   and body proportions.
 
 May import: ``core``, ``data``, ``importers``.

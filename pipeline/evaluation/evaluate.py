@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.data.joint_sets import SMPL24, get_joint_set, mapping_indices
 from pipeline.data.scene import GroundTruth, Scene
 from pipeline.evaluation import metrics

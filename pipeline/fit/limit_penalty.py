@@ -1,6 +1,6 @@
-"""Joint limits as a differentiable penalty: :mod:`pipeline.body.limits` in torch.
+"""Joint limits as a differentiable penalty: :mod:`pipeline.body.pose_limits` in torch.
 
-:func:`pipeline.body.limits.swing_twist` splits each local rotation into swing and twist
+:func:`pipeline.body.pose_limits.swing_twist` splits each local rotation into swing and twist
 in the joint's anatomical frame; :func:`swing_twist` here computes the same angles from
 rotation matrices in torch (a test checks them against the numpy reference), so the
 SMPL fit can penalise how far a joint is outside its box (:func:`limit_penalty`)
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 
 _AXES = torch.as_tensor(pose_limits.AXES, dtype=torch.float32)  # (24, 3, 3)
 _LOW = torch.as_tensor(pose_limits.LOW.clip(-10, 10), dtype=torch.float32)  # (24, 3)
@@ -86,7 +86,7 @@ def small_angle_quaternion(R: torch.Tensor) -> torch.Tensor:
 def swing_twist(rotmats: torch.Tensor) -> torch.Tensor:
     """(N, 24, 3, 3) local rotations -> (N, 24, 3) (swing_a, swing_b, twist) radians in
     each joint's anatomical frame (right joints mirrored onto the left), as
-    :func:`pipeline.body.limits.swing_twist`; unlimited joints (the root) give 0."""
+    :func:`pipeline.body.pose_limits.swing_twist`; unlimited joints (the root) give 0."""
     out = torch.stack(swing_twist_rows(rotmats), -1).permute(1, 0, 2)  # (N, L, 3)
     full = rotmats.new_zeros(rotmats.shape[:-2] + (3,))
     return full.index_copy(1, _LIMITED_JOINTS, out)
@@ -137,7 +137,7 @@ def _quaternion_rows(c: torch.Tensor) -> tuple[torch.Tensor, ...]:
 
 
 def limit_excess(rotmats: torch.Tensor, *, margin_deg: float = 0.0) -> torch.Tensor:
-    """(N, 24, 3, 3) -> (N, 24, 3) radians outside :data:`pipeline.body.limits.LIMITS`
+    """(N, 24, 3, 3) -> (N, 24, 3) radians outside :data:`pipeline.body.pose_limits.LIMITS`
     (per swing/twist axis, 0 inside the box shrunk by ``margin_deg``; 0 for the root)."""
     ang = swing_twist(rotmats)
     m = margin_deg * torch.pi / 180.0

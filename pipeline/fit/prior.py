@@ -21,7 +21,7 @@ diagonal Gaussian over ``latent`` dimensions. Loss per pose (Eq. 10)::
 Training (:mod:`pipeline.prior.training`) uses by default the synthetic motion library
 (:func:`pipeline.synth.motion.sample_pose_library`, every activity, root zeroed) plus
 perturbations that cover what the library never moves (collars, wrists, ankles off
-axis, toes, limb twists), sampled inside :data:`pipeline.body.limits.LIMITS`; any
+axis, toes, limb twists), sampled inside :data:`pipeline.body.pose_limits.LIMITS`; any
 AMASS-style ``.npz`` with a ``poses`` array of (N, 156) (SMPL-H) or (N, 72) (SMPL) can be
 added or used instead (the first 72 columns are read; only joints 1-21 are used, which
 the two layouts share), and so can a BVH motion capture clip (``.bvh``: our body model

@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.body.kinematics import NUM_JOINTS, matrix_to_rot6d, rot6d_to_matrix
 from pipeline.core.progress import Progress
 from pipeline.fit.limit_penalty import limit_penalty

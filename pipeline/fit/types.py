@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.core.units import MM_PER_M
 from pipeline.data.joint_sets import SMPL24, get_joint_set, mapping_indices
 
@@ -197,10 +197,10 @@ def plausibility(fit: SmplFit, *, tol_deg: float = pose_limits.DEFAULT_TOL_DEG) 
 
     Returns:
         ``limit_violations_per_1000`` (joint rotations outside
-        :data:`pipeline.body.limits.LIMITS` by more than ``tol_deg``, per 1000 bodies),
+        :data:`pipeline.body.pose_limits.LIMITS` by more than ``tol_deg``, per 1000 bodies),
         and, on the fit's keypoints in SMPL-24 slots (comparable with a triangulation's
         rows): ``bone_length_std_mm``, ``hinge_violations_per_1000``, ``foot_jitter``,
-        ``wrist_jitter`` (mm/frame^2); see :func:`pipeline.body.limits.skeleton_plausibility`.
+        ``wrist_jitter`` (mm/frame^2); see :func:`pipeline.body.pose_limits.skeleton_plausibility`.
     """
     limits = pose_limits.violations_per_1000(fit.pose_rotvecs, tol_deg=tol_deg)
     out = {"limit_violations_per_1000": limits}

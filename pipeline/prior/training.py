@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.body.kinematics import rotvec_to_matrix
 from pipeline.core.progress import StageBar
 from pipeline.fit.prior import (
@@ -60,7 +60,7 @@ _PERTURB_SHRINK = 0.7
 
 
 def perturb_poses(poses: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Plausible variations of library poses, all inside :data:`pipeline.body.limits.LIMITS`.
+    """Plausible variations of library poses, all inside :data:`pipeline.body.pose_limits.LIMITS`.
 
     Collars, wrists and toes get angles drawn uniformly from 70% of their limit box
     (shrunk towards zero); every other limited joint gets its swing-twist angles moved

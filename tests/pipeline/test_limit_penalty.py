@@ -4,7 +4,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.body.kinematics import rotvec_to_matrix
 from pipeline.fit import limit_penalty
 

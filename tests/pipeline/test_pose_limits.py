@@ -1,4 +1,4 @@
-"""pipeline.body.limits: swing-twist round trip, limits against synthetic motion and
+"""pipeline.body.pose_limits: swing-twist round trip, limits against synthetic motion and
 anatomy, skeleton plausibility measures."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.data.joint_sets import SMPL24
 from pipeline.synth.motion import HIGH, LOW, pose_from_params, sample_pose_library
 

@@ -9,7 +9,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from mvviz.cli import main
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.fit.prior import BODY_JOINTS, DEFAULT_PRIOR_PATH, load_prior, save_prior
 from pipeline.prior.training import load_pose_data, perturb_poses, train_prior
 from pipeline.synth.motion import sample_pose_library

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.body.kinematics import rotvec_to_matrix
 from pipeline.body.model import load_body_model
 from pipeline.fit.prior import load_prior

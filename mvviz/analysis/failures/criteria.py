@@ -27,7 +27,7 @@ from mvviz.analysis.failures.entries import (
     usual_level,
     where_label,
 )
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.core.npy_stream import release_pages
 from pipeline.data.joint_sets import SMPL24, get_joint_set, mapping_indices
 from pipeline.data.scene import Scene

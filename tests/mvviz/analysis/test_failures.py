@@ -33,7 +33,7 @@ from mvviz.analysis.failures import (
 from mvviz.app import ViewerApp
 from mvviz.panels.failure_panel import MAX_ENTRIES, make_failure_panel
 from mvviz.state import ViewerState
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.body.model import load_body_model
 from pipeline.config import PipelineConfig
 from pipeline.core.files import SceneFormatError

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pipeline.body import limits as pose_limits
+from pipeline.body import pose_limits
 from pipeline.synth.motion import (
     GAIT_ANKLE_DEG,
     GAIT_CONTACT_PHASE,
