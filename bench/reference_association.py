@@ -26,7 +26,7 @@ import numpy as np
 
 from pipeline.association.affinity import _dot, _outer_dot, ray_distances
 from pipeline.association.associate import _mirrored_distances
-from pipeline.association.fused import _prepare, _screen_row
+from pipeline.association.fused import _screen_row, prepare_frame
 from pipeline.association.pairs import PARALLEL_SIN2, shared_joints
 from pipeline.association.params import AssociationParams
 
@@ -300,19 +300,9 @@ def fused_pairwise_distances(
     :func:`pipeline.association.fused.fused_screened_distances` by the pass one pair at a
     time (:func:`_fused_pairwise`); the pairs' shared joints from
     :func:`pipeline.association.pairs.shared_joints`."""
-    n, J = dirs.shape[:2]
-    if n == 0:
+    if dirs.shape[0] == 0:
         return np.zeros((0, 0)), np.zeros((0, 0))
-    part_of = np.zeros(J, np.int64)
-    for k, g in enumerate(groups):
-        part_of[g] = k
-    joints, o, U, M, PW = _prepare(
-        np.ascontiguousarray(origins, dtype=np.float64),
-        np.ascontiguousarray(dirs, dtype=np.float64),
-        np.ascontiguousarray(weights, dtype=np.float64), part_of, len(groups),
-    )  # fmt: skip
-    perm = np.arange(J) if flip is None else np.asarray(flip, dtype=np.int64)
-    views = np.ascontiguousarray(views, dtype=np.int64)
+    joints, o, U, M, PW, perm, views = prepare_frame(origins, dirs, weights, views, flip, groups)
     shared = shared_joints(joints[:, 3] > 0.0) >= params.min_shared_joints
     return _fused_pairwise(
         U, M, PW, joints, o, views, perm, flip is not None, shared,

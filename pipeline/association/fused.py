@@ -236,6 +236,30 @@ def _fused(U, M, PW, joints, o, views, flip, has_flip, prune, clip, min_shared):
     return dist, mirrored
 
 
+def prepare_frame(
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    weights: np.ndarray,
+    views: np.ndarray,
+    flip: np.ndarray | None,
+    groups: list[np.ndarray],
+) -> tuple[np.ndarray, ...]:
+    """One frame's arrays as the compiled passes read them: (joints, o, U, M, PW) of
+    :func:`_prepare`, the (J,) joint permutation of a mirror (identity without ``flip``)
+    and the (n,) int64 views. ``dirs`` must hold at least one detection."""
+    J = dirs.shape[1]
+    part_of = np.zeros(J, np.int64)  # the part of each joint (the groups cover them all)
+    for k, g in enumerate(groups):
+        part_of[g] = k
+    joints, o, U, M, PW = _prepare(
+        np.ascontiguousarray(origins, dtype=np.float64),
+        np.ascontiguousarray(dirs, dtype=np.float64),
+        np.ascontiguousarray(weights, dtype=np.float64), part_of, len(groups),
+    )  # fmt: skip
+    perm = np.arange(J) if flip is None else np.asarray(flip, dtype=np.int64)
+    return joints, o, U, M, PW, perm, np.ascontiguousarray(views, dtype=np.int64)
+
+
 def fused_screened_distances(
     origins: np.ndarray,
     dirs: np.ndarray,
@@ -247,19 +271,9 @@ def fused_screened_distances(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(n, n) straight and mirrored ray distances (mm) of
     :func:`pipeline.association.affinity.screened_distances`, given its part ``groups``."""
-    n, J = dirs.shape[:2]
-    if n == 0:
+    if dirs.shape[0] == 0:
         return np.zeros((0, 0)), np.zeros((0, 0))
-    part_of = np.zeros(J, np.int64)  # the part of each joint (the groups cover them all)
-    for k, g in enumerate(groups):
-        part_of[g] = k
-    joints, o, U, M, PW = _prepare(
-        np.ascontiguousarray(origins, dtype=np.float64),
-        np.ascontiguousarray(dirs, dtype=np.float64),
-        np.ascontiguousarray(weights, dtype=np.float64), part_of, len(groups),
-    )  # fmt: skip
-    perm = np.arange(J) if flip is None else np.asarray(flip, dtype=np.int64)
-    views = np.ascontiguousarray(views, dtype=np.int64)
+    joints, o, U, M, PW, perm, views = prepare_frame(origins, dirs, weights, views, flip, groups)
     scalars = float(params.prune_mm), float(params.joint_clip_mm), int(params.min_shared_joints)
     return _fused(U, M, PW, joints, o, views, perm, flip is not None, *scalars)
 
