@@ -9,7 +9,10 @@ from pathlib import Path
 
 import pytest
 
+from mvviz.cli import build_parser
+from mvviz.cli.view import start, stop
 from mvviz.safe_paths import WritePolicy, WriteRefused, is_loopback, resolve_inside
+from tests.mvviz.conftest import free_port
 
 
 @pytest.fixture
@@ -113,3 +116,73 @@ def test_other_hosts_are_read_only_unless_allowed(host, root):
     allowed = WritePolicy.for_host(host, root, allow_writes=True)
     assert allowed.read_only is None
     assert allowed.export_file("x.glb", overwrite=False) == root / "x.glb"
+
+
+# --------------------------------------------------------------------------- the viewer
+
+
+def test_a_viewer_on_a_non_loopback_host_is_read_only(viewer_scene, tmp_path, capsys):
+    """``mvviz view --host 0.0.0.0``: the warning on stderr, the page's line, every
+    write button disabled, and each write refused when its callback is called anyway
+    (a page can send a click on a disabled button): nothing is written."""
+    scene = viewer_scene[0]
+    exports = tmp_path / "exports"
+    argv = ["view", str(scene.root), "--port", str(free_port()), "--host", "0.0.0.0"]
+    app = start(build_parser(argv).parse_args([*argv, "--export-dir", str(exports)]))
+    try:
+        err = capsys.readouterr().err
+        assert "warning: serving on 0.0.0.0: the viewer has no authentication" in err
+        assert "(read-only)" in err
+        line = app.read_only_line.content
+        assert "read-only" in line and "--allow-writes" in line and "\n" not in line
+        ex, pl = app.export_panel, app.pipeline_panel
+        fp, fl = app.filter_panel, app.failure_panel
+        for button in (ex.gui.export, pl.gui.save, pl.gui.export, fp.gui.apply, fl.gui.flag):
+            assert button.disabled
+        config = scene.root / "mvviz_config.json"
+        notes = fl.notes_file
+        before = (config.exists(), notes.exists())
+        ex.gui.path.value = "run.glb"
+        ex.gui.export.value = True  # runs the click's callback, as a page's click does
+        assert ex.gui.status.content.startswith("export refused: read-only")
+        pl.gui.export.value = True
+        assert pl.gui.export_status.content.startswith("export refused: read-only")
+        pl.gui.save.value = True
+        assert pl.gui.status.content.startswith("not saved: read-only")
+        fp.gui.apply.value = True
+        assert fp.message.startswith("Apply B failed: read-only")
+        fl.gui.note_text.value = "a note"
+        fl.gui.flag.value = True
+        assert "**not saved:** read-only" in fl.gui.notes_info.content
+        assert ex.wait(10) and pl.wait_idle(60)
+        assert not exports.exists() and (config.exists(), notes.exists()) == before
+    finally:
+        stop(app)
+
+
+def test_allow_writes_lets_a_non_loopback_viewer_write(viewer_scene, tmp_path, capsys):
+    scene = viewer_scene[0]
+    exports = tmp_path / "exports"
+    argv = ["view", str(scene.root), "--port", str(free_port()), "--host", "0.0.0.0"]
+    args = build_parser(argv).parse_args([*argv, "--export-dir", str(exports), "--allow-writes"])
+    app = start(args)
+    try:
+        err = capsys.readouterr().err
+        assert "no authentication" in err and "(writes allowed (--allow-writes))" in err
+        assert app.read_only_line is None and not app.export_panel.gui.export.disabled
+        app.export_panel.export(fmt="trc", stage="raw", path="t.trc")
+        assert app.export_panel.wait(60)
+        assert [f.path for f in app.export_panel.last_files] == [exports.resolve() / "t.trc"]
+    finally:
+        stop(app)
+
+
+def test_a_loopback_viewer_prints_no_warning(viewer_scene, capsys):
+    argv = ["view", str(viewer_scene[0].root), "--port", str(free_port())]
+    app = start(build_parser(argv).parse_args(argv))
+    try:
+        assert "warning" not in capsys.readouterr().err
+        assert app.writes.read_only is None and app.read_only_line is None
+        assert app.writes.export_dir == viewer_scene[0].root / ".mvviz" / "export"
+    finally:
+        stop(app)
