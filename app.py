@@ -1,8 +1,9 @@
 """mvviz viewer: an interactive 3D debugger for multi-view, multi-person 3D pose.
 
 Usage:
-    python app.py [SCENE] [--port 8080] [--host 127.0.0.1] [--smpl-model PATH]
-                  [--frame N] [--track K] [--rerun [--rerun-port 9090] [--rerun-save RRD]]
+    python app.py [SCENE] [--port 8080] [--host 127.0.0.1 [--allow-writes]] [--export-dir DIR]
+                  [--smpl-model PATH] [--frame N] [--track K]
+                  [--rerun [--rerun-port 9090] [--rerun-save RRD]]
     python app.py --batch DIR     (the scenes of a mvviz batch report)
 
 Loads SCENE (default sample_data/shelf_synth), runs the pipeline or reuses its cached
@@ -16,7 +17,10 @@ With --batch DIR, the scenes of DIR/batch_report.json (``mvviz batch``) in a Dat
 tab, sorted by a metric, worst first: a click opens a scene at its worst moment.
 With --rerun, rerun's web viewer (from the rerun-sdk package) is served too, on
 --rerun-port, and logged into live (mvviz/export/rerun_live.py).
-Binds to 127.0.0.1 unless --host says otherwise. Ctrl-C stops the server.
+Binds to 127.0.0.1 unless --host says otherwise; the viewer has no authentication, so on
+any other address it warns and is read-only (no export, no save) unless --allow-writes.
+Files a page asks for go into --export-dir (default SCENE/.mvviz/export) or the scene
+folder, never elsewhere. Ctrl-C stops the server.
 """
 
 from __future__ import annotations

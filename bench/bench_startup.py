@@ -72,7 +72,7 @@ def canvas_std(page) -> float:
 
 BARE_VISER = """
 import sys, time, viser
-server = viser.ViserServer(port=int(sys.argv[1]))
+server = viser.ViserServer(host="127.0.0.1", port=int(sys.argv[1]))
 server.scene.add_grid("/grid", width=6.0, height=6.0)
 server.scene.add_box("/box", color=(200, 40, 40), dimensions=(1.5, 1.5, 1.5))
 server.gui.add_markdown("frame 0 / 1")

@@ -41,6 +41,7 @@ from mvviz.panels.view_panels import (
     make_selection_panel,
     make_timeline_panel,
 )
+from mvviz.safe_paths import WritePolicy
 from mvviz.scene.geometry import LayerToggles, ViewerData, frame_geometry, prepare
 from mvviz.scene.images import (
     BodyOutlines,
@@ -53,6 +54,7 @@ from mvviz.scene.images import (
 from mvviz.scene.layers import make_scene_layers
 from mvviz.state import ViewerState
 from mvviz.workers import LatestWins, PageAcks
+from pipeline.core.files import CACHE_DIR
 from pipeline.results.store import PipelineResults
 
 FirstTab = tuple[str, str, Callable[["ViewerApp"], Panel]]
@@ -85,12 +87,15 @@ class ViewerApp:
         verbose: bool = False,
         server: viser.ViserServer | None = None,
         first_tab: FirstTab | None = None,
+        writes: WritePolicy | None = None,
     ) -> None:
         """``server``: an already running server to build on (``host``, ``port`` and
         ``verbose`` then unused; ``mvviz view`` starts it before the heavy imports).
         ``first_tab``: (label, icon, build) of a panel shown before the standard tabs,
         open when the page loads (viser opens a tab group at its first tab and has no
-        way to select another): the Dataset panel of ``app.py --batch``."""
+        way to select another): the Dataset panel of ``app.py --batch``.
+        ``writes``: where the panels write and whether they may (default: into
+        ``SCENE/.mvviz/export``, read-only unless the server is bound to loopback)."""
         self.state = state
         self.model = model  # the body model of the run (None: the shipped one)
         self.frames = frames
@@ -112,6 +117,9 @@ class ViewerApp:
         if server is None:
             server = viser.ViserServer(host=host, port=port, verbose=verbose)
         self.server = server
+        self.writes = writes or WritePolicy.for_host(
+            server.get_host(), state.scene.root / CACHE_DIR / "export"
+        )
         server.gui.configure_theme(control_width="medium", show_share_button=False)
         # Dock both panels so the 3D canvas is the free space between them, and the
         # initial camera's look-at point lands in the middle of what is visible.
@@ -137,6 +145,10 @@ class ViewerApp:
         """The timeline on top whatever tab is open (scrubbing while looking at a
         failure, a filter or a layer is the point); below it one tab per panel; the
         camera panel docked left."""
+        self.read_only_line: viser.GuiMarkdownHandle | None = None
+        if self.writes.read_only is not None:  # why the save and export buttons are off
+            line = f"<small>**{self.writes.read_only}**</small>"
+            self.read_only_line = self.server.gui.add_markdown(line)
         self.timeline = self._add(make_timeline_panel(self))
         self.tabs = tabs = self.server.gui.add_tab_group()
         if first_tab is not None:

@@ -27,6 +27,7 @@ FORBIDDEN = {
     "mvviz.panels": ("mvviz.app", "mvviz.cli"),
     "mvviz.state": ("mvviz.app", "mvviz.cli", "mvviz.panels"),
     "mvviz.workers": ("mvviz.app", "mvviz.cli", "mvviz.panels", "mvviz.scene"),
+    "mvviz.safe_paths": ("mvviz.app", "mvviz.cli", "mvviz.panels", "mvviz.scene", "pipeline"),
 }
 
 

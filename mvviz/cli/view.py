@@ -3,17 +3,23 @@
 The viser server starts first, with a "loading" line, so a browser gets a page within
 ~2 s of the command (``bench/bench_startup.py``); the viewer (torch, scipy, trimesh,
 OpenCV through the pipeline) is imported and built on that server after it.
+
+The viewer has no authentication. Bound to anything but loopback (``--host``) it warns
+on stderr and starts read-only unless ``--allow-writes`` (:mod:`mvviz.safe_paths`);
+what a page asks it to write goes into ``--export-dir`` or the scene folder only.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import viser
 
+from mvviz.safe_paths import WritePolicy, is_loopback
 from pipeline.core.files import CACHE_DIR, SceneFormatError
 from pipeline.core.units import REPO_ROOT, SAMPLE_DATA
 
@@ -38,8 +44,20 @@ def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False
         p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
     p.add_argument("--port", type=int, default=8080, help="HTTP/websocket port (default 8080)")
     p.add_argument(
-        "--host", default="127.0.0.1", help="address to bind (default 127.0.0.1; 0.0.0.0 = all)"
-    )
+        "--host", default="127.0.0.1",
+        help="address to bind (default 127.0.0.1; 0.0.0.0 = all). The viewer has no "
+        "authentication: on any other than 127.0.0.1 / localhost / ::1 it is read-only "
+        "unless --allow-writes",
+    )  # fmt: skip
+    p.add_argument(
+        "--allow-writes", action="store_true",
+        help="let pages export and save even when --host is not loopback",
+    )  # fmt: skip
+    p.add_argument(
+        "--export-dir", type=Path, default=None, metavar="DIR",
+        help="folder of the files the Export tab and the .rrd export write (a name typed in "
+        "the page is a file inside it; default SCENE/.mvviz/export)",
+    )  # fmt: skip
     p.add_argument("--smpl-model", default=None, help="body model file (.npz/.pkl)")
     p.add_argument("--config", type=Path, default=None, help="pipeline config JSON")
     p.add_argument(
@@ -92,6 +110,14 @@ def start(
     server (``first_tab``: see :class:`mvviz.app.ViewerApp`); returns the running app
     (the server stops if any of it fails)."""
     t0 = time.perf_counter()
+    allow_writes = getattr(args, "allow_writes", False)
+    if not is_loopback(args.host):
+        writes = "writes allowed (--allow-writes)" if allow_writes else "read-only"
+        print(
+            f"warning: serving on {args.host or 'every address'}: the viewer has no "
+            f"authentication, anyone who reaches this port can use it ({writes})",
+            file=sys.stderr, flush=True,
+        )  # fmt: skip
     server = viser.ViserServer(host=args.host, port=args.port, verbose=False)
     loading = server.gui.add_markdown(f"**Loading** `{Path(args.scene).name}` …")
     print(f"serving http://{args.host}:{server.get_port()} (loading the scene)", flush=True)
@@ -130,7 +156,13 @@ def _build_viewer(
     frames = FrameStore(scene, cache_dir=scene.root / CACHE_DIR / "frames").start()
     state = ViewerState.create(scene, results, model)
     loading.remove()
-    app = ViewerApp(state, server=server, frames=frames, model=model, first_tab=first_tab)
+    writes = WritePolicy.for_host(
+        args.host, getattr(args, "export_dir", None) or scene.root / CACHE_DIR / "export",
+        allow_writes=getattr(args, "allow_writes", False),
+    )  # fmt: skip
+    app = ViewerApp(
+        state, server=server, frames=frames, model=model, first_tab=first_tab, writes=writes
+    )
     app.wait_idle(30)
     _open_at(app, args, results.num_frames, results.num_tracks)
     if app.server.get_port() != args.port:  # viser moves to the next free port

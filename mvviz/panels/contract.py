@@ -22,6 +22,7 @@ import viser
 
 from mvviz.analysis.failures import Failure
 from mvviz.analysis.filter_runs import FilterRun
+from mvviz.safe_paths import WritePolicy
 from mvviz.scene.geometry import ViewerData
 from mvviz.scene.images import FrameStore
 from mvviz.state import ViewerState
@@ -70,6 +71,13 @@ class PanelHost(Protocol):
     @property
     def frames(self) -> FrameStore | None:
         """The decoded camera frames (None: no videos)."""
+        ...
+
+    @property
+    def writes(self) -> WritePolicy:
+        """Where a panel writes what a browser asks for (typed names: inside
+        ``writes.export_dir``; fixed names: under the scene folder, through
+        ``writes.scene_file``), and whether it may at all (``writes.read_only``)."""
         ...
 
     @property

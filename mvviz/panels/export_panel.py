@@ -2,15 +2,23 @@
 
 Format (trc, c3d, bvh, smpl-npz, glb), stage (the run's stages that format can hold;
 "last" = the run's last, as the command's default), track (all or one id), one file
-per track for trc/c3d, and the path; "Export" writes on a background thread through
-:func:`pipeline.exports.export_results`, from the newest complete results (a re-run of
-the Pipeline panel in progress is waited for), and the status line lists the files
-written and the writers' notes (held poses, gaps). The choices follow the results:
-after a re-run the stage and track lists are rebuilt.
+per track for trc/c3d, and the file name: a name inside the export folder
+(``host.writes.export_dir``), refused in the status line if it leads out of it or names
+an existing file while "Overwrite" is off (:mod:`mvviz.safe_paths`). "Export" writes on
+a background thread through :func:`pipeline.exports.export_results`, from the newest
+complete results (a re-run of the Pipeline panel in progress is waited for), into a
+hidden staging folder, then moves each file into place (so the per-track files are
+checked too), and the status line lists the files written and the writers' notes (held
+poses, gaps). The choices follow the results: after a re-run the stage and track lists
+are rebuilt. A read-only viewer shows the button disabled and refuses the export.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import os
+import shutil
+import tempfile
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +26,7 @@ from pathlib import Path
 import viser
 
 from mvviz.panels.contract import PanelHost
-from pipeline.core.files import CACHE_DIR
+from mvviz.safe_paths import WriteRefused, resolve_inside
 from pipeline.exports import EXTENSIONS, FORMATS, ExportedFile, export_results, stages_for
 from pipeline.results.store import PipelineResults
 
@@ -34,6 +42,7 @@ class ExportHandles:
     track: viser.GuiDropdownHandle
     per_track: viser.GuiCheckboxHandle
     path: viser.GuiTextHandle
+    overwrite: viser.GuiCheckboxHandle
     export: viser.GuiButtonHandle
     status: viser.GuiMarkdownHandle
 
@@ -46,13 +55,14 @@ def track_options(results: PipelineResults) -> tuple[str, ...]:
     return (ALL, *(str(k) for k in range(results.num_tracks)))
 
 
-def default_path(out_dir: Path, scene_name: str, fmt: str, stage: str) -> Path:
+def default_name(scene_name: str, fmt: str, stage: str) -> str:
+    """The suggested file name in the export folder."""
     tag = "" if stage == LAST else f"_{stage}"
-    return out_dir / f"{scene_name}{tag}{EXTENSIONS[fmt]}"
+    return f"{scene_name}{tag}{EXTENSIONS[fmt]}"
 
 
 def make_export_handles(
-    server: viser.ViserServer, results: PipelineResults, path: Path
+    server: viser.ViserServer, results: PipelineResults, name: str, out_dir: Path
 ) -> ExportHandles:
     with server.gui.add_folder("Export", expand_by_default=False) as folder:
         fmt = server.gui.add_dropdown(
@@ -69,10 +79,15 @@ def make_export_handles(
             "One file per track", initial_value=False,
             hint="trc/c3d; bvh and smpl-npz always write one file per track",
         )  # fmt: skip
-        out = server.gui.add_text("Export path", initial_value=str(path))
+        out = server.gui.add_text(
+            "Export path", initial_value=name, hint=f"a file name inside {out_dir}"
+        )
+        overwrite = server.gui.add_checkbox(
+            "Overwrite", initial_value=False, hint="replace files of the same name"
+        )
         export = server.gui.add_button("Export", icon=viser.Icon.FILE_EXPORT)
-        status = server.gui.add_markdown("")
-    return ExportHandles(folder, fmt, stage, track, per_track, out, export, status)
+        status = server.gui.add_markdown(f"<small>into `{out_dir}`</small>")
+    return ExportHandles(folder, fmt, stage, track, per_track, out, overwrite, export, status)
 
 
 class ExportPanel:
@@ -81,11 +96,12 @@ class ExportPanel:
     def __init__(self, host: PanelHost) -> None:
         self.host = host
         self.scene = host.state.scene
-        self.out_dir = self.scene.root / CACHE_DIR / "export"
-        results = host.state.results
-        self.gui = make_export_handles(
-            host.server, results, default_path(self.out_dir, self.scene.name, "glb", LAST)
-        )
+        self.out_dir = host.writes.export_dir
+        name = default_name(self.scene.name, "glb", LAST)
+        self.gui = make_export_handles(host.server, host.state.results, name, self.out_dir)
+        if host.writes.read_only is not None:
+            self.gui.export.disabled = True
+            self.gui.status.content = f"<small>{host.writes.read_only}</small>"
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self.last_files: list[ExportedFile] = []
@@ -113,13 +129,13 @@ class ExportPanel:
         self._suggest_path()
 
     def _suggest_path(self) -> None:
-        """Keep the path's extension (and stage tag) in step while it is one we made."""
+        """Keep the name's extension (and stage tag) in step while it is one we made."""
         g = self.gui
         current = Path(g.path.value)
-        if current.parent == self.out_dir and current.name.startswith(self.scene.name):
-            path = str(default_path(self.out_dir, self.scene.name, g.format.value, g.stage.value))
-            if path != g.path.value:  # no message for an unchanged value
-                g.path.value = path
+        if current.parent == Path(".") and current.name.startswith(self.scene.name):
+            name = default_name(self.scene.name, g.format.value, g.stage.value)
+            if name != g.path.value:  # no message for an unchanged value
+                g.path.value = name
 
     def _on_state_changed(self, state, reason: str) -> None:
         if "results" in reason.split(","):
@@ -130,18 +146,31 @@ class ExportPanel:
     def export(
         self, *, fmt: str | None = None, stage: str | None = None, track: str | None = None,
         path: str | Path | None = None, per_track: bool | None = None,
-    ) -> threading.Thread:  # fmt: skip
-        """Export with the GUI's choices (or these), on a background thread (returned)."""
+        overwrite: bool | None = None,
+    ) -> threading.Thread | None:  # fmt: skip
+        """Export with the GUI's choices (or these; ``path`` a name inside the export
+        folder), on a background thread (returned); None, and the reason in the status
+        line, when the viewer is read-only or the name is refused."""
         g = self.gui
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
                 return self._thread
+            overwrite = g.overwrite.value if overwrite is None else overwrite
+            try:
+                target = self.host.writes.export_file(
+                    g.path.value if path is None else path, overwrite=overwrite
+                )
+            except WriteRefused as exc:
+                self.last_files = []
+                g.status.content = f"export refused: {exc}"
+                return None
             job = {
                 "fmt": fmt or g.format.value,
                 "stage": stage or g.stage.value,
                 "track": track or g.track.value,
-                "path": Path(path if path is not None else g.path.value).expanduser(),
+                "path": target,
                 "per_track": g.per_track.value if per_track is None else per_track,
+                "overwrite": overwrite,
             }
             g.export.disabled = True
             self._thread = threading.Thread(
@@ -162,16 +191,18 @@ class ExportPanel:
             return not t.is_alive()
         return True
 
-    def _export(self, *, fmt: str, stage: str, track: str, path: Path, per_track: bool) -> None:
+    def _export(
+        self, *, fmt: str, stage: str, track: str, path: Path, per_track: bool, overwrite: bool
+    ) -> None:
         g = self.gui
         try:
             g.status.content = "waiting for the re-run…"
             results = self._results()
             g.status.content = f"exporting {fmt} to `{path}`…"
-            files = export_results(
-                results, fmt, path, fps=self.scene.fps,
+            files = self._write_staged(path, overwrite, lambda staged: export_results(
+                results, fmt, staged, fps=self.scene.fps,
                 stage=None if stage == LAST else stage, track=track, per_track=per_track,
-            )  # fmt: skip
+            ))  # fmt: skip
             self.last_files = files
             lines = [
                 f"- `{f.path.name}` ({f.path.stat().st_size / 1e3:.0f} KB, tracks "
@@ -184,9 +215,29 @@ class ExportPanel:
             g.status.content = text
         except Exception as exc:  # shown where the user looks: the panel
             self.last_files = []
-            g.status.content = f"export failed: {exc}"
+            refused = isinstance(exc, WriteRefused)  # a file of the same name appeared
+            g.status.content = f"export {'refused' if refused else 'failed'}: {exc}"
         finally:
             g.export.disabled = False
+
+    def _write_staged(self, path: Path, overwrite: bool, write) -> list[ExportedFile]:
+        """``write(staged_path)``'s files, written in a hidden folder beside ``path``
+        (inside the export folder) and then moved into place, each checked by
+        :func:`resolve_inside` first: nothing is moved if one of them is refused."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".export-", dir=path.parent))
+        try:
+            files = write(staging / path.name)
+            where = path.parent.relative_to(Path(self.out_dir).resolve())
+            moves = [
+                (f, resolve_inside(self.out_dir, where / f.path.name, overwrite=overwrite))
+                for f in files
+            ]
+            for f, dest in moves:
+                os.replace(f.path, dest)
+            return [dataclasses.replace(f, path=dest) for f, dest in moves]
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
 
 
 def make_export_panel(host: PanelHost) -> ExportPanel:

@@ -17,6 +17,7 @@ current frame, saved at once to ``SCENE/.mvviz/notes.json``; each note is a butt
 jumps to its frame and selects it for "Delete selected note". The file is read again
 before each change, so notes another viewer saved survive; an unreadable notes file is
 reported in the panel and never overwritten (flagging works again once it is fixed).
+A read-only viewer shows the notes, disables flagging and deleting, and refuses both.
 """
 
 from __future__ import annotations
@@ -227,7 +228,9 @@ class FailurePanel:
         the text box), save the notes file at once and clear the text box.
 
         The file is read again first, so notes another viewer saved are kept; an
-        unreadable file raises :class:`SceneFormatError` and is left as it is."""
+        unreadable file raises :class:`SceneFormatError` and is left as it is; a
+        read-only viewer raises :class:`~mvviz.safe_paths.WriteRefused`."""
+        self._writable_notes_file()
         note = new_note(
             self.host.state.frame if frame is None else frame,
             self.gui.note_text.value if text is None else text,
@@ -260,6 +263,7 @@ class FailurePanel:
             if i is None or not 0 <= i < len(self.notes):
                 return None
             note = self.notes[i]
+            self._writable_notes_file()
             notes = self._reload_for_write()
             self.selected_note = None
             if note in notes:
@@ -408,6 +412,11 @@ class FailurePanel:
         if new is not None:
             buttons[new].color = SELECTED_COLOR
 
+    def _writable_notes_file(self) -> None:
+        """Raise :class:`~mvviz.safe_paths.WriteRefused` when the notes may not be written
+        (a read-only viewer, or a symlink leading the file out of the scene)."""
+        self.host.writes.scene_file(self.scene_root, self.notes_file.relative_to(self.scene_root))
+
     def _reload_for_write(self) -> list[Note]:
         """The notes on disk now (call with the lock held); raises if unreadable."""
         try:
@@ -450,7 +459,9 @@ class FailurePanel:
                 button.visible = True
             else:
                 button.visible = False
-        g.delete.disabled = self.selected_note is None or self.notes_error is not None
+        read_only = self.host.writes.read_only is not None
+        g.flag.disabled = read_only
+        g.delete.disabled = self.selected_note is None or self.notes_error is not None or read_only
         if self.notes_error is not None:
             g.notes_info.content = (
                 f"**Notes file unreadable**, left as it is: fix or move it, then flag "

@@ -20,7 +20,7 @@ filter B as controls. Any change to B re-filters the whole sequence with the vec
 
 "Apply B" swaps B's arrays into the results (``host.set_results``) and saves B
 into ``SCENE/mvviz_config.json`` (atomically), which ``mvviz run`` / ``mvviz view`` /
-``python app.py`` read next time.
+``python app.py`` read next time; a read-only viewer disables and refuses it.
 
 Units: arrays are millimetres and frames, as in the results; the scene is in metres.
 """
@@ -287,6 +287,7 @@ class FilterPanel:
         self.run_a = results_run(data.results)
         self.run_b: FilterRun | None = self.run_a  # None: being re-filtered
         self.gui = make_filter_handles(host.server, self.run_a.params)
+        self.gui.apply.disabled = host.writes.read_only is not None
         self.metrics: dict[str, dict[str, float]] = {}
         self.plot_image: np.ndarray | None = None  # the last plot sent (no frame marker)
         self.playhead_image: np.ndarray | None = None  # the last playhead strip sent
@@ -328,7 +329,10 @@ class FilterPanel:
 
     def apply_b(self) -> Path:
         """Make B the current filter: swap its arrays into the shown results and save its
-        parameters to ``SCENE/mvviz_config.json``. Returns the config path."""
+        parameters to ``SCENE/mvviz_config.json``. Returns the config path; raises
+        :class:`~mvviz.safe_paths.WriteRefused` (nothing applied) when the viewer is
+        read-only or the file would be written out of the scene."""
+        self.host.writes.scene_file(self.host.state.scene.root, CONFIG_FILE)
         params = self.params_b
         with self._lock:
             data, run = self._data, self.run_b

@@ -16,7 +16,9 @@ visits before the tracks land are re-run as they are reached.
 
 The panel lists what differs from the run's config, resets to it, saves into
 ``SCENE/mvviz_config.json`` (and the re-run results at the default results path, so the
-next start is warm) and exports the current run as a rerun recording.
+next start is warm) and exports the current run as a rerun recording: a file name inside
+the export folder, refused if it leads out or names an existing file while "Overwrite" is
+off (:mod:`mvviz.safe_paths`). A read-only viewer disables and refuses saving and export.
 
 Units: mm, pixels, frames, as in the pipeline.
 """
@@ -36,11 +38,11 @@ import viser
 
 from mvviz.panels.contract import PanelHost
 from mvviz.panels.run_compare import RunCompare, make_run_compare
+from mvviz.safe_paths import WriteRefused
 from mvviz.scene.geometry import ViewerData, lazy_detection_rays, person_indices
 from pipeline.body.arrays import BodyModelData, load_body_model_data
 from pipeline.body.keypoints import FITTABLE_JOINT_SETS
 from pipeline.config import CONFIG_FILE, PipelineConfig, save_config
-from pipeline.core.files import CACHE_DIR
 from pipeline.core.progress import LatestProgress
 from pipeline.data.joint_sets import get_joint_set
 from pipeline.data.scene import Scene
@@ -54,7 +56,13 @@ from pipeline.results.store import (
     pack_frame,
     save_results,
 )
-from pipeline.run.frames import frame_rows, restored_joints, run_frame, select_2d, source_joint_set
+from pipeline.run.frames import (
+    frame_rows,
+    restored_joints,
+    run_frame,
+    select_2d,
+    source_joint_set,
+)
 from pipeline.run.pipeline import fit_bodies, pack_run, run_stages
 from pipeline.stages.track import match_to_tracks
 
@@ -242,7 +250,8 @@ class PipelineHandles:
     status: viser.GuiMarkdownHandle
     reset: viser.GuiButtonHandle
     save: viser.GuiButtonHandle
-    export_path: viser.GuiTextHandle
+    export_path: viser.GuiTextHandle  # a name inside host.writes.export_dir
+    overwrite: viser.GuiCheckboxHandle
     export: viser.GuiButtonHandle
     export_progress: viser.GuiProgressBarHandle
     export_status: viser.GuiMarkdownHandle
@@ -264,7 +273,7 @@ def _slider(server: viser.ViserServer, label: str, lo, hi, step, value, hint: st
 
 def make_pipeline_handles(
     server: viser.ViserServer, scene: Scene, config: PipelineConfig, *,
-    sources: tuple[str, ...], export_path: Path,
+    sources: tuple[str, ...], export_name: str, export_dir: Path,
 ) -> PipelineHandles:  # fmt: skip
     V = len(scene.rig)
     a, t = config.association, config.triangulation
@@ -304,14 +313,17 @@ def make_pipeline_handles(
         status = server.gui.add_markdown("")
         reset = server.gui.add_button("Reset to run config", icon=viser.Icon.ARROW_BACK_UP)
         save = server.gui.add_button("Save into run config", icon=viser.Icon.DEVICE_FLOPPY)
-        path = server.gui.add_text("RRD path", initial_value=str(export_path))
+        path = server.gui.add_text(
+            "RRD path", initial_value=export_name, hint=f"a file name inside {export_dir}"
+        )
+        overwrite = server.gui.add_checkbox("Overwrite", initial_value=False)
         export = server.gui.add_button("Export .rrd", icon=viser.Icon.FILE_EXPORT)
         export_progress = server.gui.add_progress_bar(0.0, visible=False)
         export_status = server.gui.add_markdown("")
     return PipelineHandles(
         folder, source, max_distance, min_affinity, assoc_min_views, outlier_px, tri_min_views,
-        cameras, changes, progress, status, reset, save, path, export, export_progress,
-        export_status,
+        cameras, changes, progress, status, reset, save, path, overwrite, export,
+        export_progress, export_status,
     )  # fmt: skip
 
 
@@ -360,10 +372,13 @@ class PipelinePanel:
         sources = ("keypoints", "smpl") if has_smpl else ("keypoints",)
         if self.run_config.source not in sources:
             sources += (self.run_config.source,)
-        rrd = self.scene.root / CACHE_DIR / "run.rrd"
         self.gui = make_pipeline_handles(
-            host.server, self.scene, self.run_config, sources=sources, export_path=rrd
-        )
+            host.server, self.scene, self.run_config, sources=sources, export_name="run.rrd",
+            export_dir=host.writes.export_dir,
+        )  # fmt: skip
+        if host.writes.read_only is not None:
+            self.gui.save.disabled = self.gui.export.disabled = True
+            self.gui.export_status.content = f"<small>{host.writes.read_only}</small>"
         for handle in self.gui.inputs:
             handle.on_update(self._on_input)
         self.gui.reset.on_click(lambda _: self.reset())
@@ -464,12 +479,17 @@ class PipelinePanel:
             self._set_progress(None, "reset to the run config")
         self._show_changes()
 
-    def save(self) -> Path:
+    def save(self) -> Path | None:
         """Write the GUI's config to ``SCENE/mvviz_config.json`` (atomically), and its
         results to the default results path now or when its re-run lands; the saved
-        config becomes the run config."""
+        config becomes the run config. None (and why, in the status) if refused."""
         with self._lock:
-            save_config(self.config, self.config_path)
+            try:
+                path = self.host.writes.scene_file(self.scene.root, CONFIG_FILE)
+            except WriteRefused as exc:
+                self.gui.status.content = f"not saved: {exc}"
+                return None
+            save_config(self.config, path)
             self.run_config = self.config
             msg = f"saved `{self.config_path.name}`"
             if self.base.config == self.config:
@@ -481,14 +501,21 @@ class PipelinePanel:
         self._show_changes()
         return self.config_path
 
-    def export(self, path: str | Path | None = None) -> threading.Thread:
-        """Write the current run (once a re-run in progress lands) as a rerun recording,
-        on a background thread, which is returned."""
+    def export(self, path: str | Path | None = None) -> threading.Thread | None:
+        """Write the current run (once a re-run in progress lands) as a rerun recording
+        named ``path`` (default: the GUI's) in the export folder, on a background thread,
+        which is returned; None (and why, in the status) if refused."""
+        g = self.gui
         with self._lock:
             if self._export_thread is not None and self._export_thread.is_alive():
                 return self._export_thread
-            path = Path(path if path is not None else self.gui.export_path.value).expanduser()
-            self.gui.export.disabled = True
+            try:
+                name = g.export_path.value if path is None else path
+                path = self.host.writes.export_file(name, overwrite=g.overwrite.value)
+            except WriteRefused as exc:
+                g.export_status.content = f"export refused: {exc}"
+                return None
+            g.export.disabled = True
             self._export_thread = threading.Thread(
                 target=self._export, args=(path,), name="mvviz-export-rrd", daemon=True
             )
@@ -692,7 +719,8 @@ class PipelinePanel:
     def _save_results(self) -> str:
         """Save ``self.base`` (the run config's complete results) as the default results."""
         self._save_pending = False
-        path = default_results_path(self.scene)
+        root = self.scene.root
+        path = self.host.writes.scene_file(root, default_results_path(self.scene).relative_to(root))
         save_results(self.base, path)
         self.run_results = self.base
         return f"results saved to `{path.relative_to(self.scene.root)}`"

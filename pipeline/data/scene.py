@@ -387,6 +387,11 @@ def _read_scene_json(root: Path) -> tuple[dict, dict]:
         raise SceneFormatError(meta_path, None, f"not valid JSON ({exc})") from exc
     if not isinstance(meta, dict):
         raise SceneFormatError(meta_path, None, "expected a JSON object")
+    if "detections" in meta and meta["detections"] is None:  # every scene has detections
+        raise SceneFormatError(
+            meta_path, "detections", "expected a path in the scene, got null (leave the "
+            "field out for the default 'detections.npz')"
+        )  # fmt: skip
     return meta, check_object(meta, SCENE_JSON, meta_path)
 
 

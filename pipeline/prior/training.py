@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import time
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import torch
 
 from pipeline.body import pose_limits
 from pipeline.body.kinematics import rotvec_to_matrix
+from pipeline.core.files import SceneFormatError
 from pipeline.core.progress import StageBar
 from pipeline.fit.prior import (
     BODY_JOINTS,
@@ -39,12 +41,18 @@ def load_pose_data(path: str | os.PathLike) -> np.ndarray:
     path = Path(path)
     if path.suffix.lower() == ".bvh":
         return bvh_training_poses(path)[0]
-    with np.load(path, allow_pickle=False) as z:
-        if "poses" not in z.files:
-            raise ValueError(f"{path}: no 'poses' array (keys: {z.files})")
-        poses = np.asarray(z["poses"], float)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "poses" not in z.files:
+                raise SceneFormatError(path, "poses", f"missing (keys: {z.files[:5]})")
+            poses = np.asarray(z["poses"], float)
+    except SceneFormatError:
+        raise
+    except (ValueError, TypeError, EOFError, OSError, zipfile.BadZipFile) as exc:
+        msg = f"not an AMASS-style .npz with a numeric 'poses' array ({exc})"
+        raise SceneFormatError(path, "poses", msg) from None
     if poses.ndim != 2 or poses.shape[1] < 72:
-        raise ValueError(f"{path}: expected poses (N, 72) or (N, 156), got {poses.shape}")
+        raise SceneFormatError(path, "poses", f"expected (N, 72) or (N, 156), got {poses.shape}")
     poses = poses[:, :72]
     return poses[np.isfinite(poses).all(1)]
 

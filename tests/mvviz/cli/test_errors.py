@@ -5,10 +5,13 @@ its traceback only with --debug."""
 
 from __future__ import annotations
 
+import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mvviz import cli
@@ -114,3 +117,44 @@ def test_batch_counts_out_of_range_are_a_usage_error_before_ray_starts(
     err = capsys.readouterr().err
     assert f"argument {option}: expected an integer" in err and "Traceback" not in err
     assert not (tmp_path / "r").exists()
+
+
+def assert_one_line_exit_2(code: int, err: str, prog: str, file: str, field: str) -> None:
+    assert code == 2, err
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert err.startswith(f"{prog}: error: ") and file in err and f"field '{field}'" in err, err
+
+
+def test_null_detections_in_scene_json_is_one_line_exit_2(tiny, tmp_path, capsys):
+    scene = copy_scene(tiny, tmp_path / "scene")
+    meta = json.loads((scene / "scene.json").read_text())
+    (scene / "scene.json").write_text(json.dumps({**meta, "detections": None}))
+    before = _listing(tmp_path)
+    code = main(["run", str(scene)])
+    err = capsys.readouterr().err.strip()
+    assert_one_line_exit_2(code, err, "mvviz run", str(scene / "scene.json"), "detections")
+    assert _listing(tmp_path) == before
+
+
+def _not_pose_data(path: Path, kind: str) -> Path:
+    if kind == "text":  # np.load: "This file contains pickled (object) data"
+        path.write_text("not poses\n")
+    elif kind == "object array":
+        np.savez(path, poses=np.array([{"a": 1}], dtype=object))
+    elif kind == "no poses":
+        np.savez(path, betas=np.zeros(10))
+    elif kind == "a checkpoint":  # a zip that np.load opens, without 'poses'
+        shutil.copy(REPO / "sample_data" / "priors" / "pose_vae.pt", path)
+    elif kind == "bad shape":
+        np.savez(path, poses=np.zeros((5, 10)))
+    return path
+
+
+@pytest.mark.parametrize("kind", ["text", "object array", "no poses", "a checkpoint", "bad shape"])
+def test_train_prior_on_a_file_that_is_no_pose_data_is_one_line_exit_2(kind, tmp_path, capsys):
+    data = _not_pose_data(tmp_path / "data.npz", kind)
+    out = tmp_path / "prior.pt"
+    code = main(["train-prior", "--data", str(data), "--out", str(out), "--epochs", "1"])
+    err = capsys.readouterr().err.strip()
+    assert_one_line_exit_2(code, err, "mvviz train-prior", str(data), "poses")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.npz"]  # nothing written

@@ -8,6 +8,7 @@ import dataclasses
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from mvviz.panels.view_panels import (
     make_selection_panel,
     make_timeline_panel,
 )
+from mvviz.safe_paths import WritePolicy
 from mvviz.scene.geometry import ViewerData, prepare
 from mvviz.state import ViewerState
 from pipeline.config import load_config
@@ -40,11 +42,12 @@ class FakeHost:
     """A :class:`PanelHost` without the app. Subscribers are called on one worker thread
     (as the app calls them on its render thread); ``calls`` records every request."""
 
-    def __init__(self, state: ViewerState) -> None:
+    def __init__(self, state: ViewerState, writes: WritePolicy | None = None) -> None:
         self.server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
         self.state = state
         self.model = None
         self.frames = None
+        self.writes = writes or WritePolicy(Path("/nonexistent"), "a fake host writes nothing")
         self.stopped = threading.Event()
         self.rendering = False
         self.calls: list[tuple[str, object]] = []
@@ -108,14 +111,14 @@ def host(viewer_scene, tmp_path):
     save write there)."""
     scene, results, model = viewer_scene
     scene = dataclasses.replace(scene, root=tmp_path)
-    h = FakeHost(ViewerState.create(scene, results, model))
+    h = FakeHost(ViewerState.create(scene, results, model), WritePolicy(tmp_path / "exports"))
     yield h
     h.stop()
 
 
 def test_the_fake_is_a_panel_host(host):
     _: PanelHost = host  # what a type checker checks; here: every member is present
-    for name in ("server", "state", "model", "frames", "stopped", "rendering"):
+    for name in ("server", "state", "model", "frames", "writes", "stopped", "rendering"):
         assert hasattr(host, name)
     for name in PanelHost.__dict__:
         if not name.startswith("_"):
@@ -163,9 +166,9 @@ def test_timeline_marks_failures_and_jumps_to_them(host):
 
 def test_export_panel_writes_through_the_host(host, tmp_path):
     panel = make_export_panel(host)
-    panel.export(fmt="trc", stage="raw", track="0", path=tmp_path / "t.trc", per_track=False)
+    panel.export(fmt="trc", stage="raw", track="0", path="t.trc", per_track=False)
     assert panel.wait(60)
-    assert [f.path.name for f in panel.last_files] == ["t.trc"]
+    assert [f.path for f in panel.last_files] == [tmp_path / "exports" / "t.trc"]
     host.set_results(host.state.results)  # new results: the choices are rebuilt
     assert host.wait_idle() and panel.gui.stage.options[0] == LAST
     panel.stop()

@@ -317,17 +317,32 @@ def test_save_into_run_config_is_warm_at_the_next_start(app):
     assert "results saved" in panel.gui.status.content
 
 
-def test_export_rrd_writes_the_current_run(app, tmp_path):
+def test_export_rrd_writes_the_current_run(app):
     panel = app.pipeline_panel
     panel.gui.cameras[app.state.scene.rig.names[0]].value = False
-    out = tmp_path / "out" / "run.rrd"
-    panel.gui.export_path.value = str(out)
+    out = app.writes.export_dir.resolve() / "out" / "run.rrd"
+    assert panel.gui.export_path.value == "run.rrd"  # a name inside the export folder
+    panel.gui.export_path.value = "out/run.rrd"
     panel.gui.export.value = True
     assert panel.wait_idle(300)
     assert out.is_file() and out.stat().st_size > 10_000
     assert str(out) in panel.gui.export_status.content
     assert "MB" in panel.gui.export_status.content
     assert not panel.gui.export.disabled
+
+
+def test_export_rrd_refuses_a_name_out_of_the_folder_or_over_a_file(app):
+    panel = app.pipeline_panel
+    root = app.writes.export_dir.resolve()
+    root.mkdir(parents=True)
+    (root / "run.rrd").write_text("mine")
+    for name, why in (("../run.rrd", "leads out of"), ("run.rrd", "tick Overwrite")):
+        panel.gui.export_path.value = name
+        panel.gui.export.value = True  # what the click calls, at once
+        status = panel.gui.export_status.content
+        assert status.startswith("export refused: ") and why in status, status
+        assert not panel.gui.export.disabled
+    assert not (root.parent / "run.rrd").exists() and (root / "run.rrd").read_text() == "mine"
 
 
 # --------------------------------------------------------------------------- browser
