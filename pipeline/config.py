@@ -18,6 +18,7 @@ from pipeline.core.files import SceneFormatError, atomic_write
 from pipeline.core.schema import Anything, Bool, CameraOffsets, Int, Number, Spec, Str, StrList
 from pipeline.fit.types import FitParams
 from pipeline.stages.kalman import KalmanParams
+from pipeline.stages.stitch import StitchParams
 from pipeline.stages.track import TrackingParams
 
 SOURCES = ("keypoints", "smpl")
@@ -58,6 +59,7 @@ class PipelineConfig:
     association: AssociationParams = field(default_factory=AssociationParams)
     triangulation: TriangulationParams = field(default_factory=TriangulationParams)
     tracking: TrackingParams = field(default_factory=TrackingParams)
+    stitch: StitchParams = field(default_factory=StitchParams)
     kalman: KalmanParams = field(default_factory=lambda: KalmanParams(q=100.0))
     """q = 100 (mm/frame^2)^2: on the sample scene the forward filter then cuts the
     acceleration error by ~48% while lowering MPJPE (q = 200: 42%; q = 50: 53%, more lag)."""

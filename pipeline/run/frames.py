@@ -24,7 +24,8 @@ from pipeline.data.scene import Scene
 from pipeline.results.store import FrameResult, SequenceResult
 from pipeline.stages.kalman import FilterResult, kalman_filter
 from pipeline.stages.retime import retimed_frames, retimed_rows
-from pipeline.stages.track import track_people
+from pipeline.stages.stitch import stitch_tracks
+from pipeline.stages.track import Tracks, track_people, tracks_from_labels
 from pipeline.stages.triangulate import triangulate_people
 
 if TYPE_CHECKING:
@@ -231,11 +232,28 @@ def sequence_of_people(
     """:func:`run_sequence` from the per-frame people as columns: (Q,) frame and (Q, J, 3)
     triangulated joints of each person-frame, in frame order (what
     :mod:`pipeline.run.chunked` keeps of the frames instead of their results)."""
-    tracks = track_people(
-        person_frame, person_joints, num_frames, config.tracking, bones=np.array(joint_set.bones)
-    )
+    tracks = tracks_of_people(person_frame, person_joints, num_frames, config, joint_set)
     filtered = filter_tracks(tracks.joints, tracks.last_frame, config)
     return SequenceResult(person_track=tracks.track_of, tracks=tracks, filtered=filtered)
+
+
+def tracks_of_people(
+    person_frame: np.ndarray,
+    person_joints: np.ndarray,
+    num_frames: int,
+    config: PipelineConfig,
+    joint_set: JointSet,
+) -> Tracks:
+    """Tracking, then the tracks of one person joined over the whole run
+    (:mod:`pipeline.stages.stitch`)."""
+    bones = np.array(joint_set.bones)
+    tracks = track_people(person_frame, person_joints, num_frames, config.tracking, bones=bones)
+    if not config.stitch.enabled:
+        return tracks
+    labels = stitch_tracks(
+        tracks.track_of, person_frame, person_joints, bones=bones, params=config.stitch
+    )
+    return tracks_from_labels(labels, person_frame, person_joints, num_frames)
 
 
 def filter_tracks(

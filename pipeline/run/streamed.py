@@ -62,8 +62,8 @@ from pipeline.run.frames import (
     run_frame,
     select_2d,
     source_joint_set,
+    tracks_of_people,
 )
-from pipeline.stages.track import track_people
 
 if TYPE_CHECKING:
     from pipeline.body.arrays import BodyModelData
@@ -213,9 +213,7 @@ def stream_stages(
 def _stream_tracks(out: Path, person_frame, person_joints, num_frames, config, js) -> list[str]:
     """Tracking, then the filter over blocks of tracks, into ``out``: the ``person_track``
     and ``track_*`` files' names."""
-    tracks = track_people(
-        person_frame, person_joints, num_frames, config.tracking, bones=np.array(js.bones)
-    )
+    tracks = tracks_of_people(person_frame, person_joints, num_frames, config, js)
     np.save(out / "person_track.npy", tracks.track_of, allow_pickle=False)
     np.save(out / "track_raw.npy", tracks.joints, allow_pickle=False)
     K, F, J = tracks.joints.shape[:3]

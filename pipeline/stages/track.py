@@ -220,6 +220,25 @@ def _pack(track_of, frames, joints, num_frames, first_seen, last_seen, min_hits)
     )
 
 
+def tracks_from_labels(
+    track_of: np.ndarray, frames: np.ndarray, joints: np.ndarray, num_frames: int
+) -> Tracks:
+    """The :class:`Tracks` of person rows labelled ``track_of`` (tracks 0..K-1, each in
+    at most one row per frame; -1 untracked), e.g. after stitching."""
+    track_of = np.asarray(track_of, int)
+    frames = np.asarray(frames, int)
+    K = int(track_of.max(initial=-1)) + 1
+    J = joints.shape[1] if joints.ndim == 3 else 0
+    out = np.full((K, num_frames, J, 3), np.nan)
+    tracked = track_of >= 0
+    out[track_of[tracked], frames[tracked]] = joints[tracked]
+    first = np.full(K, num_frames, int)
+    last = np.full(K, -1, int)
+    np.minimum.at(first, track_of[tracked], frames[tracked])
+    np.maximum.at(last, track_of[tracked], frames[tracked])
+    return Tracks(track_of=track_of, joints=out, first_frame=first, last_frame=last)
+
+
 def _add_bones(bone_sum, bone_count, k, pose, bones) -> None:
     lengths = bone_lengths(pose, bones)
     ok = np.isfinite(lengths)
