@@ -42,6 +42,7 @@ CRITERION_RGB: dict[str, tuple[int, int, int]] = {
     "kalman": (13, 148, 136),
     "smpl": (146, 84, 30),
     "labels": (219, 39, 119),
+    "protocol": (71, 85, 105),
 }
 assert set(CRITERION_RGB) == set(CRITERIA)
 

@@ -20,10 +20,12 @@ import argparse
 import functools
 import sys
 import warnings
+from pathlib import Path
 
 from pipeline.core.files import SceneFormatError
 from pipeline.data.joint_sets import JOINT_SETS
 from pipeline.data.scene import load_scene
+from pipeline.evaluation.protocol import PROTOCOLS, read_protocol_gt, save_scene_protocol
 from pipeline.importers import (
     CALIBRATION_FORMATS,
     DETECTION_FORMATS,
@@ -119,6 +121,7 @@ def register(subparsers) -> None:
         help="attach another tool's 3D result (a Pose2Sim / OpenSim TRC: metres, Y up) as "
         "reference track NAME, drawn beside ours in the viewer (repeatable)",
     )
+    add_protocol_options(parser)
     parser.add_argument(
         "--overwrite", action="store_true", help="replace SCENE_DIR if it exists and is not empty"
     )
@@ -128,10 +131,27 @@ def register(subparsers) -> None:
     parser.set_defaults(func=functools.partial(run, parser=parser))
 
 
+def add_protocol_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--protocol-gt",
+        metavar="FILE",
+        type=Path,
+        help="the Shelf / Campus protocol's truth (actorsGT.mat, or an npz of frame, person_id, "
+        "joints3d mm), stored in the scene for `mvviz eval --protocol` and the viewer's "
+        "failure review",
+    )
+    parser.add_argument(
+        "--protocol", choices=PROTOCOLS, default="shelf",
+        help="which protocol --protocol-gt follows (default: %(default)s)",
+    )  # fmt: skip
+
+
 def run(args: argparse.Namespace, *, parser: argparse.ArgumentParser) -> int:
     """Convert; returns the exit code (format errors propagate to ``mvviz.cli.main``)."""
     if (args.detections_format is None) != (args.detections is None):
         parser.error("--detections-from and --detections go together")
+    # the truth is read and checked before anything is written
+    truth = read_protocol_gt(args.protocol_gt) if args.protocol_gt is not None else None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -139,6 +159,9 @@ def run(args: argparse.Namespace, *, parser: argparse.ArgumentParser) -> int:
         finally:
             for w in caught:
                 print(f"mvviz convert: warning: {w.message}", file=sys.stderr)
+    if truth is not None:
+        save_scene_protocol(out, args.protocol, truth)
+        print(f"stored the {args.protocol} protocol's truth: {len(truth.frame)} actor-frames")
     scene = load_scene(out)
     det = scene.detections
     imported = scene.meta.get("imported_from", {}).get("detections", {})

@@ -19,9 +19,11 @@ from pipeline.data.scene import Scene, load_scene
 from pipeline.diagnose.sync import estimate_offsets
 from pipeline.evaluation.evaluate import evaluate, format_table, stage_tracks
 from pipeline.evaluation.protocol import (
+    PROTOCOL_TRUTH_FILE,
     PROTOCOLS,
     estimates_by_frame,
     format_protocol_table,
+    load_scene_protocol,
     read_protocol_gt,
     score_protocol,
 )
@@ -152,7 +154,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument(
         "--gt", type=Path, default=None,
         help="the protocol's truth: the datasets' actorsGT.mat, or an .npz of frame, "
-        "person_id, joints3d (N, 14 or 15, 3) mm",
+        "person_id, joints3d (N, 14 or 15, 3) mm (default: the one the scene stores)",
     )  # fmt: skip
     e.set_defaults(func=run_eval)
 
@@ -228,11 +230,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    if (args.protocol is None) != (args.gt is None):
-        raise SceneFormatError(
-            args.gt or "--gt", None, "--protocol and --gt go together (the protocol's truth)"
-        )
+    if args.gt is not None and args.protocol is None:
+        raise SceneFormatError(args.gt, None, "--gt is the protocol's truth: give --protocol too")
     truth = read_protocol_gt(args.gt) if args.gt is not None else None
+    if args.protocol is not None and truth is None:
+        stored = load_scene_protocol(args.scene)
+        if stored is None:
+            raise SceneFormatError(
+                Path(args.scene) / PROTOCOL_TRUTH_FILE, None,
+                "no protocol truth in the scene: give --gt (or store it with mvviz convert "
+                "--protocol-gt)",
+            )  # fmt: skip
+        truth = stored[1]
     scene, results, _, _ = load_and_run(args)
     if truth is not None:
         return _protocol_eval(args, scene, results, truth)

@@ -43,6 +43,7 @@ from mvviz.analysis.failures import (
     save_notes,
     seeing_view,
 )
+from mvviz.analysis.failures.protocol import protocol_summary
 from mvviz.panels.contract import PanelHost
 from mvviz.scene.geometry import MM, ViewerData
 from mvviz.state import ViewerState
@@ -60,6 +61,7 @@ CRITERION_LABELS = {
     "kalman": "Kalman Mahalanobis",
     "smpl": "SMPL residual, joint limits",
     "labels": "Label check",
+    "protocol": "Shelf / Campus PCP: wrong limbs",
 }
 CRITERION_SHORT = {
     "reprojection": "reproj.",
@@ -69,6 +71,7 @@ CRITERION_SHORT = {
     "kalman": "Kalman",
     "smpl": "SMPL",
     "labels": "labels",
+    "protocol": "PCP",
 }
 CRITERION_HELP = {
     "reprojection": "reprojection errors of used views at least 2× that joint's usual error "
@@ -83,6 +86,8 @@ CRITERION_HELP = {
     "and joint rotations outside their limits (÷ 10°)",
     "labels": "keypoint labels that look wrong (left/right, joint order, one camera "
     "mirrored), per scene, track or camera; measured ÷ threshold",
+    "protocol": "limbs the Shelf / Campus protocol counts wrong on the filtered tracks, "
+    "against the truth stored in the scene; ranked by error ÷ the limit (half the limb)",
 }
 
 
@@ -403,6 +408,8 @@ class FailurePanel:
             more = f" of {self.found}" if self.found > len(self.failures) else ""
             head = f"**{len(self.failures)}{more}** worst, worst first (click to go there)"
             head += "\n\n" + " · ".join(f"{k} **{n}**" for k, n in self.kinds.items())
+        if criterion == "protocol" and self._data is not None:
+            head += "\n\n" + protocol_summary(self._data.scene, self._data.results)
         g.summary.content = f"{head}\n\n<small>{CRITERION_HELP[criterion]} · {ms:.0f} ms</small>"
 
     @staticmethod

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.core.files import SceneFormatError
+from pipeline.core.files import SceneFormatError, save_npz_atomic
 from pipeline.data.joint_sets import JointSet
 
 PROTOCOLS = ("shelf", "campus")
@@ -63,6 +63,9 @@ PROTOCOL_LIMBS: dict[str, tuple[int, int]] = {
 }
 LIMB_JOINTS = np.arange(14)
 """The 14 annotated joints (the pelvis is derived): the MPJPE and the nearest estimate."""
+PROTOCOL_TRUTH_FILE = "protocol_gt.npz"
+"""A scene's stored protocol truth (``mvviz convert --protocol-gt``): read by ``mvviz eval
+--protocol`` without ``--gt`` and by the viewer's failure review."""
 DEFAULT_ACTORS = (0, 1, 2)
 """The protocol's actors 1-3: the average is over these."""
 HEAD_FORWARD_MM = 125.0
@@ -362,3 +365,76 @@ def format_protocol_table(scores: dict[str, ProtocolScore]) -> str:
     if missed:
         lines.append(f"actor-frames with no estimate (all limbs wrong): {missed}")
     return "\n".join(lines)
+
+
+def save_scene_protocol(scene_dir: str | os.PathLike, protocol: str, truth: ProtocolTruth) -> Path:
+    """Store ``truth`` in the scene as :data:`PROTOCOL_TRUTH_FILE` (atomically)."""
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
+    path = Path(scene_dir) / PROTOCOL_TRUTH_FILE
+    save_npz_atomic(
+        path, frame=truth.frame, person_id=truth.actor, joints3d=truth.joints,
+        protocol=np.array(protocol),
+    )  # fmt: skip
+    return path
+
+
+def load_scene_protocol(scene_dir: str | os.PathLike) -> tuple[str, ProtocolTruth] | None:
+    """(protocol, truth) stored in the scene, or None if it has none."""
+    path = Path(scene_dir) / PROTOCOL_TRUTH_FILE
+    if not path.is_file():
+        return None
+    truth = read_protocol_gt(path)
+    with np.load(path, allow_pickle=False) as z:
+        protocol = str(z["protocol"]) if "protocol" in z.files else "shelf"
+    if protocol not in PROTOCOLS:
+        raise SceneFormatError(path, "protocol", f"expected one of {PROTOCOLS}, got {protocol!r}")
+    return protocol, truth
+
+
+@dataclass(frozen=True)
+class WrongLimb:
+    """A limb the protocol counts wrong: of ``actor`` in ``frame``, on the estimate of
+    ``track`` (-1: no estimate), its end points' mean error and the limit (half its true
+    length), mm."""
+
+    frame: int
+    actor: int
+    track: int
+    limb: str
+    error_mm: float
+    limit_mm: float
+
+
+def wrong_limbs(
+    tracks: np.ndarray, joint_set: JointSet, truth: ProtocolTruth, *, alpha: float = 0.5,
+    actors: tuple[int, ...] = DEFAULT_ACTORS,
+) -> list[WrongLimb]:
+    """Every wrong limb of ``tracks`` (K, F, J, 3) by the protocol, naming the track whose
+    estimate was scored (the nearest to the actor), in frame order."""
+    poses = protocol_joints(tracks, joint_set)  # (K, F, 15, 3)
+    present = np.isfinite(tracks).all(-1).any(-1)
+    idx = np.array(list(PROTOCOL_LIMBS.values()))
+    out = []
+    for f, a, gt in zip(truth.frame, truth.actor, truth.joints, strict=True):
+        if int(a) not in actors:
+            continue
+        f = int(f)
+        ids = np.flatnonzero(present[:, f]) if f < tracks.shape[1] else np.zeros(0, int)
+        k, _ = nearest_estimate(poses[ids, f], gt)
+        length = np.linalg.norm(gt[idx[:, 0]] - gt[idx[:, 1]], axis=-1)
+        if k < 0:
+            err = np.full(len(idx), np.inf)
+            ok = np.zeros(len(idx), bool)
+            track = -1
+        else:
+            est = poses[ids[k], f]
+            e = np.linalg.norm(est - gt, axis=-1)
+            err = 0.5 * (e[idx[:, 0]] + e[idx[:, 1]])
+            ok = limbs_correct(est, gt, alpha=alpha)
+            track = int(ids[k])
+        for i, name in enumerate(PROTOCOL_LIMBS):
+            if not ok[i]:
+                limit = float(alpha * length[i])
+                out.append(WrongLimb(f, int(a), track, name, float(err[i]), limit))
+    return out

@@ -13,7 +13,9 @@ from pipeline.data.joint_sets import get_joint_set
 from pipeline.evaluation.metrics import MATCH_GATE_MM  # noqa: F401  (re-exported)
 from pipeline.results.store import PipelineResults
 
-CRITERIA = ("reprojection", "mpjpe", "association", "id", "kalman", "smpl", "labels")
+CRITERIA = (
+    "reprojection", "mpjpe", "association", "id", "kalman", "smpl", "labels", "protocol",
+)  # fmt: skip
 MAHALANOBIS_THRESHOLD = 3.0
 # "close to two": a detection whose mean affinity to another person's detections reaches
 # AFFINITY_THRESHOLD and comes within CLOSE_MARGIN of its mean affinity to its own person's

@@ -26,6 +26,7 @@ from mvviz.analysis.failures.entries import (
     UNASSIGNED_CONFIDENCE,
     Failure,
 )
+from mvviz.analysis.failures.protocol import has_protocol, protocol_failures
 from pipeline.data.scene import Scene
 from pipeline.results.store import PipelineResults
 
@@ -95,6 +96,8 @@ def all_failures(
         found = kalman_failures(scene, results, threshold=mahalanobis_threshold)
     elif criterion == "labels":
         found = label_failures(scene, results)
+    elif criterion == "protocol":
+        found = protocol_failures(scene, results)
     else:
         found = smpl_failures(scene, results)
     off = disabled_views(scene, results)
@@ -123,6 +126,8 @@ def kind_counts(failures: list[Failure]) -> dict[str, int]:
 def available_criteria(scene: Scene, results: PipelineResults) -> tuple[str, ...]:
     """The criteria that can find something in this scene and run."""
     out = [c for c in CRITERIA if c != "mpjpe" or scene.gt is not None]
+    if not has_protocol(scene):
+        out.remove("protocol")
     if results.smpl is None and results.smpl_vae is None:
         out.remove("smpl")
     return tuple(out)
