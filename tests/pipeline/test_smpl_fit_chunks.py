@@ -67,22 +67,22 @@ def test_fit_bodies_fits_a_long_sequence_in_chunks(monkeypatch):
     import dataclasses as dc
     from pathlib import Path
 
-    import pipeline.results.store as results_mod
+    import pipeline.run.bodies as bodies_mod
     from pipeline.body.model import load_body_model, torch_body_model
     from pipeline.config import PipelineConfig
     from pipeline.data.scene import load_scene
     from pipeline.fit.smpl import fit_sequence
     from pipeline.run.frames import select_2d
-    from pipeline.run.pipeline import fit_bodies, run_stages
+    from pipeline.run.pipeline import run_stages
 
     scene = load_scene(Path(__file__).resolve().parents[2] / "sample_data" / "shelf_synth")
     config = dc.replace(PipelineConfig(), use_pose_prior=False)
     model = load_body_model()
     staged = run_stages(scene, config, select_2d(scene, config, None), restored=None,
                         progress=False)  # fmt: skip
-    monkeypatch.setattr(results_mod, "LONG_FIT_FRAMES", 100)
-    monkeypatch.setattr(results_mod, "LONG_FIT_CHUNK_FRAMES", 100)
-    got = fit_bodies(staged, config, model, progress=False)
+    monkeypatch.setattr(bodies_mod, "LONG_FIT_FRAMES", 100)
+    monkeypatch.setattr(bodies_mod, "LONG_FIT_CHUNK_FRAMES", 100)
+    got = bodies_mod.fit_bodies(staged, config, model, progress=False)
     want, _ = fit_in_chunks(staged.track_smoothed, staged.joint_set, torch_body_model(model),
                             params=config.smpl_fit, chunk_frames=100, progress=False)  # fmt: skip
     whole, _ = fit_sequence(staged.track_smoothed, staged.joint_set, torch_body_model(model),
@@ -93,6 +93,6 @@ def test_fit_bodies_fits_a_long_sequence_in_chunks(monkeypatch):
     assert not np.array_equal(got.smpl.pose_rotvecs, whole.pose_rotvecs, equal_nan=True)
     ok = got.smpl.present  # the chunked fit is the same body within a few mm of the batch one
     assert np.nanmean(np.linalg.norm(got.smpl.joints - whole.joints, axis=-1)[ok]) < 5.0
-    monkeypatch.setattr(results_mod, "LONG_FIT_FRAMES", 250)  # 250 frames: the batch fit
-    again = fit_bodies(staged, config, model, progress=False)
+    monkeypatch.setattr(bodies_mod, "LONG_FIT_FRAMES", 250)  # 250 frames: the batch fit
+    again = bodies_mod.fit_bodies(staged, config, model, progress=False)
     np.testing.assert_array_equal(again.smpl.pose_rotvecs, whole.pose_rotvecs)
