@@ -35,9 +35,9 @@ def protocol_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
         missing = w.track < 0
         score = 10.0 if missing else w.error_mm / max(w.limit_mm, 1e-9)
         detail = (
-            f"{protocol} actor {w.actor + 1}: no estimate in this frame" if missing
-            else f"{protocol} actor {w.actor + 1}: {w.limb} off by {w.error_mm:.0f} mm "
-            f"(limit {w.limit_mm:.0f} mm, half its true length)"
+            f"no estimate in this frame ({protocol})" if missing
+            else f"off by {w.error_mm:.0f} mm (limit {w.limit_mm:.0f} mm, half its true "
+            f"length; {protocol})"
         )  # fmt: skip
         where = f"actor {w.actor + 1} · " + ("no track" if missing else f"track {w.track}")
         out.append(Failure(
@@ -49,7 +49,8 @@ def protocol_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
 
 
 def protocol_summary(scene: Scene, results: PipelineResults) -> str:
-    """``"shelf PCP (filtered): actor 1 99.7 % · actor 3 96.3 % · average 98.0 %"``, or ""."""
+    """``"**shelf PCP** (filtered): actor 1 99.7 % · actor 3 96.3 % · average 98.0 %"``
+    (markdown), or "" without a stored truth."""
     stored = load_scene_protocol(scene.root)
     if stored is None or results.num_tracks == 0:
         return ""
@@ -57,4 +58,4 @@ def protocol_summary(scene: Scene, results: PipelineResults) -> str:
     estimates = estimates_by_frame(results.track_filtered, get_joint_set(results.joint_set))
     s = score_protocol(estimates, truth)
     actors = " · ".join(f"actor {a + 1} {100 * v:.1f} %" for a, v in s.per_actor.items())
-    return f"{protocol} PCP (filtered): {actors} · average {100 * s.average:.1f} %"
+    return f"**{protocol} PCP** (filtered): {actors} · average {100 * s.average:.1f} %"

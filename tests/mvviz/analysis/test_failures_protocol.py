@@ -71,7 +71,7 @@ def test_failure_review_lists_the_wrong_limbs(scene_with_truth):
     assert wrist[0].score > 5.0 and "off by" in wrist[0].detail
     assert wrist[0] is max(found, key=lambda f: f.score)  # the worst entry
     summary = protocol_summary(scene, results)
-    assert summary.startswith("campus PCP (filtered): actor 1 ") and "average" in summary
+    assert summary.startswith("**campus PCP** (filtered): actor 1 ") and "average" in summary
 
 
 def test_eval_reads_the_stored_truth(scene_with_truth, tmp_path):
