@@ -20,7 +20,7 @@ import rerun as rr
 from mvviz.cli import view as cli_view
 from mvviz.export.rerun import SceneLogger, display_mesh, log_scene
 from mvviz.export.rrd import export_rrd, read_rrd_summary
-from tests.mvviz.conftest import free_port
+from tests.mvviz.conftest import free_port, wait_until
 from tests.mvviz.export.test_rrd import rerun_cli, rows_of
 
 SHOTS = Path(os.environ.get("MVVIZ_SHOTS", "/tmp/mvviz_shots"))
@@ -186,6 +186,10 @@ def test_rerun_server_stop_ends_rerun_itself():
     server.stop()
     assert server.process.poll() is not None
     assert not _session_alive(sid), "a process of the rerun server is still running"
-    assert port_is_free("127.0.0.1", server.web_port) and port_is_free(
-        "127.0.0.1", server.grpc_port
-    )
+    # the kernel frees a listening port a moment after its process ends: on a loaded
+    # machine that moment can follow stop()'s return, so the ports are polled
+    wait_until(
+        lambda: port_is_free("127.0.0.1", server.web_port)
+        and port_is_free("127.0.0.1", server.grpc_port),
+        10.0, "the rerun server's ports to be free",
+    )  # fmt: skip
