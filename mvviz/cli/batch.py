@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
+import socket
 import sys
 import threading
 import time
@@ -16,6 +17,7 @@ from mvviz.cli import at_least
 from mvviz.cli.run import add_config_options, prepare
 from pipeline.batch.jobs import SceneJob
 from pipeline.batch.sweep import setting_slug, sweep_grid
+from pipeline.config import PipelineConfig, load_config
 from pipeline.core.files import CACHE_DIR, SceneFormatError
 from pipeline.results.store import cache_key, default_results_path
 
@@ -107,6 +109,11 @@ def plan(
     ``needs_compute`` is called for each job whose results are not current (``--force``:
     every job) as soon as that is known (the caller starts Ray then)."""
     grid = sweep_grid(args.sweep)
+    # --config, --set and each sweep setting are the same for every scene: a value that
+    # does not parse is the command's error, not a failed row per scene
+    base = load_config(args.config) if args.config else PipelineConfig()
+    for setting in grid:
+        base.with_overrides([*args.set, *setting])
     jobs, scenes, bad, model = [], {}, [], None
     seen: dict[str, Path] = {}
     for d in scene_dirs(args):
@@ -230,7 +237,28 @@ def _row(outcome) -> dict:
     }  # fmt: skip
 
 
+ADDRESS_TIMEOUT_S = 5.0
+
+
+def check_address(address: str | None) -> None:
+    """``--address HOST:PORT`` names a host that resolves and a port that accepts a
+    connection within :data:`ADDRESS_TIMEOUT_S` (Ray itself retries for minutes);
+    ``auto`` and the embedded Ray are not checked. A SceneFormatError otherwise."""
+    if address is None or address == "auto":
+        return
+    host, sep, port = address.split("://", 1)[-1].rpartition(":")  # ray://HOST:PORT too
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise SceneFormatError(address, "--address", "expected auto or [ray://]HOST:PORT")
+    try:
+        socket.create_connection((host, int(port)), timeout=ADDRESS_TIMEOUT_S).close()
+    except OSError as exc:
+        raise SceneFormatError(
+            address, "--address", f"no Ray head answers there ({exc.strerror or exc})"
+        ) from None
+
+
 def run(args: argparse.Namespace) -> int:
+    check_address(args.address)
     t0, started_at = time.perf_counter(), time.time()
     ray_start = _RayStart(args)
     if args.force:  # every job computes: Ray starts now, beside the planning

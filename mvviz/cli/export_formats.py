@@ -39,7 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--format", required=True, choices=FORMATS, help="file format")
     p.add_argument("-o", "--output", type=Path, required=True, help="file to write")
     p.add_argument("--stage", choices=STAGES, default=None, help="stage (default: the last)")
-    p.add_argument("--track", default="all", metavar="all|ID", help="one track id, or all")
+    p.add_argument(
+        "--track", default="all", type=track_choice, metavar="all|ID", help="one track id, or all"
+    )
     p.add_argument(
         "--per-track",
         action="store_true",
@@ -47,6 +49,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_config_options(p)
     p.set_defaults(func=run)
+
+
+def track_choice(text: str) -> str:
+    """``--track``: ``all`` or a track id >= 0, checked before the run is loaded."""
+    if text == "all" or (text.isdigit() and int(text) >= 0):
+        return text
+    raise argparse.ArgumentTypeError(f"expected 'all' or a track id, got {text!r}")
 
 
 def run(args: argparse.Namespace) -> int:

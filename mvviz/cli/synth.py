@@ -11,6 +11,7 @@ from mvviz.cli import at_least
 from mvviz.cli.synth_mocap import add_motion_options, run_motion
 from pipeline.body.keypoints import FITTABLE_JOINT_SETS
 from pipeline.body.model import load_body_model
+from pipeline.core.files import SceneFormatError
 from pipeline.core.units import SAMPLE_DATA
 from pipeline.data.cameras import load_cameras
 from pipeline.importers.calibration import read_voxelpose_calibration
@@ -34,8 +35,11 @@ def load_rig(spec: str):
     if path.suffix == ".json" and path.is_file():
         try:
             return load_cameras(path)
-        except Exception:
-            return read_voxelpose_calibration(path)
+        except SceneFormatError as cameras_error:  # a VoxelPose rig file, or neither
+            try:
+                return read_voxelpose_calibration(path)
+            except (SceneFormatError, KeyError, TypeError):
+                raise cameras_error from None
     return load_cameras(path)
 
 
@@ -110,8 +114,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         rig = load_rig(args.rig)
-    except ValueError as exc:
-        raise SystemExit(f"mvviz synth: {exc}") from exc
+    except SceneFormatError:
+        raise
+    except ValueError as exc:  # a dome spec that does not parse
+        raise SceneFormatError(args.rig, "--rig", str(exc)) from None
     area_radius = args.area_radius
     dome = parse_dome_spec(args.rig)
     if area_radius is None and dome is not None:
