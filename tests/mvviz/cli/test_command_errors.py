@@ -137,3 +137,31 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(case, tiny, tmp_path, c
         assert needle in err[0], (needle, err[0])
     assert not (tmp_path / case.out).exists()
     assert sorted(p.relative_to(scene) for p in scene.rglob("*")) == before
+
+
+def test_a_full_disk_is_one_line_and_the_old_results_stay(tiny, tmp_path):
+    """A write that runs out of room (here a file-size limit, RLIMIT_FSIZE) is exit 2, one
+    line naming the file, and the previous results are left as they were."""
+    import resource
+    import subprocess
+    import sys
+
+    scene = tmp_path / "scene"
+    shutil.copytree(tiny, scene)
+    assert main(["run", str(scene)]) == 0
+    results = scene / ".mvviz" / "results.npz"
+    old = results.read_bytes()
+    assert len(old) > 4000
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4000, 4000))
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "mvviz.cli", "run", str(scene), "--force"],
+        capture_output=True, text=True, preexec_fn=limit, timeout=300,
+    )  # fmt: skip
+    lines = [ln for ln in proc.stderr.strip().splitlines() if not PROGRESS.match(ln)]
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and "File too large" in lines[0] and "results.npz" in lines[0], lines
+    assert results.read_bytes() == old
+    assert not [p for p in results.parent.iterdir() if p.name.endswith(".tmp")]
