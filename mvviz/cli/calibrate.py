@@ -35,11 +35,13 @@ Each camera is a video or a folder of images; its name is the file's stem or the
 name. Frames are matched across cameras by index, or by --sync (sync_index, cam_id,
 frame_index, frame_time; cam_id = the camera's position on the command line).
 
-Writes OUT/cameras.json (mvviz's own: mm, OpenCV world-to-camera) and OUT/Calib.toml
-(Pose2Sim: metres, k1 k2 p1 p2). The world is the first calibrated camera's frame, or with
---floor-frame N the board as seen in frame N laid on the floor (z up, mm). A camera that
-cannot be calibrated is named with the reason and left out; no board at all, or no two
-cameras seeing it together, is an error (exit 2, nothing written).
+Writes OUT/cameras.json (mvviz's own: mm, OpenCV world-to-camera), OUT/Calib.toml
+(Pose2Sim: metres, k1 k2 p1 p2) and OUT/calibration_report.html (per camera: the figures,
+the board corners over the image coloured by their reprojection error). The world is
+the first calibrated camera's frame, or with --floor-frame N the board as seen in frame N
+laid on the floor (z up, mm). A camera that cannot be calibrated is named with the reason
+and left out; no board at all, or no two cameras seeing it together, is an error (exit 2,
+nothing written).
 """
 
 

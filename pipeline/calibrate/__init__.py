@@ -5,7 +5,8 @@
 :mod:`~pipeline.calibrate.intrinsics` (each camera's K and distortion),
 :mod:`~pipeline.calibrate.extrinsics` (board poses, camera pairs, the bundle adjustment),
 :mod:`~pipeline.calibrate.world` (the world frame: the first camera, or the board on the
-floor) and :mod:`~pipeline.calibrate.calibrate`, which composes them into a
+floor), :mod:`~pipeline.calibrate.report` (the report page) and
+:mod:`~pipeline.calibrate.calibrate`, which composes them into a
 :class:`~pipeline.data.cameras.CameraRig`.
 
 Units: board geometry and the world in millimetres, images in pixels. Imports from

@@ -31,6 +31,7 @@ from pipeline.calibrate.extrinsics import (
 )
 from pipeline.calibrate.footage import camera_name, grey_frames, read_sync
 from pipeline.calibrate.intrinsics import MIN_VIEWS, Intrinsics, calibrate_intrinsics
+from pipeline.calibrate.report import REPORT_HTML, write_report
 from pipeline.calibrate.world import floor_transform
 from pipeline.core.files import SceneFormatError
 from pipeline.core.progress import Progress, StageBar
@@ -268,10 +269,11 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
 
 
 def write_calibration(calibration: Calibration, out_dir: str | os.PathLike) -> list[Path]:
-    """Write ``cameras.json`` (native) and ``Calib.toml`` (Pose2Sim) into ``out_dir``,
-    each atomically. Returns their paths."""
+    """Write ``cameras.json`` (native), ``Calib.toml`` (Pose2Sim) and
+    ``calibration_report.html`` into ``out_dir``, each atomically. Returns their paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     save_cameras(calibration.rig, out_dir / "cameras.json")
     toml = write_pose2sim_calibration(calibration.rig, out_dir / "Calib.toml")
-    return [out_dir / "cameras.json", toml]
+    write_report(calibration, out_dir / REPORT_HTML)
+    return [out_dir / "cameras.json", toml, out_dir / REPORT_HTML]

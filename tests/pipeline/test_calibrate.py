@@ -138,7 +138,7 @@ def test_synthetic_rig_recovered(session, tmp_path):
             assert angle_deg(R @ R0.T) < 1.0
             assert np.linalg.norm(t - t0) < 0.05 * np.linalg.norm(t0)
     paths = write_calibration(cal, tmp_path / "out")
-    assert [p.name for p in paths] == ["cameras.json", "Calib.toml"]
+    assert [p.name for p in paths] == ["cameras.json", "Calib.toml", "calibration_report.html"]
     back = read_calibration("pose2sim", [tmp_path / "out" / "Calib.toml"])
     np.testing.assert_allclose(back[1].t, load_cameras(paths[0])[1].t, atol=1e-6)
 

@@ -18,8 +18,14 @@ def test_calibrate_writes_both_files_and_prints_each_camera(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert code == 0, printed
     assert "left" in printed and "front" in printed and "BA RMS" in printed
-    assert sorted(p.name for p in out.iterdir()) == ["Calib.toml", "cameras.json"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "Calib.toml",
+        "calibration_report.html",
+        "cameras.json",
+    ]
     assert load_cameras(out / "cameras.json").names == ["left", "front"]
+    page = (out / "calibration_report.html").read_text()
+    assert page.count("<svg") == 2 and "BA RMS" in page
 
 
 def test_bad_inputs_are_one_line_and_write_nothing(tmp_path, capsys):
