@@ -3,7 +3,7 @@
 Units: millimetres in the world (z up, floor at z = 0), pixels in images, metres
 inside the body model. Each stage lives in its own module and returns a frozen
 dataclass; the folders say what they hold, lowest first: ``core``, ``data``,
-``importers``, ``body``, ``stages``, ``association``, ``fit``, ``mocap``, ``synth``,
+``importers``, ``calibrate``, ``body``, ``stages``, ``association``, ``fit``, ``mocap``, ``synth``,
 ``config`` (the module of every stage's settings), ``results``, ``run``,
 ``evaluation``, ``prior``, ``detect``, ``exports``, ``diagnose``, ``batch``. A folder
 imports only from itself and those before it (``tests/test_structure.py`` checks it);

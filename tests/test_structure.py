@@ -37,6 +37,7 @@ PIPELINE_ORDER = (
     "core",  # files, progress, schema, units, rotations: no pipeline imports
     "data",  # scene, cameras, joint sets, reference tracks
     "importers",  # other tools' files -> scenes
+    "calibrate",  # cameras calibrated from footage of a board
     "body",  # the body model, its kinematics, keypoints, limits, measures
     "stages",  # restore, triangulate, track, kalman, retime
     "association",  # cross-view association (uses triangulation for left/right flips)

@@ -1,6 +1,6 @@
 """The ``mvviz`` command line: one subcommand per job, each registered by its module.
 
-One module per subcommand group (``convert``, ``reference``, ``synth`` /
+One module per subcommand group (``convert``, ``calibrate``, ``reference``, ``synth`` /
 ``synth_mocap``, ``detect``, ``run`` (also ``eval``), ``batch``, ``export_rrd``, ``export_formats``,
 ``diagnose``, ``compare``, ``view``, ``prior``). The command line is the top of the
 import graph: it may import everything; nothing in :mod:`mvviz` outside this package
@@ -26,8 +26,9 @@ from collections.abc import Callable
 from pipeline.core.files import SceneFormatError
 
 COMMAND_MODULES = {
-    "convert": "convert", "add-reference": "reference", "synth": "synth", "detect": "detect",
-    "run": "run", "eval": "run", "batch": "batch", "export-rrd": "export_rrd",
+    "convert": "convert", "calibrate": "calibrate", "add-reference": "reference",
+    "synth": "synth", "detect": "detect", "run": "run", "eval": "run", "batch": "batch",
+    "export-rrd": "export_rrd",
     "export": "export_formats", "diagnose": "diagnose", "compare": "compare", "view": "view",
     "train-prior": "prior",
 }  # fmt: skip

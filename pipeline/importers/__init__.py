@@ -1,8 +1,8 @@
 """Importers: other tools' calibrations and detections -> a native scene directory.
 
 Calibration formats (:data:`CALIBRATION_FORMATS`): ``voxelpose``, ``easymocap``,
-``pose2sim``, ``qualisys``. Detection formats (:data:`DETECTION_FORMATS`): ``openpose``,
-``easymocap``.
+``pose2sim``, ``qualisys``, ``caliscope``. Detection formats (:data:`DETECTION_FORMATS`):
+``openpose``, ``easymocap``.
 :func:`convert_scene` reads one of each and writes a scene with
 :func:`pipeline.data.scene.write_scene` (atomic: a failure leaves nothing behind).
 
@@ -25,9 +25,11 @@ from pipeline.data.joint_sets import OPENPOSE_COCO18, JointSet
 from pipeline.data.references import fit_frames
 from pipeline.data.scene import Detections, write_scene
 from pipeline.importers.calibration import (
+    read_caliscope_calibration,
     read_easymocap_calibration,
     read_pose2sim_calibration,
     read_voxelpose_calibration,
+    write_caliscope_calibration,
     write_easymocap_calibration,
     write_pose2sim_calibration,
     write_voxelpose_calibration,
@@ -54,6 +56,8 @@ __all__ = [
     "LayoutDecision",
     "identify_layout",
     "read_mmpose_predictions",
+    "read_caliscope_calibration",
+    "write_caliscope_calibration",
     "convert_scene",
     "read_calibration",
     "read_detections",
@@ -127,6 +131,10 @@ def _read_qualisys(paths: list[Path], image_size) -> CameraRig:
     return read_qualisys_calibration(path, image_size=image_size)
 
 
+def _read_caliscope(paths: list[Path], image_size) -> CameraRig:
+    return read_caliscope_calibration(_one_file(paths, "caliscope", ".toml"))
+
+
 def _read_easymocap(paths: list[Path], image_size) -> CameraRig:
     if len(paths) == 1 and paths[0].is_dir():
         intri, extri = paths[0] / "intri.yml", paths[0] / "extri.yml"
@@ -170,6 +178,12 @@ CALIBRATION_FORMATS: dict[str, CalibrationFormat] = {
             "if the videos are scaled",
             _read_qualisys,
             write_qualisys_calibration,
+        ),
+        CalibrationFormat(
+            "caliscope",
+            "one Caliscope camera_array.toml (cameras cam_<port>); translation in metres",
+            _read_caliscope,
+            write_caliscope_calibration,
         ),
     )
 }

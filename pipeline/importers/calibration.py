@@ -658,3 +658,87 @@ def write_pose2sim_calibration(rig: CameraRig, path: str | os.PathLike) -> Path:
     with atomic_write(path, "w") as fh:
         fh.write("\n".join(lines))
     return path
+
+
+# --------------------------------------------------------------------------- Caliscope
+
+
+def read_caliscope_calibration(path: str | os.PathLike, *, require_poses: bool = True) -> CameraRig:
+    """Read a Caliscope ``camera_array.toml`` (translations in metres -> mm).
+
+    One table ``[cameras.<port>]`` per camera, named ``cam_<port>`` (as Caliscope names its
+    videos): ``size = [w, h]``, ``matrix`` (K), ``distortions`` (k1 k2 p1 p2 k3),
+    ``rotation`` (3x3, world to camera), ``translation`` (metres). Cameras marked
+    ``ignore = true`` are skipped. Without ``require_poses`` a camera lacking ``rotation``
+    / ``translation`` (intrinsics only) gets the identity pose.
+    """
+    path = Path(path)
+    _require_file(path)
+    try:
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SceneFormatError(path, None, f"not valid TOML ({exc})") from exc
+    tables = data.get("cameras")
+    if not isinstance(tables, dict) or not tables:
+        raise SceneFormatError(path, "cameras", "expected [cameras.<port>] tables")
+    cameras = []
+    for port, c in sorted(tables.items(), key=lambda kv: (len(kv[0]), kv[0])):
+        key = f"cameras.{port}"
+        if not isinstance(c, dict):
+            raise SceneFormatError(path, key, "expected a table")
+        if c.get("ignore", False) is True:
+            continue
+        needed = ("size", "matrix", "distortions") + (
+            ("rotation", "translation") if require_poses else ()
+        )
+        for k in needed:
+            if k not in c:
+                raise SceneFormatError(path, f"{key}.{k}", "missing")
+        size = c["size"]
+        if not isinstance(size, list) or len(size) != 2:
+            raise SceneFormatError(path, f"{key}.size", f"expected [width, height], got {size!r}")
+        wh = (_pixels(size[0], path, f"{key}.size"), _pixels(size[1], path, f"{key}.size"))
+        posed = "rotation" in c and "translation" in c
+        R = _matrix(c["rotation"], path, f"{key}.rotation", (3, 3)) if posed else np.eye(3)
+        t = _vector(c["translation"], path, f"{key}.translation", (3,)) if posed else np.zeros(3)
+        cameras.append(
+            _build_camera(
+                name=f"cam_{port}",
+                size=wh,
+                K=_matrix(c["matrix"], path, f"{key}.matrix", (3, 3)),
+                dist=_dist5(c["distortions"], path, f"{key}.distortions"),
+                R=R,
+                t=t * MM_PER_M,
+                source=path,
+                fields={
+                    "K": (path, f"{key}.matrix"),
+                    "dist": (path, f"{key}.distortions"),
+                    "R": (path, f"{key}.rotation"),
+                    "t": (path, f"{key}.translation"),
+                },
+            )
+        )
+    return _check_rig(cameras, path, "cameras")
+
+
+def write_caliscope_calibration(rig: CameraRig, path: str | os.PathLike) -> Path:
+    """Write ``rig`` as a Caliscope ``camera_array.toml`` (ports 0, 1, ... in rig order)."""
+    path = Path(path)
+    lines = []
+    for port, cam in enumerate(rig):
+        matrix = "[" + ", ".join(_toml_floats(row) for row in cam.K) + "]"
+        rotation = "[" + ", ".join(_toml_floats(row) for row in cam.R) + "]"
+        lines += [
+            f"[cameras.{port}]",
+            f"cam_id = {port}",
+            f"size = [{int(cam.width)}, {int(cam.height)}]",
+            f"matrix = {matrix}",
+            f"distortions = {_toml_floats(cam.dist)}",
+            f"rotation = {rotation}",
+            f"translation = {_toml_floats(cam.t / MM_PER_M)}",
+            "",
+        ]
+    with atomic_write(path, "w") as fh:
+        fh.write("\n".join(lines))
+    return path
