@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
+
 from mvviz.cli import main
 from pipeline.data.cameras import load_cameras
 from pipeline.importers.calibration import write_caliscope_calibration
+from tests.conftest import SHARED_DATA
 from tests.pipeline.calibrate_synth import SPEC, board_poses, default_rig, write_session
 
 
@@ -38,3 +41,30 @@ def test_bad_inputs_are_one_line_and_write_nothing(tmp_path, capsys):
         errors = [line for line in err.splitlines() if "error" in line]
         assert code == 2 and len(errors) == 1 and errors[0].startswith("mvviz calibrate: error:")
     assert not out.exists()
+
+
+CALISCOPE = SHARED_DATA / "caliscope_charuco"
+
+
+@pytest.mark.skipif(not CALISCOPE.is_dir(), reason="../shared/data/caliscope_charuco is absent")
+def test_calibrate_detect_run_on_the_real_session(tmp_path):
+    """The real four-webcam session end to end: its board calibrates the cameras, the
+    calibration folder takes the same videos' detections (every 10th frame), and the run
+    follows the one person who holds the board, reprojecting within a few pixels."""
+    import numpy as np
+
+    from pipeline.results.store import load_results
+
+    videos = CALISCOPE / "extrinsic"
+    out = tmp_path / "calibration"
+    assert main(["calibrate", *[str(videos / f"cam_{k}.mp4") for k in range(4)],
+                 "--board", str(CALISCOPE / "charuco.toml"),
+                 "--sync", str(videos / "timestamps.csv"), "-o", str(out)]) == 0  # fmt: skip
+    pytest.importorskip("ai_edge_litert")
+    assert main(["detect", str(out), "--videos", str(videos), "--every", "10"]) == 0
+    assert main(["run", str(out)]) == 0
+    results = load_results(out / ".mvviz" / "results.npz")
+    lengths = np.isfinite(results.track_raw).all(-1).any(-1).sum(1)
+    assert int((lengths >= 5).sum()) == 1  # one person, followed by one track
+    used = results.person_used & np.isfinite(results.person_reproj)
+    assert float(np.median(results.person_reproj[used])) < 15.0
