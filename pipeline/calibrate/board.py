@@ -18,14 +18,13 @@ Specs (the ``--board`` option):
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from pipeline.core.files import SceneFormatError
+from pipeline.core.files import SceneFormatError, load_toml
 from pipeline.core.units import MM_PER_M
 
 KINDS = ("charuco", "checkerboard")
@@ -140,12 +139,7 @@ def read_caliscope_board(path: str | os.PathLike) -> Board:
     """A Caliscope ``charuco.toml``: ``columns``, ``rows``, ``dictionary``, ``aruco_scale``
     (marker / square), ``square_size_override_cm``, ``inverted``."""
     path = Path(path)
-    if not path.is_file():
-        raise SceneFormatError(path, None, "file not found")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SceneFormatError(path, None, f"not valid TOML ({exc})") from exc
+    data = load_toml(path)
     for key in ("columns", "rows", "dictionary", "square_size_override_cm"):
         if key not in data:
             raise SceneFormatError(path, key, "missing")

@@ -21,6 +21,7 @@ import os
 import re
 import shutil
 import tempfile
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -175,6 +176,25 @@ def atomic_directory(path: str | os.PathLike, *, overwrite: bool = False) -> Ite
             os.replace(old, path)  # failed between the renames: put the old one back
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def require_file(path: Path) -> None:
+    """A SceneFormatError unless ``path`` is a file (a directory is named as one)."""
+    if not path.is_file():
+        what = "is a directory, expected a file" if path.is_dir() else "file not found"
+        raise SceneFormatError(path, None, what)
+
+
+def load_toml(path: str | os.PathLike) -> dict:
+    """A TOML file's tables (calibrations, board descriptions); a missing file or bad TOML
+    is a SceneFormatError naming the file."""
+    path = Path(path)
+    require_file(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SceneFormatError(path, None, f"not valid TOML ({exc})") from exc
 
 
 def load_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:

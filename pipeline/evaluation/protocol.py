@@ -244,21 +244,6 @@ def protocol_joints(joints: np.ndarray, joint_set: JointSet) -> np.ndarray:
     return out
 
 
-def limbs_correct(pred: np.ndarray, gt: np.ndarray, *, alpha: float = 0.5) -> np.ndarray:
-    """(..., 10) True where a limb of :data:`PROTOCOL_LIMBS` is correct: the mean of its end
-    points' errors <= ``alpha`` x its true length; a NaN end point is wrong.
-
-    Args:
-        pred, gt: (..., 15, 3) mm.
-    """
-    err = np.linalg.norm(pred - gt, axis=-1)  # (..., 15)
-    idx = np.array(list(PROTOCOL_LIMBS.values()))
-    length = np.linalg.norm(gt[..., idx[:, 0], :] - gt[..., idx[:, 1], :], axis=-1)
-    mean_err = 0.5 * (err[..., idx[:, 0]] + err[..., idx[:, 1]])
-    with np.errstate(invalid="ignore"):
-        return mean_err <= alpha * length  # NaN compares False: wrong
-
-
 def nearest_estimate(estimates: np.ndarray, truth: np.ndarray) -> tuple[int, float]:
     """Index of the estimate nearest to ``truth`` by mean error over the 14 joints (NaN
     joints ignored; an estimate with none finite never chosen) and that error, or
@@ -277,6 +262,48 @@ def nearest_estimate(estimates: np.ndarray, truth: np.ndarray) -> tuple[int, flo
     return (best, float(mean[best])) if np.isfinite(mean[best]) else (-1, float("inf"))
 
 
+@dataclass(frozen=True, eq=False)
+class _ScoredRow:
+    """One annotated actor-frame scored: the estimate used (-1: none), each limb's
+    correctness, end-point mean error and limit (10,), the 14 joints' errors (or None)."""
+
+    frame: int
+    actor: int
+    estimate: int
+    correct: np.ndarray
+    limb_error: np.ndarray
+    limit: np.ndarray
+    joint_error: np.ndarray | None
+
+
+_LIMB_ENDS = np.array(list(PROTOCOL_LIMBS.values()))  # (10, 2)
+
+
+def _scored_rows(
+    estimates: dict[int, np.ndarray], truth: ProtocolTruth, actors: tuple[int, ...], alpha: float
+) -> list[_ScoredRow]:
+    """Every annotated actor-frame of ``actors``, matched to its nearest estimate and
+    scored limb by limb (the one place the protocol's rules are applied)."""
+    rows = []
+    for f, a, gt in zip(truth.frame, truth.actor, truth.joints, strict=True):
+        if int(a) not in actors:
+            continue
+        est = estimates.get(int(f), np.zeros((0, 15, 3)))
+        k, _ = nearest_estimate(est, gt)
+        limit = alpha * np.linalg.norm(gt[_LIMB_ENDS[:, 0]] - gt[_LIMB_ENDS[:, 1]], axis=-1)
+        if k < 0:
+            n = len(_LIMB_ENDS)
+            rows.append(_ScoredRow(int(f), int(a), -1, np.zeros(n, bool), np.full(n, np.inf),
+                                   limit, None))  # fmt: skip
+            continue
+        e = np.linalg.norm(est[k] - gt, axis=-1)  # (15,)
+        limb_error = 0.5 * (e[_LIMB_ENDS[:, 0]] + e[_LIMB_ENDS[:, 1]])
+        with np.errstate(invalid="ignore"):
+            correct = limb_error <= limit  # NaN compares False: wrong
+        rows.append(_ScoredRow(int(f), int(a), k, correct, limb_error, limit, e[LIMB_JOINTS]))
+    return rows
+
+
 def score_protocol(
     estimates: dict[int, np.ndarray],
     truth: ProtocolTruth,
@@ -292,35 +319,21 @@ def score_protocol(
         truth: the annotated actors; only ``actors`` are scored.
     """
     names = tuple(PROTOCOL_LIMBS)
-    rows: list[tuple[int, int, np.ndarray]] = []  # (frame, actor, (10,) correct)
-    errors = []
-    missed = 0
-    for f, a, gt in zip(truth.frame, truth.actor, truth.joints, strict=True):
-        if int(a) not in actors:
-            continue
-        est = estimates.get(int(f), np.zeros((0, 15, 3)))
-        k, _ = nearest_estimate(est, gt)
-        if k < 0:
-            missed += 1
-            ok = np.zeros(len(names), bool)
-        else:
-            ok = limbs_correct(est[k], gt, alpha=alpha)
-            e = np.linalg.norm(est[k][LIMB_JOINTS] - gt[LIMB_JOINTS], axis=-1)
-            errors.append(e)
-        rows.append((int(f), int(a), ok))
+    rows = _scored_rows(estimates, truth, actors, alpha)
     per_actor: dict[int, float] = {}
     per_actor_limb: dict[int, dict[str, float]] = {}
-    for a in sorted({r[1] for r in rows}):
-        table = np.array([r[2] for r in rows if r[1] == a], float)  # (frames, 10)
+    for a in sorted({r.actor for r in rows}):
+        table = np.array([r.correct for r in rows if r.actor == a], float)  # (frames, 10)
         per_actor[a] = float(table.mean())
         per_actor_limb[a] = {n: float(table[:, i].mean()) for i, n in enumerate(names)}
-    table = np.array([r[2] for r in rows], float).reshape(-1, len(names))
+    table = np.array([r.correct for r in rows], float).reshape(-1, len(names))
     per_limb = {n: float(table[:, i].mean()) if len(table) else float("nan")
                 for i, n in enumerate(names)}  # fmt: skip
     scored = [per_actor[a] for a in actors if a in per_actor]
+    errors = [r.joint_error for r in rows if r.joint_error is not None]
     err = np.concatenate(errors) if errors else np.zeros(0)
     finite = err[np.isfinite(err)]
-    wrong = tuple((f, a, names[i]) for f, a, ok in rows for i in np.flatnonzero(~ok))
+    wrong = tuple((r.frame, r.actor, names[i]) for r in rows for i in np.flatnonzero(~r.correct))
     return ProtocolScore(
         per_actor=per_actor,
         per_limb=per_limb,
@@ -328,21 +341,25 @@ def score_protocol(
         average=float(np.mean(scored)) if scored else float("nan"),
         mpjpe_mm=float(finite.mean()) if finite.size else float("nan"),
         scored=len(rows),
-        missed=missed,
+        missed=sum(r.estimate < 0 for r in rows),
         wrong=wrong,
     )
 
 
-def estimates_by_frame(tracks: np.ndarray, joint_set: JointSet) -> dict[int, np.ndarray]:
+def estimates_by_frame(
+    tracks: np.ndarray, joint_set: JointSet, *, with_tracks: bool = False
+) -> dict[int, np.ndarray] | tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
     """frame -> (P, 15, 3) the protocol joints of every track present in the frame (any
-    finite joint).
+    finite joint); ``with_tracks``: also frame -> (P,) those tracks' indices.
 
     Args:
         tracks: (K, F, J, 3) a stage's trajectories in ``joint_set``, mm.
     """
     poses = protocol_joints(tracks, joint_set)  # (K, F, 15, 3)
     present = np.isfinite(tracks).all(-1).any(-1)  # (K, F)
-    return {f: poses[present[:, f], f] for f in range(tracks.shape[1]) if present[:, f].any()}
+    ids = {f: np.flatnonzero(present[:, f]) for f in range(tracks.shape[1]) if present[:, f].any()}
+    estimates = {f: poses[k, f] for f, k in ids.items()}
+    return (estimates, ids) if with_tracks else estimates
 
 
 def format_protocol_table(scores: dict[str, ProtocolScore]) -> str:
@@ -412,29 +429,11 @@ def wrong_limbs(
 ) -> list[WrongLimb]:
     """Every wrong limb of ``tracks`` (K, F, J, 3) by the protocol, naming the track whose
     estimate was scored (the nearest to the actor), in frame order."""
-    poses = protocol_joints(tracks, joint_set)  # (K, F, 15, 3)
-    present = np.isfinite(tracks).all(-1).any(-1)
-    idx = np.array(list(PROTOCOL_LIMBS.values()))
-    out = []
-    for f, a, gt in zip(truth.frame, truth.actor, truth.joints, strict=True):
-        if int(a) not in actors:
-            continue
-        f = int(f)
-        ids = np.flatnonzero(present[:, f]) if f < tracks.shape[1] else np.zeros(0, int)
-        k, _ = nearest_estimate(poses[ids, f], gt)
-        length = np.linalg.norm(gt[idx[:, 0]] - gt[idx[:, 1]], axis=-1)
-        if k < 0:
-            err = np.full(len(idx), np.inf)
-            ok = np.zeros(len(idx), bool)
-            track = -1
-        else:
-            est = poses[ids[k], f]
-            e = np.linalg.norm(est - gt, axis=-1)
-            err = 0.5 * (e[idx[:, 0]] + e[idx[:, 1]])
-            ok = limbs_correct(est, gt, alpha=alpha)
-            track = int(ids[k])
-        for i, name in enumerate(PROTOCOL_LIMBS):
-            if not ok[i]:
-                limit = float(alpha * length[i])
-                out.append(WrongLimb(f, int(a), track, name, float(err[i]), limit))
-    return out
+    estimates, track_ids = estimates_by_frame(tracks, joint_set, with_tracks=True)
+    names = tuple(PROTOCOL_LIMBS)
+    return [
+        WrongLimb(r.frame, r.actor, int(track_ids[r.frame][r.estimate]) if r.estimate >= 0
+                  else -1, names[i], float(r.limb_error[i]), float(r.limit[i]))
+        for r in _scored_rows(estimates, truth, actors, alpha)
+        for i in np.flatnonzero(~r.correct)
+    ]  # fmt: skip

@@ -29,7 +29,6 @@ import json
 import math
 import os
 import re
-import tomllib
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -37,7 +36,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.core.files import SceneFormatError, atomic_write
+from pipeline.core.files import SceneFormatError, atomic_write, load_toml, require_file
 from pipeline.core.rotations import matrix_to_rotvec, rotvec_to_matrix
 from pipeline.core.schema import check_numbers
 from pipeline.core.units import MM_PER_M
@@ -200,12 +199,6 @@ def _image_size_arg(image_size) -> tuple[int, int] | None:
     return _pixels(w, "--image-size", "W"), _pixels(h, "--image-size", "H")
 
 
-def _require_file(path: Path) -> None:
-    if not path.is_file():
-        what = "is a directory, expected a file" if path.is_dir() else "file not found"
-        raise SceneFormatError(path, None, what)
-
-
 def _check_rig(cameras: list[Camera], path, field: str) -> CameraRig:
     if not cameras:
         raise SceneFormatError(path, field, "no cameras found")
@@ -230,7 +223,7 @@ def read_voxelpose_calibration(
     when the intrinsics match it; otherwise an error asks for ``image_size``.
     """
     path = Path(path)
-    _require_file(path)
+    require_file(path)
     try:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -337,7 +330,7 @@ def write_voxelpose_calibration(rig: CameraRig, path: str | os.PathLike) -> Path
 
 
 def _open_yaml(path: Path) -> cv2.FileStorage:
-    _require_file(path)
+    require_file(path)
     try:
         text = path.read_text()
     except UnicodeDecodeError as exc:
@@ -554,12 +547,7 @@ def read_pose2sim_calibration(path: str | os.PathLike) -> CameraRig:
     cameras and moving / zooming cameras (per-frame arrays) are rejected.
     """
     path = Path(path)
-    _require_file(path)
-    try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SceneFormatError(path, None, f"not valid TOML ({exc})") from exc
+    data = load_toml(path)
     cameras = []
     for key, c in data.items():
         if key in _POSE2SIM_NON_CAMERA_TABLES or not isinstance(c, dict):
@@ -673,12 +661,7 @@ def read_caliscope_calibration(path: str | os.PathLike, *, require_poses: bool =
     / ``translation`` (intrinsics only) gets the identity pose.
     """
     path = Path(path)
-    _require_file(path)
-    try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SceneFormatError(path, None, f"not valid TOML ({exc})") from exc
+    data = load_toml(path)
     tables = data.get("cameras")
     if not isinstance(tables, dict) or not tables:
         raise SceneFormatError(path, "cameras", "expected [cameras.<port>] tables")

@@ -61,14 +61,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.core.files import SceneFormatError, atomic_write
+from pipeline.core.files import SceneFormatError, atomic_write, require_file
 from pipeline.data.cameras import Camera, CameraRig
 from pipeline.importers.calibration import (
     _build_camera,
     _check_rig,
     _image_size_arg,
     _number,
-    _require_file,
 )
 
 SUBPIXELS_PER_PIXEL = 64.0
@@ -158,7 +157,7 @@ def read_qualisys_calibration(
         The video cameras, named by ``serial``, in file order, world millimetres.
     """
     path = Path(path)
-    _require_file(path)
+    require_file(path)
     size_arg = _image_size_arg(image_size)
     root = _parse(path)
     if root.tag != "calibration":

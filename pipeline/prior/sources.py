@@ -1,6 +1,6 @@
 """What the pose prior learns from: its training sources, the mixes held-out splits train
 on, and the broadest mix, which is shipped (``sample_data/priors/pose_vae.pt``:
-``train_on(sources_for())``, issue 19).
+``train_on(sources_for())``).
 
 Sources (:data:`SOURCE_NAMES`), each a :class:`PoseSource`: poses (N, 72) axis-angle and
 the record that goes into a checkpoint's ``info["sources"]`` (file, frames, activities,

@@ -55,21 +55,18 @@ class StitchParams:
     """Mean bone-length difference allowed between the two tracks of a continuation."""
 
 
-def _track_stats(labels, frames, joints, bones, num_tracks):
-    """Per track: its frames (sorted), first and last pose, median bone lengths."""
-    out = []
-    for k in range(num_tracks):
-        rows = np.flatnonzero(labels == k)
-        rows = rows[np.argsort(frames[rows], kind="stable")]
-        if rows.size == 0:
-            out.append(None)
-            continue
-        lengths = bone_lengths(joints[rows], bones) if len(bones) else np.zeros((len(rows), 0))
-        seen = np.isfinite(lengths).any(0)
-        med = np.full(lengths.shape[1], np.nan)
-        med[seen] = np.nanmedian(lengths[:, seen], axis=0)
-        out.append({"rows": rows, "frames": frames[rows], "bones": med})
-    return out
+def _track_stats(labels, k, frames, joints, bones) -> dict | None:
+    """Track ``k``'s rows and frames (sorted by frame) and median bone lengths; None if
+    it has no row."""
+    rows = np.flatnonzero(labels == k)
+    rows = rows[np.argsort(frames[rows], kind="stable")]
+    if rows.size == 0:
+        return None
+    lengths = bone_lengths(joints[rows], bones) if len(bones) else np.zeros((len(rows), 0))
+    seen = np.isfinite(lengths).any(0)
+    med = np.full(lengths.shape[1], np.nan)
+    med[seen] = np.nanmedian(lengths[:, seen], axis=0)
+    return {"rows": rows, "frames": frames[rows], "bones": med}
 
 
 def _pair_cost(a, b, joints, params: StitchParams) -> float | None:
@@ -127,22 +124,30 @@ def stitch_tracks(
     frames = np.asarray(frames, int)
     bones = np.asarray(bones, int).reshape(-1, 2)
     num_joints = np.isfinite(joints).all(-1).sum(-1)
-    while True:
-        num_tracks = int(labels.max(initial=-1)) + 1
-        stats = _track_stats(labels, frames, joints, bones, num_tracks)
-        best = None
-        for a in range(num_tracks):
-            for b in range(a + 1, num_tracks):
-                if stats[a] is None or stats[b] is None:
-                    continue
-                cost = _pair_cost(stats[a], stats[b], joints, params)
-                if cost is not None and (best is None or cost < best[0]):
-                    best = (cost, a, b)
-        if best is None:
-            break
-        _, a, b = best
+    num_tracks = int(labels.max(initial=-1)) + 1
+    stats = {k: st for k in range(num_tracks)
+             if (st := _track_stats(labels, k, frames, joints, bones)) is not None}  # fmt: skip
+    costs: dict[tuple[int, int], float] = {}  # (a, b), a < b -> cost of a pair that qualifies
+
+    def judge(a: int, b: int) -> None:
+        cost = _pair_cost(stats[a], stats[b], joints, params)
+        if cost is not None:
+            costs[(a, b)] = cost
+
+    for a in stats:
+        for b in stats:
+            if a < b:
+                judge(a, b)
+    while costs:  # join the cheapest pair, then re-judge only the joined track's pairs
+        a, b = min(costs, key=costs.get)
         labels[labels == b] = a
         _one_row_per_frame(labels, a, frames, num_joints)
+        costs = {p: c for p, c in costs.items() if a not in p and b not in p}
+        del stats[b]
+        stats[a] = _track_stats(labels, a, frames, joints, bones)
+        for k in stats:
+            if k != a:
+                judge(min(a, k), max(a, k))
     return _renumber(labels, frames)
 
 

@@ -1,6 +1,6 @@
 """pipeline.prior.sources (what the prior learns from, held-out mixes), the body-model
 clips of pipeline.mocap.clips.clip_from_body, and the prior's in-distribution weight
-(pipeline.fit.prior_correction.in_distribution), issue 19."""
+(pipeline.fit.prior_correction.in_distribution)."""
 
 from __future__ import annotations
 

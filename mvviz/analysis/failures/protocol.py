@@ -8,6 +8,7 @@ from mvviz.analysis.failures.entries import Failure
 from pipeline.data.joint_sets import get_joint_set
 from pipeline.data.scene import Scene
 from pipeline.evaluation.protocol import (
+    PROTOCOL_TRUTH_FILE,
     estimates_by_frame,
     load_scene_protocol,
     score_protocol,
@@ -17,8 +18,8 @@ from pipeline.results.store import PipelineResults
 
 
 def has_protocol(scene: Scene) -> bool:
-    """Whether the scene stores a protocol truth."""
-    return load_scene_protocol(scene.root) is not None
+    """Whether the scene stores a protocol truth (the file is read only when it is used)."""
+    return (scene.root / PROTOCOL_TRUTH_FILE).is_file()
 
 
 def protocol_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
