@@ -32,13 +32,20 @@ from mvviz.cli import add_debug_option, run_command
 from mvviz.cli.view import add_view_options, run
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The viewer's options (also the documentation's command reference)."""
     parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python app.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_view_options(parser, scene_optional=True)
     add_debug_option(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     if args.batch is not None:
         # the report's modules (matplotlib) load only with --batch: the start stays fast
         from mvviz.cli.view_batch import run_batch

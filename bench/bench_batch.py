@@ -6,7 +6,7 @@ the shipped ``sample_data/shelf_synth``, 4 people and 250 frames; ``--people`` /
 times:
 
 - serial: one ``python`` process running ``mvviz run SCENE --force`` for every scene,
-  one after another (what a user does today: the same code path, imports paid once,
+  one after another (what a user does without batch: the same code path, imports paid once,
   torch's default threads, ended as the ``mvviz`` script ends), each followed by the
   evaluation the batch's report holds for it (the results read back,
   :func:`pipeline.batch.jobs.summarize`), timed apart: the speed-up is printed against
@@ -20,7 +20,7 @@ times:
   host's other tenants), so even a perfect split stays below 2x; the batch is printed
   against it as well.
 
-- with ``--per-command``, the scenes as a user runs them by hand today: one ``mvviz run
+- with ``--per-command``, the scenes as a user runs them by hand: one ``mvviz run
   SCENE --force`` command after another (each pays its imports and its exit; no
   evaluation, so the batch, which evaluates every scene, is compared against less work).
 

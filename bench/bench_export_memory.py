@@ -1,10 +1,10 @@
 """Memory of ``export_rrd`` against the number of frames exported, three ways, the same run,
 alternated: meshes sent in chunks, rows cut into chunks when the export flushes
 (:func:`mvviz.export.rrd.export_batcher`) and the C heap trimmed after each chunk
-(:func:`mvviz.export.heap.release_free_heap`) (today: ``chunked``, ``mesh_chunk_frames`` =
-:data:`mvviz.export.rrd.MESH_CHUNK_FRAMES`); in chunks on rerun's default 200 ms clock
-without the trim (``before``, the export of stops 28-36); all at once (``at_once``,
-``mesh_chunk_frames=0``, before stop 28); and today's without rerun's chunk index, the
+(:func:`mvviz.export.heap.release_free_heap`) (the product's: ``chunked``,
+``mesh_chunk_frames`` = :data:`mvviz.export.rrd.MESH_CHUNK_FRAMES`); in chunks on rerun's
+default 200 ms clock without the trim (``before``); all at once (``at_once``,
+``mesh_chunk_frames=0``); and the product's without rerun's chunk index, the
 file's footer (``no_index``: not a product option, as ``rerun rrd verify`` refuses such a
 file; it shows what the index, which rerun builds in memory until the file closes, holds).
 
@@ -60,7 +60,7 @@ from pipeline.data.scene import load_scene
 
 scene_dir, frames, chunk, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 mode = sys.argv[5]
-if mode in ("before", "at_once"):  # the export of stops 28-36: no heap trim, rerun's 200 ms clock
+if mode in ("before", "at_once"):  # no heap trim, rerun's 200 ms clock
     import rerun as rr
     import mvviz.export.rerun.logger, mvviz.export.rrd
     mvviz.export.rerun.logger.release_free_heap = lambda: False
@@ -69,7 +69,7 @@ if mode in ("before", "at_once"):  # the export of stops 28-36: no heap trim, re
     send_plots = mvviz.export.rerun.logger.SceneLogger.send_plots  # and the plots at once
     mvviz.export.rerun.logger.SceneLogger.send_plots = (
         lambda self, *a, **k: send_plots(self, *a, **{**k, "chunk_frames": 0}))
-if mode == "no_index":  # today's, without rerun's chunk index at the end of the file
+if mode == "no_index":  # the product's, without rerun's chunk index at the end of the file
     import rerun as rr
     save = rr.RecordingStream.save
     rr.RecordingStream.save = lambda self, *a, **k: save(self, *a, **{**k, "write_footer": False})

@@ -53,7 +53,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import write_json  # noqa: E402
+from bench.common import markdown_table, publish, write_json  # noqa: E402
 from bench.peer_compare import (  # noqa: E402
     per_joint_median_mm,
     reprojection_errors,
@@ -283,6 +283,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--detect", action="store_true", help="also run mvviz detect on the videos")
     ap.add_argument("--json", type=Path, help="write the figures here")
+    ap.add_argument("--docs", action="store_true", help="write the documentation's section")
     args = ap.parse_args()
 
     warnings.simplefilter("ignore")
@@ -315,7 +316,32 @@ def main() -> int:
         print_report(f"mvviz detect (BlazePose) on the real videos ({det_s:.0f} s)", fig)
     if args.json:
         write_json(args.json, figures)
+    if args.docs:
+        publish("bench_peer_pose2sim", "Pose2Sim's balancing trial: ours against Pose2Sim",
+                docs_section(figures))  # fmt: skip
     return 0
+
+
+def docs_section(figures: dict) -> str:
+    """The Benchmarks page's section: distances to Pose2Sim's result, reprojection."""
+    parts = []
+    for key, title in (("openpose_2d", "the shipped OpenPose BODY_25B 2D"),
+                       ("blazepose_2d", "`mvviz detect` (BlazePose) on the videos")):  # fmt: skip
+        fig = figures.get(key)
+        if fig is None:
+            continue
+        cams = list(next(iter(fig["reprojection_px"].values())))
+        rows = [[name, *(f"{per_cam[c][0]:.1f} / {per_cam[c][1]:.1f}" for c in cams)]
+                for name, per_cam in fig["reprojection_px"].items()]  # fmt: skip
+        medians = {c: float(np.median(list(v.values()))) for c, v in fig["per_joint_mm"].items()}
+        parts.append(
+            f"**From {title}**: the subject is track {fig['track']} over {fig['frames']} "
+            f"frames; median distance per keypoint to Pose2Sim's result of the same input: "
+            + ", ".join(f"{c} {m:.1f} mm" for c, m in medians.items())
+            + ".\n\nReprojection onto the subject's 2D, median / mean px:\n\n"
+            + markdown_table(["result", *cams], rows)
+        )
+    return "\n\n".join(parts)
 
 
 if __name__ == "__main__":

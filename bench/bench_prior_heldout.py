@@ -1,5 +1,5 @@
 """Held-out protocol for the SMPL fit and its VAE correction: train the prior without some
-motion, score on a scene synthesised from exactly that motion (issue 19).
+motion, score on a scene synthesised from exactly that motion.
 
 Splits (``--split``, default all; sources and activities of
 :mod:`pipeline.prior.sources`):

@@ -4,7 +4,7 @@ Scenes: ``mvviz synth``'s fast synthesis (no video) on a Panoptic-like dome of 5
 radius (``dome:N:5000``, people in its 3 m capture circle), the shipped detector noise,
 --frames frames per scene, for every cameras x people of the grid (kept under --cache
 and reused). Per scene, alternated over --repeats runs: ``pipeline.run.frames.run_frame`` on
-every frame with today's association (``pipeline.association.affinity.screened_distances``: a
+every frame with the product's association (``pipeline.association.affinity.screened_distances``: a
 part-ray screen, then the per-joint kernel on the pairs it keeps, in one compiled pass,
 ``pipeline.association.fused``, where a frame has ``COMPILED_MIN_DETECTIONS`` detections), with
 the NumPy screen and kernel on every frame ("numpy": by cache-sized blocks,
@@ -61,9 +61,9 @@ STAGES = ("associate_frame", "triangulate_people")  # pipeline.run.frames's name
 
 @contextlib.contextmanager
 def kernels(mode: str):
-    """Association as today ("new": the compiled screen and kernel where a frame has
+    """Association as shipped ("new": the compiled screen and kernel where a frame has
     ``COMPILED_MIN_DETECTIONS`` detections), with the NumPy screen and kernel on every
-    frame ("numpy": today's before the compiled pass), with those before they went
+    frame ("numpy": the NumPy path without the compiled pass), with those before they went
     by cache-sized blocks ("unblocked": ``reference.screen_distances_unblocked``,
     ``pair_ray_distances_unchunked``), with every pair's distance ("dense", the kernels
     before the screen) or with the kernels as first written ("reference"); the kernels
@@ -197,7 +197,7 @@ def fit_exponents(cams, people, dets, cost) -> dict[str, float]:
 
 
 def all_fits(grid: list[dict], modes: tuple[str, ...]) -> dict[str, dict[str, float]]:
-    """Exponents of association per mode and of today's triangulation."""
+    """Exponents of association per mode and of the triangulation."""
     arr = [np.array([g[k] for g in grid], float) for k in ("cameras", "people", "dets")]
     fits = {f"assoc_{m}": fit_exponents(*arr, np.array([g[m]["assoc_s"] for g in grid]))
             for m in modes}  # fmt: skip

@@ -61,7 +61,7 @@ import zstandard
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import free_port, write_json  # noqa: E402
+from bench.common import free_port, markdown_table, publish, write_json  # noqa: E402
 from mvviz.app import ViewerApp
 from mvviz.scene.geometry import GT_MESH, track_color  # noqa: E402
 from mvviz.scene.images import FrameStore  # noqa: E402
@@ -448,6 +448,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--client", action="store_true", help="also count bytes at a ws client")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
+    ap.add_argument("--docs", action="store_true", help="write the documentation's section")
     ap.add_argument(
         "--rerun-only", action="store_true", help="only the default with and without --rerun"
     )
@@ -565,6 +566,22 @@ def main(argv: list[str] | None = None) -> dict:
         )
     if args.json:
         write_json(args.json, out)
+    if args.docs:
+        rows = [["default: skinned meshes", f"{skinned['median_ms']:.1f}",
+                 f"{skinned['p95_ms']:.1f}", f"{skinned['median_kb']:.1f}", "1.00x / 1.00x"],
+                ["full vertex arrays instead", f"{full['median_ms']:.1f}", f"{full['p95_ms']:.1f}",
+                 f"{full['median_kb']:.1f}", f"{ratio_ms:.2f}x / {ratio_kb:.1f}x"]]  # fmt: skip
+        for key, r in variants.items():
+            rows.append([key.replace("_", " "), f"{r['median_ms']:.1f}", f"{r['p95_ms']:.1f}",
+                         f"{r['median_kb']:.1f}",
+                         f"{r['median_ms'] / skinned['median_ms']:.2f}x / "
+                         f"{r['median_kb'] / skinned['median_kb']:.2f}x"])  # fmt: skip
+        publish("bench_viewer", "Viewer frame changes", (
+            f"{args.changes} random frame changes of the viewer on `{args.scene.name}`, every "
+            f"layer and panel on; server-side time and bytes sent per change (targets "
+            f"{TARGET_MS:.0f} ms and {TARGET_KB:.0f} KB).\n\n"
+            + markdown_table(["variant", "median ms", "p95 ms", "KB per change",
+                              "time / bytes vs default"], rows)))  # fmt: skip
     return out
 
 

@@ -1,4 +1,4 @@
-"""Benchmark the viewer on a Panoptic-sized scene: 31 cameras, 20 people (issue 14 part 4).
+"""Benchmark the viewer on a Panoptic-sized scene: 31 cameras, 20 people.
 
 Synthesises (once, into --cache; fast, no video) a ``dome:31:5000`` scene with 20 people
 over --frames frames, runs the pipeline once and writes its results in both layouts of

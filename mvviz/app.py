@@ -42,7 +42,7 @@ from mvviz.panels.view_panels import (
     make_timeline_panel,
 )
 from mvviz.safe_paths import WritePolicy
-from mvviz.scene.geometry import LayerToggles, ViewerData, frame_geometry, prepare
+from mvviz.scene.geometry import LayerToggles, ViewerData, frame_geometry, prepare, to_display
 from mvviz.scene.images import (
     BodyOutlines,
     FrameStore,
@@ -231,7 +231,7 @@ class ViewerApp:
     def focus(self, target: np.ndarray, offset: np.ndarray | None = None) -> None:
         """Point every connected client's camera at ``target`` (world metres) from
         ``target + offset`` (default: 2.5 m away, from behind-left and above)."""
-        target = np.asarray(target, float)
+        target = to_display(self.state.data.T_display_world, target)
         offset = np.array([-1.4, -1.9, 1.0]) if offset is None else np.asarray(offset, float)
         for client in self.server.get_clients().values():
             client.camera.position = target + offset  # moves look_at along with it
@@ -318,12 +318,14 @@ class ViewerApp:
         the viewer), turned a little so that frustum does not hide the people."""
         data = self.state.data
         c = data.center.copy()
-        c[2] = 0.9
+        if np.allclose(data.T_display_world, np.eye(4)):
+            c[2] = 0.9  # chest height over a z-up world's floor
         d = data.cameras[0].position[:2] - c[:2] if data.cameras else np.array([-1.0, -1.0])
         d = d / max(np.linalg.norm(d), 1e-6)
         a = np.deg2rad(30.0)
         d = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) @ d
-        r = max(3.5, 2.0 * data.spread + 1.5)
+        # a room-sized rig is seen from >= 3.5 m; a desk-sized one from nearer
+        r = max(min(3.5, 2.5 * data.camera_distance), 2.0 * data.spread + 1.5)
         pos = np.array([c[0] + d[0] * r, c[1] + d[1] * r, c[2] + 0.55 * r])
         self.server.initial_camera.position = tuple(pos)
         self.server.initial_camera.look_at = tuple(c)

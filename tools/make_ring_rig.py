@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Write a ring rig's ``cameras.json``: N cameras on a circle, looking inwards.
 
-For scale scenes (issue 14): ``mvviz synth --rig ring.json``. Camera ``i`` stands at
+For scale scenes: ``mvviz synth --rig ring.json``. Camera ``i`` stands at
 angle ``2 pi i / N`` on a circle of ``--radius`` mm at ``--height`` mm and looks at a
 point ``--aim-height`` mm above the floor on a circle of ``--aim-radius`` mm, at the
 opposite angle turned by ``--aim-turn`` degrees. ``--aim-radius 0`` is the classic ring

@@ -6,6 +6,11 @@ WebGL), sets a frame, selection and layers, and writes a PNG.
 Usage:
     python tools/readme_screenshots.py SCENE OUT.png [--frame F] [--track K]
         [--fit-meshes] [--no-rays] [--camera NAME] [--tab NAME] [--criterion C] [--port P]
+    python tools/readme_screenshots.py --all [--capture SCENE]
+
+--all regenerates every screenshot of the README and the documentation
+(docs/screenshots/, the table ``SHOTS``); --capture is the tutorial's scene (made by the
+tutorial's commands), whose picture is skipped without it.
 
 --tab shows a tab of the right-hand panel ("Failures", ...); --criterion sets the
 Failures panel's criterion ("association", ...) before the picture.
@@ -23,8 +28,44 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from mvviz.cli.view import add_view_options, start  # noqa: E402
 from tools.chromium import close_webgl_notice, launch_chromium, pinned_dpr_url  # noqa: E402
 
+REPO = Path(__file__).resolve().parents[1]
+SHOTS = {  # docs/screenshots/<name>.png: the scene and this tool's options
+    "viewer": ("sample_data/shelf_synth", ["--frame", "60", "--track", "0"]),
+    "pose2sim_demo": ("sample_data/pose2sim_demo", ["--frame", "40", "--track", "0"]),
+    "filter_ab": ("sample_data/shelf_synth", ["--frame", "120", "--tab", "Filter A/B"]),
+    "failures": ("sample_data/shelf_synth_noisy", ["--frame", "60", "--tab", "Failures"]),
+    "pose2sim_balancing": ("sample_data/pose2sim_balancing", ["--frame", "50"]),
+    "pose2sim_balancing_meshes": ("sample_data/pose2sim_balancing",
+                                  ["--frame", "50", "--fit-meshes", "--no-rays"]),
+    "tutorial_capture": (None, ["--frame", "40", "--track", "0"]),
+}  # fmt: skip
+
+
+def regenerate_all(capture: Path | None) -> int:
+    """Every picture of ``SHOTS``, each by a run of this tool in its own process."""
+    import subprocess
+
+    failed = []
+    for name, (scene, options) in SHOTS.items():
+        if scene is None and capture is None:
+            print(f"skipped {name}: needs --capture SCENE (the tutorial's scene)")
+            continue
+        out = REPO / "docs" / "screenshots" / f"{name}.png"
+        argv = [sys.executable, __file__, str(capture if scene is None else REPO / scene),
+                str(out), *options]  # fmt: skip
+        if subprocess.run(argv, cwd=REPO).returncode != 0:
+            failed.append(name)
+    if failed:
+        print(f"failed: {', '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0
+
 
 def main() -> None:
+    if "--all" in sys.argv[1:]:
+        capture = None
+        if "--capture" in sys.argv:
+            capture = Path(sys.argv[sys.argv.index("--capture") + 1]).resolve()
+        raise SystemExit(regenerate_all(capture))
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -204,9 +204,13 @@ class ViewerData:
     bodies: GtBodies | None
     fit_bodies: Bodies | None
     min_confidence: float
-    center: np.ndarray  # (3,) m, middle of the action
+    center: np.ndarray  # (3,) m, middle of the action, in the display frame
     spread: float  # m, horizontal half-size of the action
-    extent: float  # m, radius of the rig
+    extent: float  # m, radius of the rig (at least 3)
+    camera_distance: float  # m, median distance of the cameras from the action
+    # (4, 4) world metres -> the display frame (z up, the floor at z = 0 where the people
+    # tell it): identity for a z-up world; see :func:`display_transform`
+    T_display_world: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     @property
     def num_frames(self) -> int:
@@ -241,10 +245,11 @@ def prepare(
             gt_points = gt.joints3d
         gt_rows = group_by_frame(gt.frame, F)
 
-    centers = scene.rig.centers * MM
+    step = max(1, -(-F // CENTER_FRAMES))
+    T_display_world = display_transform(scene, results, joint_set, step=step)
+    centers = to_display(T_display_world, scene.rig.centers * MM)
     # at most CENTER_FRAMES frames, evenly spread: enough for percentiles, and a long
     # sequence's (memory-mapped) tracks are not read whole at start-up
-    step = max(1, -(-F // CENTER_FRAMES))
     pts = np.asarray(results.track_raw[:, ::step]).reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(1)]
     if len(pts) == 0 and gt_points is not None:
@@ -252,14 +257,19 @@ def prepare(
     if len(pts) == 0 and scene.references:
         pts = np.concatenate([r.joints.reshape(-1, 3) for r in scene.references.values()])
         pts = pts[np.isfinite(pts).all(1)]
+    pts = to_display(T_display_world, pts * MM) / MM
     if len(pts):  # the middle of where people go, and how far they spread
         lo, hi = np.percentile(pts * MM, 5, axis=0), np.percentile(pts * MM, 95, axis=0)
         center = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, np.median(pts[:, 2]) * MM])
         spread = float(np.linalg.norm(hi[:2] - lo[:2]) / 2)
     else:
         center, spread = np.array([0.0, 0.0, 1.0]), 2.0
+    to_action = np.linalg.norm(centers - center, axis=1)  # (V,) m
     extent = float(np.max(np.linalg.norm((centers - center)[:, :2], axis=1), initial=3.0))
-    cameras = [camera_geometry(c) for c in scene.rig]
+    # Frusta sized to the rig: their image planes ~1/6 of the way to the action (at most
+    # 0.6 m, as on a room-sized rig), so a rig a metre from a person does not hide them.
+    depth = float(np.clip(np.median(to_action) / 6.0, 0.08, 0.6)) if len(to_action) else 0.6
+    cameras = [camera_geometry(c, plane_depth=depth) for c in scene.rig]
     return ViewerData(
         scene=scene,
         results=results,
@@ -278,7 +288,59 @@ def prepare(
         center=center,
         spread=spread,
         extent=extent,
+        camera_distance=float(np.median(to_action)) if len(to_action) else 3.0,
+        T_display_world=T_display_world,
     )
+
+
+UPRIGHT_TOLERANCE_DEG = 30.0
+"""A world whose "up" (from the people, else the cameras) is further than this from +z is
+shown turned upright: a calibration in its first camera's frame (y down) is ~90 degrees
+off; a z-up capture whose people lean is a few degrees off and is shown as it is."""
+
+
+def display_transform(
+    scene: Scene, results: PipelineResults, joint_set: JointSet, *, step: int = 1
+) -> np.ndarray:
+    """(4, 4) world metres -> the display frame the viewer draws in.
+
+    Up comes from the people (:func:`pipeline.diagnose.floor.estimate_floor`: the plane of
+    their planted feet, else their body axis), the floor at z = 0 under them; without
+    enough people, from the cameras (mounted upright, their image's "up" averaged). A
+    world already z-up within :data:`UPRIGHT_TOLERANCE_DEG` is drawn as it is."""
+    from pipeline.diagnose.floor import estimate_floor, level_rotation
+
+    T = np.eye(4)
+    tracks = np.asarray(results.track_filtered[:, ::step])
+    floor = estimate_floor(tracks, list(joint_set.names)) if tracks.size else None
+    if floor is not None:
+        if floor.angle_to_z_deg <= UPRIGHT_TOLERANCE_DEG:
+            return T
+        T[:3, :3] = level_rotation(floor.up)
+        T[2, 3] = -floor.height_mm * MM
+        return T
+    R = np.asarray([c.R for c in scene.rig], float)  # (V, 3, 3) world -> camera
+    if not len(R):
+        return T
+    up = -R[:, 1, :].sum(0)  # each camera's image "up" (-y) in world coordinates
+    norm = np.linalg.norm(up)
+    if norm < 1e-9 or np.degrees(np.arccos(np.clip(up[2] / norm, -1, 1))) <= UPRIGHT_TOLERANCE_DEG:
+        return T
+    T[:3, :3] = level_rotation(up / norm)
+    # No floor to go by: the grid goes under everything seen (people and cameras).
+    seen = [scene.rig.centers * MM @ T[:3, :3].T]
+    if tracks.size:
+        pts = tracks.reshape(-1, 3)
+        seen.append(pts[np.isfinite(pts).all(1)] * MM @ T[:3, :3].T)
+    heights = np.concatenate([p[:, 2] for p in seen])
+    T[2, 3] = -(float(np.percentile(heights, 1)) - 0.2)
+    return T
+
+
+def to_display(T_display_world: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(..., 3) world metres -> the display frame."""
+    points = np.asarray(points, float)
+    return points @ T_display_world[:3, :3].T + T_display_world[:3, 3]
 
 
 def person_indices(results: PipelineResults, num_frames: int) -> dict[str, object]:

@@ -98,6 +98,7 @@ class FrameStore:
         self._cache_size = cache_size
         self._lock = threading.Lock()
         self._done = threading.Event()
+        self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
         self.on_camera_ready: list[Callable[[str], None]] = []
 
@@ -115,6 +116,13 @@ class FrameStore:
         self._thread.start()
         return self
 
+    def stop(self, timeout: float = 30.0) -> None:
+        """End the background decoding at the next frame (a process must not exit while
+        OpenCV decodes on a daemon thread: the C++ runtime aborts it)."""
+        self._stopping.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+
     def wait(self, timeout: float | None = None) -> bool:
         """Block until every video is decoded; False on timeout."""
         return self._done.wait(timeout)
@@ -126,11 +134,15 @@ class FrameStore:
     def _decode_all(self, cams: list[str]) -> None:
         try:
             for cam in cams:
+                if self._stopping.is_set():
+                    return
                 try:
                     frames = self._load_cache(cam)
                     if frames is None:
                         frames = self._decode_video(self.sources[cam].path, cam)
                         self._save_cache(cam, frames)
+                except InterruptedError:
+                    return  # stop(): nothing half-decoded is kept or cached
                 except Exception as exc:  # a broken video must not take the viewer down
                     print(f"mvviz view: cannot decode video of camera {cam}: {exc}")
                     frames = []
@@ -141,6 +153,8 @@ class FrameStore:
             per_frame = THUMBNAIL_WIDTH * THUMBNAIL_WIDTH * 3  # at most square
             if len(cams) * self.num_frames * per_frame <= THUMBNAIL_BUDGET_BYTES:
                 for cam in cams:
+                    if self._stopping.is_set():
+                        return
                     self._decode_small(cam, THUMBNAIL_WIDTH)
         finally:
             self._done.set()
@@ -148,6 +162,8 @@ class FrameStore:
     def _decode_small(self, cam: str, width: int) -> None:
         """Fill the (F, h, width, 3) array of ``cam``'s frames ``width`` px wide."""
         for f in range(self.num_frames):
+            if self._stopping.is_set():
+                return
             img = self._decode_small_frame(cam, f, width, cache=False)
             if img is None:
                 continue
@@ -169,6 +185,8 @@ class FrameStore:
         params = [int(cv2.IMWRITE_JPEG_QUALITY), self.jpeg_quality]
         try:
             while len(out) < self.num_frames:
+                if self._stopping.is_set():
+                    raise InterruptedError("stopped")
                 ok, bgr = cap.read()
                 if not ok:
                     break

@@ -30,6 +30,7 @@ from functools import lru_cache
 
 import numpy as np
 import viser
+import viser.transforms as vtf
 
 from mvviz.scene.decimate import DISPLAY_CELL_M, WIREFRAME_CELL_M, decimate_bodies
 from mvviz.scene.geometry import (
@@ -442,11 +443,21 @@ def make_scene_layers(
 def _add_groups(layers: SceneLayers) -> None:
     """The grid and the group frames that the layer toggles show and hide."""
     scene, data = layers.server.scene, layers.data
-    layers.groups["/world"] = scene.add_frame("/world", show_axes=False)
-    r = max(6.0, 2.5 * data.extent)
-    layers.groups["/world/grid"] = scene.add_grid(
-        "/world/grid", width=r, height=r, cell_size=0.5, section_size=1.0, plane="xy"
+    # Everything is drawn in world coordinates under /world, which the display frame
+    # turns upright (identity for a z-up world); the grid lies on the display's floor.
+    T = data.T_display_world
+    layers.groups["/world"] = scene.add_frame(
+        "/world", show_axes=False, wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz, position=T[:3, 3]
     )
+    r = max(6.0, 2.5 * data.extent)
+    T_grid = np.eye(4)  # the grid's pose in the display frame
+    if not np.allclose(T, np.eye(4)):
+        T_grid[:2, 3] = data.center[:2]  # under the people
+    T_world_grid = np.linalg.inv(T) @ T_grid
+    layers.groups["/world/grid"] = scene.add_grid(
+        "/world/grid", width=r, height=r, cell_size=0.5, section_size=1.0, plane="xy",
+        wxyz=vtf.SO3.from_matrix(T_world_grid[:3, :3]).wxyz, position=T_world_grid[:3, 3],
+    )  # fmt: skip
     for path in (
         "/world/cameras",
         "/world/detections2d",

@@ -623,7 +623,8 @@ def split_frames(size: int, total: int, cpus: float) -> int:
     an even share of the work (a long scene beside short ones, or fewer scenes than
     CPUs: unsplit, it would be the last to finish while cores idle), else 0, one task:
     the chunks' inputs, join and intermediate objects cost ~30 % more CPU per scene
-    (README, issue 15), for nothing when the scenes keep every core busy anyway."""
+    (``bench/bench_batch.py --frames 750``), for nothing when the scenes keep every core
+    busy anyway."""
     return AUTO_CHUNK_FRAMES if cpus > 1 and size * cpus > total else 0
 
 

@@ -611,6 +611,16 @@ def _updated_meta(
     return meta
 
 
+def _holds_no_detections(path: Path) -> bool:
+    """``path`` is a detections file with no rows (what ``mvviz convert`` of a calibration
+    alone writes): room to fill, not results to protect."""
+    try:
+        with np.load(path) as arrays:
+            return "frame" in arrays.files and arrays["frame"].shape == (0,)
+    except (OSError, ValueError):
+        return False  # unreadable: not ours to replace without --overwrite
+
+
 def detect_scene(
     scene_dir: str | os.PathLike,
     video_specs: list[str | os.PathLike],
@@ -635,7 +645,7 @@ def detect_scene(
     meta = _read_meta(scene_dir)
     rig: CameraRig = load_cameras(scene_dir / meta.get("cameras", "cameras.json"))
     det_path = scene_dir / meta.get("detections", "detections.npz")
-    if det_path.exists() and not overwrite:
+    if det_path.exists() and not overwrite and not _holds_no_detections(det_path):
         raise FileExistsError(f"{det_path} exists (pass --overwrite to replace it)")
     if settings.every < 1:
         raise ValueError(f"--every must be >= 1, got {settings.every}")

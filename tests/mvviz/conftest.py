@@ -108,8 +108,8 @@ def open_viewer(browser, url: str, *, adaptive_dpr: bool = False):
 
     Its device-pixel ratio is pinned to 1 (:func:`tools.chromium.pinned_dpr_url`) unless
     ``adaptive_dpr``: viser's adaptive ratio makes a picture depend on how slowly the
-    page drew before it (stop 27's frame-0 revisit and filter-B checks differed by
-    thinner, paler rays at ratio 0.75, not by what was shown)."""
+    page drew before it (pictures of the same frame differed by thinner, paler rays
+    at ratio 0.75, not by what was shown)."""
     page = browser.new_page(viewport=VIEWPORT)
     page.goto(url if adaptive_dpr else pinned_dpr_url(url))
     page.wait_for_selector("canvas", timeout=60_000)

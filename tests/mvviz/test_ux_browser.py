@@ -1,4 +1,4 @@
-"""Issue 13's points as a user sees them in headless chromium (software WebGL): the
+"""The review workflow as a user sees it in headless chromium (software WebGL): the
 failures list (entries merging several frames, their whole text shown, a jump showing a
 camera that sees the person), filter B's overlay drawn only while B differs from A, and
 the camera panel's camera highlighted in the 3D view. Screenshots are saved under the

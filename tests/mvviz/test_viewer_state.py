@@ -617,3 +617,58 @@ def test_trails_and_ground_truth_are_one_node_each_with_every_track(viewer_scene
         assert not gt.visible  # the layer off: the geometry has no ground truth
     finally:
         app.stop()
+
+
+def test_a_world_that_is_not_z_up_is_shown_upright(viewer_scene):
+    """A calibration in its first camera's frame (y down, as `mvviz calibrate` writes
+    without --floor-frame) is drawn upright: the display frame turns the people's "up" to
+    +z and puts their floor at z = 0; a z-up world is drawn as it is."""
+    from mvviz.scene.geometry import prepare, to_display
+    from pipeline.diagnose.floor import transform_scene
+
+    scene, results, model = viewer_scene
+    upright = prepare(scene, results, model)
+    np.testing.assert_array_equal(upright.T_display_world, np.eye(4))
+    T = np.eye(4)
+    T[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]  # world' = T world: up (+z) -> -y'
+    T[:3, 3] = [200.0, 1500.0, 3000.0]  # and the origin moved, mm
+    tilted_scene = transform_scene(scene, T, model)
+    config = dataclasses.replace(PipelineConfig(), fit_smpl=False)
+    tilted = run_pipeline(tilted_scene, config, model, progress=False)
+    data = prepare(tilted_scene, tilted, model)
+    R = data.T_display_world[:3, :3]
+    assert np.degrees(np.arccos(np.clip((R @ np.array([0, -1.0, 0]))[2], -1, 1))) < 10
+    # 20 frames are too few planted feet for a floor plane: the cameras tell "up", and the
+    # grid goes 0.2 m under the lowest of what is seen; heads above feet by a body height
+    joints = to_display(data.T_display_world, tilted.track_filtered * 1e-3)
+    names = list(data.joint_set.names)
+    ankles = joints[..., [names.index("left_ankle"), names.index("right_ankle")], 2]
+    nose = joints[..., names.index("nose"), 2]
+    heights = np.concatenate([joints[..., 2].ravel(), data.cameras and
+                              [c.position[2] for c in data.cameras]])  # fmt: skip
+    assert 0.0 < np.nanmedian(ankles) < 0.5
+    assert 1.3 < np.nanmedian(nose) - np.nanmedian(ankles) < 1.8
+    assert np.nanpercentile(heights, 1) == pytest.approx(0.2, abs=0.05)
+    # the view is aimed at the people's middle, a body's half height over the grid
+    assert 0.7 < data.center[2] < 1.6 and 0.7 < upright.center[2] < 1.6
+
+
+def test_frusta_are_sized_to_the_rig(viewer_scene):
+    """Image planes ~1/6 of the way from a camera to the action (at most 0.6 m): a rig a
+    metre from a person gets small frusta that do not hide them."""
+    from mvviz.scene.geometry import prepare
+    from pipeline.data.cameras import CameraRig
+
+    scene, results, model = viewer_scene
+    room = prepare(scene, results, model)
+    assert room.cameras[0].plane_depth == pytest.approx(min(0.6, room.camera_distance / 6))
+    # the same rig pulled in to 1/5 of its distances from the action
+    centre = room.center * 1e3
+    near = []
+    for cam in scene.rig:
+        c = centre + (cam.center - centre) / 5.0
+        near.append(dataclasses.replace(cam, t=-cam.R @ c))
+    small = prepare(dataclasses.replace(scene, rig=CameraRig(tuple(near))), results, model)
+    assert small.camera_distance < room.camera_distance / 3
+    assert small.cameras[0].plane_depth == pytest.approx(max(0.08, small.camera_distance / 6))
+    assert small.cameras[0].plane_depth < 0.6 * room.cameras[0].plane_depth

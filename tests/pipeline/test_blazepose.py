@@ -438,6 +438,23 @@ def test_detect_scene_resumes_and_reports_lengths(tmp_path, monkeypatch):
     assert again.calls == 0
 
 
+def test_detect_fills_an_empty_detections_file(tmp_path):
+    """A scene converted from a calibration alone has a detections file with no rows:
+    detect fills it without --overwrite; a file with detections still needs it."""
+    scene, videos = _tiny_scene(tmp_path, {"a": 4})
+    empty = {"frame": np.zeros(0, np.int64), "view": np.zeros(0, np.int64),
+             "keypoints": np.zeros((0, 17, 3), np.float32)}  # fmt: skip
+    np.savez(scene / "detections.npz", **empty)
+    report = vid.detect_scene(
+        scene, [videos], progress=False, log=lambda m: None, detector=FakeDetector()
+    )
+    assert report.rows_per_camera == {"a": 4}
+    assert len(load_scene(scene).detections) == 4
+    with pytest.raises(FileExistsError):
+        vid.detect_scene(scene, [videos], progress=False, log=lambda m: None,
+                         detector=FakeDetector())  # fmt: skip
+
+
 def test_detect_scene_every_reencodes_videos(tmp_path):
     scene, videos = _tiny_scene(tmp_path, {"a": 9})
     report = vid.detect_scene(

@@ -1,5 +1,5 @@
 """The held-out protocol (pipeline/prior/heldout.py) and the safety of the prior's correction
-on motion the prior has not seen (issue 19)."""
+on motion the prior has not seen."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Tracks that equal people on big rigs (issue 14): the association's refinement moves on
+"""Tracks that equal people on big rigs: the association's refinement moves on
 hand-made affinities, then whole scenes of the suite's own making (a wide ring whose
 people are seen by few cameras far away, a dome) scored end to end."""
 

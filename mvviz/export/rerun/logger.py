@@ -300,9 +300,9 @@ class SceneLogger:
 
     def send_gt_meshes(self, frame_ids: np.ndarray, chunk_frames: int = MESH_CHUNK_FRAMES) -> None:
         """Every GT mesh's vertices over ``frame_ids`` as columns per person
-        (``send_columns``), ``chunk_frames`` frames at a time (0: all at once, as before
-        stop 28), each chunk skinned just before it is sent: the export's memory stays
-        that of one chunk however long the scene. From the person's first frame on, a
+        (``send_columns``), ``chunk_frames`` frames at a time (0: all at once), each
+        chunk skinned just before it is sent: the export's memory stays that of one
+        chunk however long the scene. From the person's first frame on, a
         frame where it is absent gets an empty mesh."""
         gt = self.scene.gt
         if not self.has_meshes:
