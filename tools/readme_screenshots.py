@@ -37,7 +37,7 @@ SHOTS = {  # docs/screenshots/<name>.png: the scene and this tool's options
     "pose2sim_balancing": ("sample_data/pose2sim_balancing", ["--frame", "50"]),
     "pose2sim_balancing_meshes": ("sample_data/pose2sim_balancing",
                                   ["--frame", "50", "--fit-meshes", "--no-rays"]),
-    "tutorial_capture": (None, ["--frame", "40", "--track", "0"]),
+    "tutorial_capture": (None, ["--frame", "20", "--track", "0"]),
 }  # fmt: skip
 
 
