@@ -275,7 +275,8 @@ def main() -> None:
              f"{base['residual_mm']:.1f}", "1x"],
         ]  # fmt: skip
         quality = [[name, f"{v['mpjpe_mm']:.2f}", f"{v['accel_mm']:.2f}",
-                    f"{v.get('limit_violations_per_1000', float('nan')):.1f}",
+                    f"{lim:.1f}" if np.isfinite(lim := v.get("limit_violations_per_1000",
+                                                             np.nan)) else "n/a (no rotations)",
                     f"{v['bone_length_std_mm']:.2f}"] for name, v in table.items()]  # fmt: skip
         publish("bench_fit", "SMPL fit", (
             f"The fit on `{args.scene.name}`'s filtered tracks ({n} person-frames), against a "
