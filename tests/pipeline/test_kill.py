@@ -68,9 +68,10 @@ def test_killed_results_writer_leaves_a_whole_file_and_no_temp_for_long(tmp_path
     out = tmp_path / ".mvviz" / "results.npz"
     for _ in range(4):
         _kill_at_random("results", out, rng)
-        if out.exists():  # the file in place is always whole
-            a = load_npz(out)
-            assert a["data"].shape == (200_000,) and int(a["stamp"]) >= 1
+        if out.exists():  # the file in place is always whole: the old one or a new one
+            a = load_npz(out)  # (on a busy machine the writer may be killed before it wrote)
+            old = int(a["stamp"]) == -1 and a["data"].shape == (3,)
+            assert old or (int(a["stamp"]) >= 1 and a["data"].shape == (200_000,))
         save_npz_atomic(out, stamp=np.array(-1), data=np.zeros(3))  # the next run
         assert _leftovers(out.parent) == []
         assert int(load_npz(out)["stamp"]) == -1
