@@ -38,6 +38,9 @@ from pipeline.core.progress import Progress, StageBar
 from pipeline.data.cameras import CameraRig, make_camera, save_cameras
 from pipeline.importers.calibration import write_pose2sim_calibration
 
+MAX_OFFSET_FRAMES = 2.0
+"""Bound of a camera's estimated time offset, in frames."""
+
 
 @dataclass(frozen=True)
 class CameraReport:
@@ -48,6 +51,10 @@ class CameraReport:
         frames: frames of its footage; board_frames: frames where it sees the board.
         intrinsic_views: views used for its intrinsics (0 when given).
         intrinsic_rms, ba_rms: RMS reprojection error, px (NaN when not computed).
+        sync_offset_frames: when its frames were taken against the sync (or the frame
+            index), in frames, relative to the first calibrated camera: -0.8 = 0.8 of a
+            frame earlier than the sync table says (NaN when not calibrated).
+        sync_offset_s: the same in seconds (NaN without a sync table's frame times).
         problem: why it was not calibrated (None when it was).
     """
 
@@ -58,6 +65,8 @@ class CameraReport:
     intrinsic_views: int = 0
     intrinsic_rms: float = float("nan")
     ba_rms: float = float("nan")
+    sync_offset_frames: float = float("nan")
+    sync_offset_s: float = float("nan")
     problem: str | None = None
 
 
@@ -91,8 +100,8 @@ def detect_views(
     progress: Progress = False,
 ) -> tuple[list[View], list[tuple[int, int]], list[int]]:
     """Every view of the board: (views, per camera image size (W, H), per camera frame count).
-    With ``sync`` ((num_sync, num_cameras), see :func:`~pipeline.calibrate.footage.read_sync`)
-    a view's frame is its sync row; else the frame index."""
+    With ``sync`` ((num_sync, num_cameras), a :class:`~pipeline.calibrate.footage.SyncTable`'s
+    ``frames``) a view's frame is its sync row; else the frame index."""
     detect = board_detector(board)
     views: list[View] = []
     sizes, counts = [], []
@@ -178,9 +187,14 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
     intrinsics_source: str = "--intrinsics",
     floor_frame: int | None = None,
     names: list[str] | None = None,
+    sync_offsets: bool = True,
     progress: Progress = False,
 ) -> Calibration:
     """Calibrate the cameras filmed in ``footage`` (see the module docstring).
+
+    ``sync_offsets``: estimate each camera's time offset against the sync (or the frame
+    index) in the bundle adjustment (see :func:`~pipeline.calibrate.extrinsics.bundle_adjust`);
+    False holds the cameras as synchronised as given.
 
     Raises:
         SceneFormatError: unreadable footage or sync table, the board never found, no two
@@ -193,7 +207,9 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
         raise SceneFormatError(source, None, f"camera names must be unique, got {names}")
     sync_table = None if sync is None else read_sync(sync, len(footage))
     t0 = time.perf_counter()
-    views, sizes, counts = detect_views(footage, board, sync=sync_table, progress=progress)
+    views, sizes, counts = detect_views(
+        footage, board, sync=None if sync_table is None else sync_table.frames, progress=progress
+    )
     seconds["detect"] = time.perf_counter() - t0
     reports = [
         {"name": n, "image_size": s, "frames": k,
@@ -232,7 +248,23 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
                                + "; ".join(f"{r['name']}: {r.get('problem') or 'alone'}"
                                            for r in reports))  # fmt: skip
     intr_pairs = {c: (intr[c].K, intr[c].dist) for c in T_cam_root}
-    adjusted = bundle_adjust(usable, pts, intr_pairs, T_cam_root, poses)
+    times = None if sync_table is None else sync_table.times
+    if times is None and sync_table is not None:  # matched, untimed: the sync index
+        times = np.repeat(np.arange(len(sync_table.frames), dtype=float)[:, None],
+                          len(footage), axis=1)  # fmt: skip
+    adjusted = bundle_adjust(
+        usable,
+        pts,
+        intr_pairs,
+        T_cam_root,
+        poses,
+        times=times,
+        max_offset_frames=MAX_OFFSET_FRAMES if sync_offsets else None,
+    )
+    for c, offset in adjusted.time_offsets.items():
+        reports[c]["sync_offset_frames"] = offset / adjusted.frame_period
+        if sync_table is not None and sync_table.times is not None:
+            reports[c]["sync_offset_s"] = offset
     seconds["extrinsics"] = time.perf_counter() - t0
     residuals = [np.zeros((0, 2))] * len(views)
     index = {id(v): k for k, v in enumerate(views)}

@@ -58,17 +58,24 @@ def write_report(calibration, path: str | os.PathLike) -> None:
     def num(x: float, unit: str = "") -> str:
         return "-" if math.isnan(x) else f"{x:.3f}{unit}"
 
+    def offset(r) -> str:
+        if math.isnan(r.sync_offset_frames):
+            return "-"
+        ms = "" if math.isnan(r.sync_offset_s) else f" ({1000 * r.sync_offset_s:+.0f} ms)"
+        return f"{r.sync_offset_frames:+.2f} frames{ms}"
+
     parts = ["<!doctype html><meta charset='utf-8'><title>Calibration report</title>",
              "<style>body{font-family:sans-serif} td,th{padding:2px 8px;text-align:right}"
              " .cam{display:inline-block;vertical-align:top;margin:8px}</style>",
              "<h1>Calibration report</h1><table><tr><th>camera</th><th>frames</th>"
              "<th>with the board</th><th>views for intrinsics</th><th>intrinsic RMS</th>"
-             "<th>BA RMS</th><th>problem</th></tr>"]  # fmt: skip
+             "<th>BA RMS</th><th>time offset</th><th>problem</th></tr>"]  # fmt: skip
     for r in calibration.reports:
         parts.append(
             f"<tr><td>{html.escape(r.name)}</td><td>{r.frames}</td><td>{r.board_frames}</td>"
             f"<td>{r.intrinsic_views}</td><td>{num(r.intrinsic_rms, ' px')}</td>"
-            f"<td>{num(r.ba_rms, ' px')}</td><td>{html.escape(r.problem or '')}</td></tr>"
+            f"<td>{num(r.ba_rms, ' px')}</td><td>{offset(r)}</td>"
+            f"<td>{html.escape(r.problem or '')}</td></tr>"
         )
     parts.append("</table><h2>Board corners over each image</h2>")
     for c, r in enumerate(calibration.reports):

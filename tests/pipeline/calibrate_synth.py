@@ -72,6 +72,20 @@ def board_poses(num: int, seed: int = 0) -> list[np.ndarray]:
     return out
 
 
+def moving_board(t: float) -> np.ndarray:
+    """(4, 4) ``T_world_board`` of a board carried smoothly through the volume, at time
+    ``t`` in frames (30-60 mm and about 1 deg per frame)."""
+    base = Rotation.from_euler("x", -90, degrees=True)
+    tilt = Rotation.from_rotvec([0.25 * np.sin(0.11 * t), 0.25 * np.sin(0.07 * t + 1.0),
+                                 0.2 * np.cos(0.05 * t)])  # fmt: skip
+    T = np.eye(4)
+    T[:3, :3] = (tilt * base).as_matrix()
+    centre = np.array([250 * np.sin(0.2 * t), 150 * np.sin(0.15 * t + 0.5),
+                       1000 + 150 * np.cos(0.17 * t)])  # fmt: skip
+    T[:3, 3] = centre - T[:3, :3] @ [BOARD.columns * 30.0, BOARD.rows * 30.0, 0]
+    return T
+
+
 def render(cam: Camera, T_world_board: np.ndarray, board_img: np.ndarray, rng) -> np.ndarray:
     """The grey image camera ``cam`` takes of the board (blur and noise added)."""
     T_cam_board = np.eye(4)
@@ -102,18 +116,19 @@ def render(cam: Camera, T_world_board: np.ndarray, board_img: np.ndarray, rng) -
 
 
 def write_session(
-    root: Path, rig: CameraRig, poses: list[np.ndarray], *, inverted: bool = False,
-    blank: dict[str, set[int]] | None = None, seed: int = 0,
+    root: Path, rig: CameraRig, poses: list[np.ndarray] | dict[str, list[np.ndarray]], *,
+    inverted: bool = False, blank: dict[str, set[int]] | None = None, seed: int = 0,
 ) -> list[Path]:  # fmt: skip
-    """One folder of PNG frames per camera under ``root``; ``blank[name]``: frames that
-    camera does not see the board in."""
+    """One folder of PNG frames per camera under ``root``; ``poses``: the board per frame,
+    or per camera name its board per frame; ``blank[name]``: frames that camera does not
+    see the board in."""
     rng = np.random.default_rng(seed)
     board = board_image(inverted=inverted)
     folders = []
     for cam in rig:
         folder = root / cam.name
         folder.mkdir(parents=True)
-        for k, T in enumerate(poses):
+        for k, T in enumerate(poses[cam.name] if isinstance(poses, dict) else poses):
             hidden = k in (blank or {}).get(cam.name, set())
             image = (
                 render(cam, T, board, rng)
