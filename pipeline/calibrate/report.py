@@ -12,8 +12,6 @@ import os
 from collections.abc import Sequence
 
 import numpy as np
-from matplotlib.figure import Figure
-from matplotlib.patches import Rectangle
 
 from pipeline.calibrate.extrinsics import View
 from pipeline.core.files import atomic_write
@@ -26,6 +24,9 @@ def coverage_svg(
 ) -> str:
     """One camera's corners (all its views) over its image, coloured by reprojection error
     (px; grey where not adjusted), as an SVG string."""
+    from matplotlib.figure import Figure  # with the report, not at the command's start
+    from matplotlib.patches import Rectangle
+
     w, h = image_size
     fig = Figure(figsize=(4.0, 4.0 * h / w + 0.4))
     ax = fig.add_subplot()
