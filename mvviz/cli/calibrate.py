@@ -104,9 +104,9 @@ def sync_offset(report) -> str:
     """A camera's estimated time offset, e.g. ``-0.84 fr (-140 ms)``."""
     if math.isnan(report.sync_offset_frames):
         return "-"
-    text = f"{report.sync_offset_frames:+.2f} fr"
+    text = f"{round(report.sync_offset_frames, 2) + 0.0:+.2f} fr"  # + 0.0: no "-0.00"
     if not math.isnan(report.sync_offset_s):
-        text += f" ({1000 * report.sync_offset_s:+.0f} ms)"
+        text += f" ({round(1000 * report.sync_offset_s) + 0.0:+.0f} ms)"
     return text
 
 

@@ -5,8 +5,9 @@ optionally a sync table (``timestamps.csv``), known intrinsics (a
 :class:`~pipeline.data.cameras.CameraRig`) and a floor frame.
 OUTPUTS: a :class:`Calibration`: the calibrated cameras as a ``CameraRig`` (world mm) and
 a report per camera (frames with the board, views used for the intrinsics, the RMS errors,
-or why it could not be calibrated). :func:`write_calibration` writes ``cameras.json`` and a
-Pose2Sim ``Calib.toml``.
+or why it could not be calibrated). :func:`write_calibration` writes ``cameras.json``, a
+Pose2Sim ``Calib.toml``, the report page and ``calibration.npz`` (what the calibration
+saw, for the viewer: :mod:`pipeline.data.calibration_views`).
 
 A camera that cannot be calibrated (the board seen in too few frames, or never together
 with a calibrated camera) is reported with the reason and the counts; the others still
@@ -20,6 +21,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from pipeline.calibrate.board import MIN_CORNERS, Board, board_detector
@@ -35,11 +37,19 @@ from pipeline.calibrate.report import REPORT_HTML, write_report
 from pipeline.calibrate.world import floor_transform
 from pipeline.core.files import SceneFormatError
 from pipeline.core.progress import Progress, StageBar
+from pipeline.data.calibration_views import (
+    CALIBRATION_VIEWS,
+    CalibrationViews,
+    CameraFigures,
+    save_calibration_views,
+)
 from pipeline.data.cameras import CameraRig, make_camera, save_cameras
 from pipeline.importers.calibration import write_pose2sim_calibration
 
 MAX_OFFSET_FRAMES = 2.0
 """Bound of a camera's estimated time offset, in frames."""
+THUMB_SIDE = 640
+"""Long side of the frames kept for the viewer, px."""
 
 
 @dataclass(frozen=True)
@@ -82,6 +92,11 @@ class Calibration:
             views of uncalibrated cameras).
         T_world_board: synchronised frame -> (4, 4) the board's pose in the world, mm.
         seconds: step name -> seconds taken.
+        board: the board.
+        world: "camera:<name>" (the first calibrated camera's frame) or "floor:<frame>".
+        footage: per camera, its video or folder as given.
+        thumbnails: (camera, frame) -> a grey JPEG of each view's frame, its long side
+            :data:`THUMB_SIDE` px at most.
     """
 
     rig: CameraRig
@@ -90,6 +105,10 @@ class Calibration:
     residuals: tuple[np.ndarray, ...]
     T_world_board: dict[int, np.ndarray]
     seconds: dict[str, float] = field(default_factory=dict)
+    board: Board | None = None
+    world: str = ""
+    footage: tuple[str, ...] = ()
+    thumbnails: dict[tuple[int, int], bytes] = field(default_factory=dict)
 
 
 def detect_views(
@@ -97,11 +116,13 @@ def detect_views(
     board: Board,
     *,
     sync: np.ndarray | None = None,
+    thumbnails: dict[tuple[int, int], bytes] | None = None,
     progress: Progress = False,
 ) -> tuple[list[View], list[tuple[int, int]], list[int]]:
     """Every view of the board: (views, per camera image size (W, H), per camera frame count).
     With ``sync`` ((num_sync, num_cameras), a :class:`~pipeline.calibrate.footage.SyncTable`'s
-    ``frames``) a view's frame is its sync row; else the frame index."""
+    ``frames``) a view's frame is its sync row; else the frame index. ``thumbnails`` gets
+    each view's frame as a small JPEG (see :func:`thumbnail`)."""
     detect = board_detector(board)
     views: list[View] = []
     sizes, counts = [], []
@@ -119,6 +140,8 @@ def detect_views(
                 ids, pixels = detect(grey)
                 if len(ids):
                     views.append(View(camera=c, frame=frame, ids=ids, pixels=pixels))
+                    if thumbnails is not None:
+                        thumbnails[(c, frame)] = thumbnail(grey)
             if frame_of is not None and n != len(frame_of):
                 raise SceneFormatError(
                     path, None, f"{n} frames, but the sync table lists {len(frame_of)} for it"
@@ -127,6 +150,22 @@ def detect_views(
             counts.append(n)
             bar.update()
     return views, sizes, counts
+
+
+def thumb_scale(size: tuple[int, int]) -> float:
+    """Thumbnail pixels per image pixel for an image of ``size`` (W, H)."""
+    return min(1.0, THUMB_SIDE / max(size))
+
+
+def thumbnail(grey: np.ndarray) -> bytes:
+    """``grey`` (H, W) shrunk to :func:`thumb_scale`, as JPEG bytes."""
+    h, w = grey.shape
+    s = thumb_scale((w, h))
+    small = grey if s == 1.0 else cv2.resize(
+        grey, (round(w * s), round(h * s)), interpolation=cv2.INTER_AREA
+    )  # fmt: skip
+    ok, data = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    return data.tobytes() if ok else b""
 
 
 def _given_intrinsics(given: CameraRig, names: list[str], sizes, source: str) -> list[Intrinsics]:
@@ -207,9 +246,11 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
         raise SceneFormatError(source, None, f"camera names must be unique, got {names}")
     sync_table = None if sync is None else read_sync(sync, len(footage))
     t0 = time.perf_counter()
+    thumbs: dict[tuple[int, int], bytes] = {}
     views, sizes, counts = detect_views(
-        footage, board, sync=None if sync_table is None else sync_table.frames, progress=progress
-    )
+        footage, board, sync=None if sync_table is None else sync_table.frames,
+        thumbnails=thumbs, progress=progress,
+    )  # fmt: skip
     seconds["detect"] = time.perf_counter() - t0
     reports = [
         {"name": n, "image_size": s, "frames": k,
@@ -297,15 +338,64 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
         residuals=tuple(residuals),
         T_world_board={f: T_world_root @ T for f, T in adjusted.T_root_board.items()},
         seconds=seconds,
+        board=board,
+        world=f"camera:{names[cams[0]]}" if floor_frame is None else f"floor:{floor_frame}",
+        footage=tuple(str(p) for p in footage),
+        thumbnails=thumbs,
     )
 
 
+def calibration_views(calibration: Calibration) -> CalibrationViews:
+    """What ``calibration`` saw, for the viewer (:mod:`pipeline.data.calibration_views`)."""
+    views, board = calibration.views, calibration.board
+    calibrated = set(calibration.rig.names)
+    cameras = tuple(
+        CameraFigures(
+            name=r.name, image_size=tuple(int(v) for v in r.image_size), frames=r.frames,
+            board_frames=r.board_frames, calibrated=r.name in calibrated,
+            ba_rms=float(r.ba_rms), sync_offset_frames=float(r.sync_offset_frames),
+            sync_offset_s=float(r.sync_offset_s), problem=r.problem or "",
+            footage=calibration.footage[c] if c < len(calibration.footage) else "",
+            thumb_scale=thumb_scale(r.image_size),
+        )
+        for c, r in enumerate(calibration.reports)
+    )  # fmt: skip
+    counts = [len(v.ids) for v in views]
+    detected = np.concatenate([v.pixels for v in views]) if views else np.zeros((0, 2))
+    reprojected = np.concatenate([
+        v.pixels + r if len(r) == len(v.ids) else np.full((len(v.ids), 2), np.nan)
+        for v, r in zip(views, calibration.residuals, strict=True)
+    ]) if views else np.zeros((0, 2))  # fmt: skip
+    jpegs = [calibration.thumbnails.get((v.camera, v.frame), b"") for v in views]
+    frames = sorted(calibration.T_world_board)
+    return CalibrationViews(
+        cameras=cameras,
+        board={"kind": board.kind, "columns": board.columns, "rows": board.rows,
+               "square_mm": board.square_mm},
+        world=calibration.world,
+        object_points=board.object_points,
+        view_camera=np.array([v.camera for v in views], np.int64),
+        view_frame=np.array([v.frame for v in views], np.int64),
+        view_start=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        corner_id=np.concatenate([v.ids for v in views]).astype(np.int64)
+        if views else np.zeros(0, np.int64),
+        detected=detected,
+        reprojected=reprojected,
+        pose_frame=np.array(frames, np.int64),
+        T_world_board=np.array([calibration.T_world_board[f] for f in frames]).reshape(-1, 4, 4),
+        thumbs=np.frombuffer(b"".join(jpegs), np.uint8),
+        thumb_start=np.concatenate([[0], np.cumsum([len(j) for j in jpegs])]).astype(np.int64),
+    )  # fmt: skip
+
+
 def write_calibration(calibration: Calibration, out_dir: str | os.PathLike) -> list[Path]:
-    """Write ``cameras.json`` (native), ``Calib.toml`` (Pose2Sim) and
-    ``calibration_report.html`` into ``out_dir``, each atomically. Returns their paths."""
+    """Write ``cameras.json`` (native), ``Calib.toml`` (Pose2Sim),
+    ``calibration_report.html`` and ``calibration.npz`` (:func:`calibration_views`) into
+    ``out_dir``, each atomically. Returns their paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     save_cameras(calibration.rig, out_dir / "cameras.json")
     toml = write_pose2sim_calibration(calibration.rig, out_dir / "Calib.toml")
     write_report(calibration, out_dir / REPORT_HTML)
-    return [out_dir / "cameras.json", toml, out_dir / REPORT_HTML]
+    save_calibration_views(calibration_views(calibration), out_dir / CALIBRATION_VIEWS)
+    return [out_dir / "cameras.json", toml, out_dir / REPORT_HTML, out_dir / CALIBRATION_VIEWS]

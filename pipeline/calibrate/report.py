@@ -62,8 +62,9 @@ def write_report(calibration, path: str | os.PathLike) -> None:
     def offset(r) -> str:
         if math.isnan(r.sync_offset_frames):
             return "-"
-        ms = "" if math.isnan(r.sync_offset_s) else f" ({1000 * r.sync_offset_s:+.0f} ms)"
-        return f"{r.sync_offset_frames:+.2f} frames{ms}"
+        ms = ("" if math.isnan(r.sync_offset_s)
+              else f" ({round(1000 * r.sync_offset_s) + 0.0:+.0f} ms)")  # fmt: skip
+        return f"{round(r.sync_offset_frames, 2) + 0.0:+.2f} frames{ms}"  # + 0.0: no "-0.00"
 
     parts = ["<!doctype html><meta charset='utf-8'><title>Calibration report</title>",
              "<style>body{font-family:sans-serif} td,th{padding:2px 8px;text-align:right}"

@@ -13,6 +13,7 @@ from pipeline.calibrate.calibrate import calibrate_cameras, write_calibration
 from pipeline.calibrate.footage import read_sync
 from pipeline.calibrate.intrinsics import select_views
 from pipeline.core.files import SceneFormatError
+from pipeline.data.calibration_views import CALIBRATION_VIEWS, load_calibration_views
 from pipeline.data.cameras import load_cameras
 from pipeline.importers import read_calibration
 from pipeline.importers.calibration import read_caliscope_calibration
@@ -146,9 +147,52 @@ def test_synthetic_rig_recovered(session, tmp_path):
             assert angle_deg(R @ R0.T) < 1.0
             assert np.linalg.norm(t - t0) < 0.05 * np.linalg.norm(t0)
     paths = write_calibration(cal, tmp_path / "out")
-    assert [p.name for p in paths] == ["cameras.json", "Calib.toml", "calibration_report.html"]
+    assert [p.name for p in paths] == [
+        "cameras.json", "Calib.toml", "calibration_report.html", "calibration.npz",
+    ]  # fmt: skip
     back = read_calibration("pose2sim", [tmp_path / "out" / "Calib.toml"])
     np.testing.assert_allclose(back[1].t, load_cameras(paths[0])[1].t, atol=1e-6)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(
+        p.name for p in paths
+    )  # atomic writes: no temporary left
+
+
+def test_calibration_views_saved_for_the_viewer(session, tmp_path):
+    """calibration.npz holds what the viewer shows: every view's corners as detected and
+    reprojected (their differences the bundle adjustment's residuals, their RMS the
+    report's), the board's pose per frame, a thumbnail per view, the cameras' figures."""
+    rig, folders = session
+    cal = calibrate_cameras(folders[:2], BOARD, intrinsics=rig.subset([0, 1]))
+    write_calibration(cal, tmp_path)
+    saved = load_calibration_views(tmp_path / CALIBRATION_VIEWS)
+    assert [c.name for c in saved.cameras] == ["left", "front"]
+    assert saved.world == "camera:left" and not saved.z_up
+    assert saved.board == {"kind": "charuco", "columns": 7, "rows": 5, "square_mm": 60.0}
+    assert saved.num_views == len(cal.views)
+    for k, v in enumerate(cal.views):
+        ids, det, rep = saved.corners(k)
+        assert (saved.view_camera[k], saved.view_frame[k]) == (v.camera, v.frame)
+        np.testing.assert_array_equal(ids, v.ids)
+        np.testing.assert_allclose(det, v.pixels)
+        np.testing.assert_allclose(rep - det, cal.residuals[k], atol=1e-9)
+        image = cv2.imdecode(np.frombuffer(saved.thumbnail(k), np.uint8), cv2.IMREAD_GRAYSCALE)
+        assert image.shape == (480, 640)  # the cameras' full size: under the thumbnail side
+    rms = saved.view_rms()
+    for c, r in enumerate(cal.reports):
+        mine = saved.view_camera == c
+        counts = np.diff(saved.view_start)[mine]
+        total = np.sqrt(np.sum(rms[mine] ** 2 * counts) / counts.sum())
+        assert total == pytest.approx(r.ba_rms) and saved.cameras[c].ba_rms == r.ba_rms
+        assert saved.cameras[c].calibrated and saved.cameras[c].footage == str(folders[c])
+    assert sorted(saved.pose_frame) == sorted(cal.T_world_board)
+    np.testing.assert_allclose(saved.board_pose(3), cal.T_world_board[3])
+    # a foreign or damaged file is named
+    np.savez(tmp_path / "other.npz", meta=np.array("{}"))
+    with pytest.raises(SceneFormatError, match="other.npz"):
+        load_calibration_views(tmp_path / "other.npz")
+    (tmp_path / "cut.npz").write_bytes((tmp_path / CALIBRATION_VIEWS).read_bytes()[:500])
+    with pytest.raises(SceneFormatError, match="cut.npz"):
+        load_calibration_views(tmp_path / "cut.npz")
 
 
 def test_inverted_board_and_floor_frame(tmp_path):

@@ -23,6 +23,7 @@ def test_calibrate_writes_both_files_and_prints_each_camera(tmp_path, capsys):
     assert "left" in printed and "front" in printed and "BA RMS" in printed
     assert sorted(p.name for p in out.iterdir()) == [
         "Calib.toml",
+        "calibration.npz",
         "calibration_report.html",
         "cameras.json",
     ]
@@ -68,3 +69,21 @@ def test_calibrate_detect_run_on_the_real_session(tmp_path):
     assert int((lengths >= 5).sum()) == 1  # one person, followed by one track
     used = results.person_used & np.isfinite(results.person_reproj)
     assert float(np.median(results.person_reproj[used])) < 15.0
+    # now a scene: mvviz view opens the scene viewer, with the calibration in a tab
+    from mvviz.cli import build_parser
+    from mvviz.cli.view import is_calibration_folder, start, stop
+    from tests.mvviz.conftest import free_port
+
+    assert not is_calibration_folder(out)
+    app = start(build_parser(["view"]).parse_args(["view", str(out), "--port",
+                                                   str(free_port())]), progress=False)  # fmt: skip
+    try:
+        panel = app.calibration_panel
+        assert panel is not None and panel.embedded and not panel.group.visible
+        panel.show_boards.value = True
+        assert panel.group.visible
+        panel.select(camera=1, frame=96)
+        assert "**cam_1**, frame 96" in panel.view_line.content
+        assert panel.image.image.shape[1] == 320
+    finally:
+        stop(app)
