@@ -56,6 +56,19 @@ def board_image(*, inverted: bool = False) -> np.ndarray:
     return 255 - image if inverted else image
 
 
+def checkerboard_image(board: Board) -> np.ndarray:
+    """A checkerboard of ``board``'s squares (the first black) with a white margin, in the
+    same frame as :func:`board_image` (board mm (0, 0) at the squares' outer corner)."""
+    step = board.square_mm * PX_PER_MM
+    margin = MARGIN_MM * PX_PER_MM
+    w = int(round(board.columns * step + 2 * margin))
+    h = int(round(board.rows * step + 2 * margin))
+    y, x = np.mgrid[0:h, 0:w] + 0.5  # pixel centres
+    i, j = np.floor((x - margin) / step), np.floor((y - margin) / step)
+    inside = (i >= 0) & (i < board.columns) & (j >= 0) & (j < board.rows)
+    return np.where(inside & ((i + j) % 2 == 0), 0, 255).astype(np.uint8)
+
+
 def board_poses(num: int, seed: int = 0) -> list[np.ndarray]:
     """(4, 4) ``T_world_board`` poses: the board near (0, 0, 1000) facing -y (the cameras),
     tilted up to ~35 deg."""
@@ -118,12 +131,14 @@ def render(cam: Camera, T_world_board: np.ndarray, board_img: np.ndarray, rng) -
 def write_session(
     root: Path, rig: CameraRig, poses: list[np.ndarray] | dict[str, list[np.ndarray]], *,
     inverted: bool = False, blank: dict[str, set[int]] | None = None, seed: int = 0,
+    image: np.ndarray | None = None,
 ) -> list[Path]:  # fmt: skip
     """One folder of PNG frames per camera under ``root``; ``poses``: the board per frame,
     or per camera name its board per frame; ``blank[name]``: frames that camera does not
-    see the board in."""
+    see the board in; ``image``: the board drawn (default: :data:`BOARD`, see
+    :func:`board_image`)."""
     rng = np.random.default_rng(seed)
-    board = board_image(inverted=inverted)
+    board = board_image(inverted=inverted) if image is None else image
     folders = []
     for cam in rig:
         folder = root / cam.name
