@@ -386,15 +386,15 @@ class CalibrationView:
         views, c, f = self.views, self.camera, self.frame
         width = EMBEDDED_IMAGE_WIDTH if self.embedded else IMAGE_WIDTH
         image, line = draw_view(views, c, f, zoom=self.zoom.value, width=width)
+        if self.camera_choice.value != views.cameras[c].name:
+            self.camera_choice.value = views.cameras[c].name
+        if int(self.frame_slider.value) != f:
+            self.frame_slider.value = f
+        for k, frustum in self.frusta.items():
+            frustum.thickness = 5.0 if k == c else 2.0
         with self.server.atomic():
             self.image.image = image
             self.view_line.content = line
-            if self.camera_choice.value != views.cameras[c].name:
-                self.camera_choice.value = views.cameras[c].name
-            if int(self.frame_slider.value) != f:
-                self.frame_slider.value = f
-            for k, frustum in self.frusta.items():
-                frustum.thickness = 5.0 if k == c else 2.0
             T = views.board_pose(f)
             self.selected_board.visible = T is not None
             if T is not None:

@@ -96,9 +96,9 @@ def test_calibration_view_in_chromium(browser, calibration_folder, tmp_path):
         want = (int(app.view.views.view_camera[k]), int(app.view.views.view_frame[k]))
         wait_until(lambda: (app.view.camera, app.view.frame) == want, what="the worst view")
         page.wait_for_timeout(1500)
-        path = tmp_path / "calibration_view.png"
+        path = tmp_path / "calibration_view_synthetic.png"
         page.screenshot(path=str(path))
-        keep_screenshot(path, "calibration_view.png")
+        keep_screenshot(path, "calibration_view_synthetic.png")
         # the panel shows the view's picture and the chart
         assert page.get_by_text("reprojection error per view, px").count() == 1
         assert page.get_by_text(f"frame {want[1]}:").count() >= 1
