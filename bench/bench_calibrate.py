@@ -3,8 +3,10 @@ of the same four real webcams (/work/shared/data/caliscope_charuco: a 4x5 ChArUc
 54 mm squares walked through the views, 111 synchronised frames per camera; Caliscope's
 ``camera_array.toml``, BSD-2-Clause, read in place).
 
-Two runs: from scratch (our intrinsics from the same footage), and with Caliscope's
-intrinsics (``--intrinsics camera_array.toml``: the poses only). Per run it prints:
+Three runs: from scratch (our intrinsics from the same footage), with Caliscope's
+intrinsics (``--intrinsics camera_array.toml``: the poses only), and with its intrinsics
+and the cameras held as synchronised as the table says (``--fixed-sync``). Per run it
+prints:
 
 - per camera: focal lengths and principal point (ours / Caliscope's), the board-corner
   reprojection RMS of our bundle adjustment (px);
@@ -15,7 +17,8 @@ intrinsics (``--intrinsics camera_array.toml``: the poses only). Per run it prin
   Caliscope's calibration on the same corners), once with the frames matched as the sync
   table says and once re-matched by the whole frames of the time offsets our bundle
   adjustment estimated (one camera's frames are 0.84 frame early against the table: as
-  stamped, its view of the moving board is from another moment than the others');
+  stamped, its view of the moving board is from another moment than the others'; the
+  fixed-sync run is re-matched by the offsets the run with Caliscope's intrinsics found);
 - per camera the estimated time offset against the sync table (ms);
 - seconds per step.
 
@@ -70,14 +73,14 @@ def triangulate(rig: CameraRig, cams: list[int], pixels: list[np.ndarray]) -> np
     return vt[-1, :3] / vt[-1, 3]
 
 
-def adjacent_errors(rig: CameraRig, cal, board, *, resync: bool = False) -> np.ndarray:
+def adjacent_errors(rig: CameraRig, cal, board, *, shift: list[int] | None = None) -> np.ndarray:
     """|distance - square| (mm) of every adjacent pair of corners triangulated in a frame;
-    ``resync``: each camera's frames moved by its estimated offset, rounded to frames."""
+    ``shift``: per camera, frames its views are moved by."""
     by_frame: dict[int, dict[int, list]] = {}
     for v in cal.views:
         r = cal.reports[v.camera]
         if r.problem is None:
-            frame = v.frame + (int(round(r.sync_offset_frames)) if resync else 0)
+            frame = v.frame + (shift[v.camera] if shift else 0)
             for i, p in zip(v.ids, v.pixels, strict=True):
                 by_frame.setdefault(frame, {}).setdefault(int(i), []).append((v.camera, p))
     cols = board.columns - 1
@@ -92,11 +95,17 @@ def adjacent_errors(rig: CameraRig, cal, board, *, resync: bool = False) -> np.n
     return np.asarray(errs)
 
 
-def run(data: Path, board, peer: CameraRig, *, with_intrinsics: bool) -> dict:
+def run(
+    data: Path, board, peer: CameraRig, *, with_intrinsics: bool, fixed_sync: bool = False,
+    shift: list[int] | None = None,
+) -> dict:  # fmt: skip
+    """One calibration and its figures; ``shift``: the whole frames to re-match each
+    camera's views by (default: this run's estimated offsets, rounded)."""
     videos = [data / "extrinsic" / f"cam_{k}.mp4" for k in range(4)]
     t0 = time.perf_counter()
     cal = calibrate_cameras(videos, board, sync=data / "extrinsic" / "timestamps.csv",
-                            intrinsics=peer if with_intrinsics else None)  # fmt: skip
+                            intrinsics=peer if with_intrinsics else None,
+                            sync_offsets=not fixed_sync)  # fmt: skip
     total = time.perf_counter() - t0
     ours = cal.rig
     out: dict = {"seconds": {**cal.seconds, "total": total}, "cameras": {}, "pairs": {}}
@@ -120,9 +129,13 @@ def run(data: Path, board, peer: CameraRig, *, with_intrinsics: bool) -> dict:
             "baseline_mm": float(np.linalg.norm(t)), "peer_baseline_mm": float(np.linalg.norm(t0)),
         }  # fmt: skip
     peer_in_order = CameraRig(tuple(peer[peer.index_of(c.name)] for c in ours))
-    for key, resync in (("adjacent_corners", False), ("adjacent_corners_resynced", True)):
-        ours_err = adjacent_errors(ours, cal, board, resync=resync)
-        peer_err = adjacent_errors(peer_in_order, cal, board, resync=resync)
+    if shift is None:
+        shift = [int(round(r.sync_offset_frames)) if r.problem is None else 0
+                 for r in cal.reports]  # fmt: skip
+    out["resync_shift_frames"] = shift
+    for key, by in (("adjacent_corners", None), ("adjacent_corners_resynced", shift)):
+        ours_err = adjacent_errors(ours, cal, board, shift=by)
+        peer_err = adjacent_errors(peer_in_order, cal, board, shift=by)
         out[key] = {
             "pairs": len(ours_err),
             "ours_median_abs_err_mm": float(np.median(ours_err)),
@@ -146,7 +159,7 @@ def report(name: str, res: dict) -> None:
               f"{p['baseline_mm']:>10.1f} /{p['peer_baseline_mm']:>8.1f}")  # fmt: skip
     for key, how in (
         ("adjacent_corners", "frames as the sync table matches them"),
-        ("adjacent_corners_resynced", "frames re-matched by the estimated offsets"),
+        ("adjacent_corners_resynced", "frames re-matched by the offsets, whole frames"),
     ):
         a = res[key]
         print(
@@ -169,7 +182,11 @@ def main() -> int:
     figures = {
         "from_scratch": run(args.data, board, peer, with_intrinsics=False),
         "caliscope_intrinsics": run(args.data, board, peer, with_intrinsics=True),
-    }
+    }  # fmt: skip
+    figures["caliscope_intrinsics_fixed_sync"] = run(
+        args.data, board, peer, with_intrinsics=True, fixed_sync=True,
+        shift=figures["caliscope_intrinsics"]["resync_shift_frames"],
+    )  # fmt: skip
     for name, res in figures.items():
         report(name, res)
     if args.json:

@@ -44,6 +44,7 @@ PALETTE = np.array([
     [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207],
 ])  # fmt: skip
 SELECTED = (255, 140, 0)
+SUSPECT_RMS_PX = 1.0  # a camera's RMS error above it is flagged
 DETECTED_BGR = (60, 220, 60)
 REPROJECTED_BGR = (40, 40, 255)
 
@@ -168,8 +169,14 @@ def camera_table(views: CalibrationViews) -> str:
             off = f"{round(c.sync_offset_frames, 2) + 0.0:+.2f} fr"  # + 0.0: no "-0.00"
             if np.isfinite(c.sync_offset_s):
                 off += f" ({round(1000 * c.sync_offset_s) + 0.0:+.0f} ms)"
-        note = "not calibrated" if c.problem else (
-            "check the sync" if abs(c.sync_offset_frames) >= 0.5 else "")  # fmt: skip
+        notes = []
+        if c.problem:
+            notes.append("not calibrated")
+        if abs(c.sync_offset_frames) >= 0.5:
+            notes.append("check the sync")
+        if c.ba_rms > SUSPECT_RMS_PX:
+            notes.append("large error: check its intrinsics and views")
+        note = "; ".join(notes)
         rows.append(f"| {c.name} | {c.board_frames}/{c.frames} | {rms} | {off} | {note} |")
     problems = [f"- **{c.name}** not calibrated: {c.problem}" for c in views.cameras if c.problem]
     return "\n".join(rows + ([""] + problems if problems else []))

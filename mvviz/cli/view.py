@@ -42,7 +42,11 @@ def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False
             "lists them, worst first; a click opens one at its worst moment",
         )  # fmt: skip
     else:
-        p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
+        p.add_argument(
+            "scene", type=Path,
+            help="scene directory (see sample_data/README.md), or a mvviz calibrate output "
+            "folder (the calibration view)",
+        )  # fmt: skip
     p.add_argument("--port", type=int, default=8080, help="HTTP/websocket port (default 8080)")
     p.add_argument(
         "--host", default="127.0.0.1",
