@@ -55,6 +55,7 @@ from mvviz.scene.layers import make_scene_layers
 from mvviz.state import ViewerState
 from mvviz.workers import LatestWins, PageAcks
 from pipeline.core.files import CACHE_DIR
+from pipeline.data.calibration_views import CALIBRATION_VIEWS
 from pipeline.results.store import PipelineResults
 
 FirstTab = tuple[str, str, Callable[["ViewerApp"], Panel]]
@@ -170,6 +171,14 @@ class ViewerApp:
             self.export_panel = self._add(make_export_panel(self))
         with tabs.add_tab("Diagnose", viser.Icon.STETHOSCOPE):
             self.diagnose_panel = self._add(make_diagnose_panel(self))
+        self.calibration_panel = None
+        if (self.state.scene.root / CALIBRATION_VIEWS).is_file():  # a mvviz calibrate folder
+            from mvviz.calibration_view import make_calibration_panel
+
+            with tabs.add_tab("Calibration", viser.Icon.CAMERA):
+                self.calibration_panel = make_calibration_panel(self)
+            if self.calibration_panel is not None:
+                self._add(self.calibration_panel)
         for panel in (self.pipeline_panel, self.export_panel, self.diagnose_panel):
             folder = panel.gui.folder
             folder.expand_by_default = True  # alone in its tab: open

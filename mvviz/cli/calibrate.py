@@ -39,9 +39,12 @@ Writes OUT/cameras.json (mvviz's own: mm, OpenCV world-to-camera), OUT/Calib.tom
 (Pose2Sim: metres, k1 k2 p1 p2) and OUT/calibration_report.html (per camera: the figures,
 the board corners over the image coloured by their reprojection error). The world is
 the first calibrated camera's frame, or with --floor-frame N the board as seen in frame N
-laid on the floor (z up, mm). A camera that cannot be calibrated is named with the reason
-and left out; no board at all, or no two cameras seeing it together, is an error (exit 2,
-nothing written).
+laid on the floor (z up, mm). The board moves while it is filmed: the bundle adjustment
+sees it where it was when each camera took its frame, and estimates each camera's time
+offset (frames; ms with --sync's frame_time; + = taken later than matched), relative to
+the first camera. A camera that cannot be calibrated is named with the reason and left
+out; no board at all, or no two cameras seeing it together, is an error (exit 2, nothing
+written).
 """
 
 
@@ -72,6 +75,11 @@ def register(subparsers) -> None:
         "--floor-frame", type=int, metavar="N",
         help="put the world on the board as seen in (synchronised) frame N: z up, mm",
     )  # fmt: skip
+    parser.add_argument(
+        "--fixed-sync", action="store_true",
+        help="hold the cameras as synchronised as the frames are matched (default: estimate "
+        "each camera's time offset, up to 2 frames, with the board's motion)",
+    )  # fmt: skip
     parser.set_defaults(func=functools.partial(run, parser=parser))
 
 
@@ -92,6 +100,16 @@ def read_intrinsics(path: str, fmt: str | None):
     raise SceneFormatError(p, None, "unknown calibration format: give --intrinsics-format")
 
 
+def sync_offset(report) -> str:
+    """A camera's estimated time offset, e.g. ``-0.84 fr (-140 ms)``."""
+    if math.isnan(report.sync_offset_frames):
+        return "-"
+    text = f"{round(report.sync_offset_frames, 2) + 0.0:+.2f} fr"  # + 0.0: no "-0.00"
+    if not math.isnan(report.sync_offset_s):
+        text += f" ({round(1000 * report.sync_offset_s) + 0.0:+.0f} ms)"
+    return text
+
+
 def run(args: argparse.Namespace, *, parser: argparse.ArgumentParser) -> int:
     """Calibrate and write; returns the exit code."""
     board = parse_board(args.board)
@@ -103,9 +121,10 @@ def run(args: argparse.Namespace, *, parser: argparse.ArgumentParser) -> int:
     cal = calibrate_cameras(
         args.footage, board, sync=args.sync, intrinsics=given,
         intrinsics_source=args.intrinsics or "--intrinsics", floor_frame=args.floor_frame,
-        progress=True,
+        sync_offsets=not args.fixed_sync, progress=True,
     )  # fmt: skip
-    print(f"{'camera':<12} {'frames':>7} {'board':>6} {'intr.':>6} {'intr. RMS':>10} {'BA RMS':>8}")
+    print(f"{'camera':<12} {'frames':>7} {'board':>6} {'intr.':>6} {'intr. RMS':>10} {'BA RMS':>8} "
+          f"{'sync offset':>20}")  # fmt: skip
     for r in cal.reports:
         rms = (
             "given"
@@ -114,8 +133,18 @@ def run(args: argparse.Namespace, *, parser: argparse.ArgumentParser) -> int:
         )
         print(
             f"{r.name:<12} {r.frames:>7} {r.board_frames:>6} {r.intrinsic_views:>6} "
-            f"{rms:>10} {r.ba_rms:>8.3f}"
+            f"{rms:>10} {r.ba_rms:>8.3f} {sync_offset(r):>20}"
         )
+    for r in cal.reports:
+        if abs(r.sync_offset_frames) >= 0.5:
+            when = "earlier" if r.sync_offset_frames < 0 else "later"
+            ms = "" if math.isnan(r.sync_offset_s) else f" ({abs(1000 * r.sync_offset_s):.0f} ms)"
+            ref = next(x.name for x in cal.reports if x.sync_offset_frames == 0)
+            print(
+                f"mvviz calibrate: note: {r.name}'s frames were taken "
+                f"{abs(r.sync_offset_frames):.2f} frame{ms} {when} than they are matched to "
+                f"{ref}'s: modelled, but check the sync", file=sys.stderr,
+            )  # fmt: skip
     for r in cal.reports:
         if r.problem:
             print(f"mvviz calibrate: {r.name} not calibrated: {r.problem}", file=sys.stderr)

@@ -22,6 +22,7 @@ import viser
 from mvviz.safe_paths import WritePolicy, is_loopback
 from pipeline.core.files import CACHE_DIR, SceneFormatError
 from pipeline.core.units import REPO_ROOT, SAMPLE_DATA
+from pipeline.data.calibration_views import CALIBRATION_VIEWS
 
 if TYPE_CHECKING:
     from mvviz.app import FirstTab, ViewerApp
@@ -41,7 +42,11 @@ def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False
             "lists them, worst first; a click opens one at its worst moment",
         )  # fmt: skip
     else:
-        p.add_argument("scene", type=Path, help="scene directory (see sample_data/README.md)")
+        p.add_argument(
+            "scene", type=Path,
+            help="scene directory (see sample_data/README.md), or a mvviz calibrate output "
+            "folder (the calibration view)",
+        )  # fmt: skip
     p.add_argument("--port", type=int, default=8080, help="HTTP/websocket port (default 8080)")
     p.add_argument(
         "--host", default="127.0.0.1",
@@ -88,6 +93,12 @@ def add_view_options(p: argparse.ArgumentParser, *, scene_optional: bool = False
     )  # fmt: skip
 
 
+def is_calibration_folder(folder: Path) -> bool:
+    """A ``mvviz calibrate`` output that is not (yet) a scene: the calibration view."""
+    folder = Path(folder)
+    return (folder / CALIBRATION_VIEWS).is_file() and not (folder / "scene.json").is_file()
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "view",
@@ -96,7 +107,10 @@ def register(sub: argparse._SubParsersAction) -> None:
             "Loads SCENE, runs the pipeline (or reuses cached results) and serves a viser "
             "viewer: timeline, cameras with their video, 2D detections, rays, raw / filtered "
             "/ ground-truth skeletons, trails, ground-truth and fitted meshes, and the pipeline, "
-            "filter A/B and failure panels. Blocks until Ctrl-C."
+            "filter A/B and failure panels. On a mvviz calibrate output folder (not yet a "
+            "scene): the calibration (cameras, board poses, reprojection error per camera "
+            "over the frames, each view's detected and reprojected corners). Blocks until "
+            "Ctrl-C."
         ),
     )
     add_view_options(p)
@@ -122,12 +136,19 @@ def start(
     loading = server.gui.add_markdown(f"**Loading** `{Path(args.scene).name}` …")
     print(f"serving http://{args.host}:{server.get_port()} (loading the scene)", flush=True)
     try:
-        app = _build_viewer(args, server, loading, progress=progress, first_tab=first_tab)
+        if is_calibration_folder(args.scene):
+            from mvviz.calibration_view import CalibrationApp
+
+            loading.remove()
+            app = CalibrationApp(args.scene, server)
+            print(f"calibration {Path(args.scene).name}: what mvviz calibrate saw")
+        else:
+            app = _build_viewer(args, server, loading, progress=progress, first_tab=first_tab)
     except BaseException:
         server.stop()
         raise
     print(f"ready in {time.perf_counter() - t0:.1f} s: {app.url}")
-    if app.frames.sources and not app.frames.ready:
+    if app.frames is not None and app.frames.sources and not app.frames.ready:
         print("(decoding videos in the background; frames appear as they are ready)")
     return app
 

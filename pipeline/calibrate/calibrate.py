@@ -5,8 +5,9 @@ optionally a sync table (``timestamps.csv``), known intrinsics (a
 :class:`~pipeline.data.cameras.CameraRig`) and a floor frame.
 OUTPUTS: a :class:`Calibration`: the calibrated cameras as a ``CameraRig`` (world mm) and
 a report per camera (frames with the board, views used for the intrinsics, the RMS errors,
-or why it could not be calibrated). :func:`write_calibration` writes ``cameras.json`` and a
-Pose2Sim ``Calib.toml``.
+or why it could not be calibrated). :func:`write_calibration` writes ``cameras.json``, a
+Pose2Sim ``Calib.toml``, the report page and ``calibration.npz`` (what the calibration
+saw, for the viewer: :mod:`pipeline.data.calibration_views`).
 
 A camera that cannot be calibrated (the board seen in too few frames, or never together
 with a calibrated camera) is reported with the reason and the counts; the others still
@@ -20,6 +21,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from pipeline.calibrate.board import MIN_CORNERS, Board, board_detector
@@ -35,8 +37,19 @@ from pipeline.calibrate.report import REPORT_HTML, write_report
 from pipeline.calibrate.world import floor_transform
 from pipeline.core.files import SceneFormatError
 from pipeline.core.progress import Progress, StageBar
+from pipeline.data.calibration_views import (
+    CALIBRATION_VIEWS,
+    CalibrationViews,
+    CameraFigures,
+    save_calibration_views,
+)
 from pipeline.data.cameras import CameraRig, make_camera, save_cameras
 from pipeline.importers.calibration import write_pose2sim_calibration
+
+MAX_OFFSET_FRAMES = 2.0
+"""Bound of a camera's estimated time offset, in frames."""
+THUMB_SIDE = 640
+"""Long side of the frames kept for the viewer, px."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +61,10 @@ class CameraReport:
         frames: frames of its footage; board_frames: frames where it sees the board.
         intrinsic_views: views used for its intrinsics (0 when given).
         intrinsic_rms, ba_rms: RMS reprojection error, px (NaN when not computed).
+        sync_offset_frames: when its frames were taken against the sync (or the frame
+            index), in frames, relative to the first calibrated camera: -0.8 = 0.8 of a
+            frame earlier than the sync table says (NaN when not calibrated).
+        sync_offset_s: the same in seconds (NaN without a sync table's frame times).
         problem: why it was not calibrated (None when it was).
     """
 
@@ -58,6 +75,8 @@ class CameraReport:
     intrinsic_views: int = 0
     intrinsic_rms: float = float("nan")
     ba_rms: float = float("nan")
+    sync_offset_frames: float = float("nan")
+    sync_offset_s: float = float("nan")
     problem: str | None = None
 
 
@@ -73,6 +92,11 @@ class Calibration:
             views of uncalibrated cameras).
         T_world_board: synchronised frame -> (4, 4) the board's pose in the world, mm.
         seconds: step name -> seconds taken.
+        board: the board.
+        world: "camera:<name>" (the first calibrated camera's frame) or "floor:<frame>".
+        footage: per camera, its video or folder as given.
+        thumbnails: (camera, frame) -> a grey JPEG of each view's frame, its long side
+            :data:`THUMB_SIDE` px at most.
     """
 
     rig: CameraRig
@@ -81,6 +105,10 @@ class Calibration:
     residuals: tuple[np.ndarray, ...]
     T_world_board: dict[int, np.ndarray]
     seconds: dict[str, float] = field(default_factory=dict)
+    board: Board | None = None
+    world: str = ""
+    footage: tuple[str, ...] = ()
+    thumbnails: dict[tuple[int, int], bytes] = field(default_factory=dict)
 
 
 def detect_views(
@@ -88,11 +116,13 @@ def detect_views(
     board: Board,
     *,
     sync: np.ndarray | None = None,
+    thumbnails: dict[tuple[int, int], bytes] | None = None,
     progress: Progress = False,
 ) -> tuple[list[View], list[tuple[int, int]], list[int]]:
     """Every view of the board: (views, per camera image size (W, H), per camera frame count).
-    With ``sync`` ((num_sync, num_cameras), see :func:`~pipeline.calibrate.footage.read_sync`)
-    a view's frame is its sync row; else the frame index."""
+    With ``sync`` ((num_sync, num_cameras), a :class:`~pipeline.calibrate.footage.SyncTable`'s
+    ``frames``) a view's frame is its sync row; else the frame index. ``thumbnails`` gets
+    each view's frame as a small JPEG (see :func:`thumbnail`)."""
     detect = board_detector(board)
     views: list[View] = []
     sizes, counts = [], []
@@ -110,6 +140,8 @@ def detect_views(
                 ids, pixels = detect(grey)
                 if len(ids):
                     views.append(View(camera=c, frame=frame, ids=ids, pixels=pixels))
+                    if thumbnails is not None:
+                        thumbnails[(c, frame)] = thumbnail(grey)
             if frame_of is not None and n != len(frame_of):
                 raise SceneFormatError(
                     path, None, f"{n} frames, but the sync table lists {len(frame_of)} for it"
@@ -118,6 +150,22 @@ def detect_views(
             counts.append(n)
             bar.update()
     return views, sizes, counts
+
+
+def thumb_scale(size: tuple[int, int]) -> float:
+    """Thumbnail pixels per image pixel for an image of ``size`` (W, H)."""
+    return min(1.0, THUMB_SIDE / max(size))
+
+
+def thumbnail(grey: np.ndarray) -> bytes:
+    """``grey`` (H, W) shrunk to :func:`thumb_scale`, as JPEG bytes."""
+    h, w = grey.shape
+    s = thumb_scale((w, h))
+    small = grey if s == 1.0 else cv2.resize(
+        grey, (round(w * s), round(h * s)), interpolation=cv2.INTER_AREA
+    )  # fmt: skip
+    ok, data = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    return data.tobytes() if ok else b""
 
 
 def _given_intrinsics(given: CameraRig, names: list[str], sizes, source: str) -> list[Intrinsics]:
@@ -178,9 +226,14 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
     intrinsics_source: str = "--intrinsics",
     floor_frame: int | None = None,
     names: list[str] | None = None,
+    sync_offsets: bool = True,
     progress: Progress = False,
 ) -> Calibration:
     """Calibrate the cameras filmed in ``footage`` (see the module docstring).
+
+    ``sync_offsets``: estimate each camera's time offset against the sync (or the frame
+    index) in the bundle adjustment (see :func:`~pipeline.calibrate.extrinsics.bundle_adjust`);
+    False holds the cameras as synchronised as given.
 
     Raises:
         SceneFormatError: unreadable footage or sync table, the board never found, no two
@@ -193,7 +246,11 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
         raise SceneFormatError(source, None, f"camera names must be unique, got {names}")
     sync_table = None if sync is None else read_sync(sync, len(footage))
     t0 = time.perf_counter()
-    views, sizes, counts = detect_views(footage, board, sync=sync_table, progress=progress)
+    thumbs: dict[tuple[int, int], bytes] = {}
+    views, sizes, counts = detect_views(
+        footage, board, sync=None if sync_table is None else sync_table.frames,
+        thumbnails=thumbs, progress=progress,
+    )  # fmt: skip
     seconds["detect"] = time.perf_counter() - t0
     reports = [
         {"name": n, "image_size": s, "frames": k,
@@ -232,7 +289,23 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
                                + "; ".join(f"{r['name']}: {r.get('problem') or 'alone'}"
                                            for r in reports))  # fmt: skip
     intr_pairs = {c: (intr[c].K, intr[c].dist) for c in T_cam_root}
-    adjusted = bundle_adjust(usable, pts, intr_pairs, T_cam_root, poses)
+    times = None if sync_table is None else sync_table.times
+    if times is None and sync_table is not None:  # matched, untimed: the sync index
+        times = np.repeat(np.arange(len(sync_table.frames), dtype=float)[:, None],
+                          len(footage), axis=1)  # fmt: skip
+    adjusted = bundle_adjust(
+        usable,
+        pts,
+        intr_pairs,
+        T_cam_root,
+        poses,
+        times=times,
+        max_offset_frames=MAX_OFFSET_FRAMES if sync_offsets else None,
+    )
+    for c, offset in adjusted.time_offsets.items():
+        reports[c]["sync_offset_frames"] = offset / adjusted.frame_period
+        if sync_table is not None and sync_table.times is not None:
+            reports[c]["sync_offset_s"] = offset
     seconds["extrinsics"] = time.perf_counter() - t0
     residuals = [np.zeros((0, 2))] * len(views)
     index = {id(v): k for k, v in enumerate(views)}
@@ -265,15 +338,64 @@ def calibrate_cameras(  # long: the steps in order, each a call, with the report
         residuals=tuple(residuals),
         T_world_board={f: T_world_root @ T for f, T in adjusted.T_root_board.items()},
         seconds=seconds,
+        board=board,
+        world=f"camera:{names[cams[0]]}" if floor_frame is None else f"floor:{floor_frame}",
+        footage=tuple(str(p) for p in footage),
+        thumbnails=thumbs,
     )
 
 
+def calibration_views(calibration: Calibration) -> CalibrationViews:
+    """What ``calibration`` saw, for the viewer (:mod:`pipeline.data.calibration_views`)."""
+    views, board = calibration.views, calibration.board
+    calibrated = set(calibration.rig.names)
+    cameras = tuple(
+        CameraFigures(
+            name=r.name, image_size=tuple(int(v) for v in r.image_size), frames=r.frames,
+            board_frames=r.board_frames, calibrated=r.name in calibrated,
+            ba_rms=float(r.ba_rms), sync_offset_frames=float(r.sync_offset_frames),
+            sync_offset_s=float(r.sync_offset_s), problem=r.problem or "",
+            footage=calibration.footage[c] if c < len(calibration.footage) else "",
+            thumb_scale=thumb_scale(r.image_size),
+        )
+        for c, r in enumerate(calibration.reports)
+    )  # fmt: skip
+    counts = [len(v.ids) for v in views]
+    detected = np.concatenate([v.pixels for v in views]) if views else np.zeros((0, 2))
+    reprojected = np.concatenate([
+        v.pixels + r if len(r) == len(v.ids) else np.full((len(v.ids), 2), np.nan)
+        for v, r in zip(views, calibration.residuals, strict=True)
+    ]) if views else np.zeros((0, 2))  # fmt: skip
+    jpegs = [calibration.thumbnails.get((v.camera, v.frame), b"") for v in views]
+    frames = sorted(calibration.T_world_board)
+    return CalibrationViews(
+        cameras=cameras,
+        board={"kind": board.kind, "columns": board.columns, "rows": board.rows,
+               "square_mm": board.square_mm},
+        world=calibration.world,
+        object_points=board.object_points,
+        view_camera=np.array([v.camera for v in views], np.int64),
+        view_frame=np.array([v.frame for v in views], np.int64),
+        view_start=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        corner_id=np.concatenate([v.ids for v in views]).astype(np.int64)
+        if views else np.zeros(0, np.int64),
+        detected=detected,
+        reprojected=reprojected,
+        pose_frame=np.array(frames, np.int64),
+        T_world_board=np.array([calibration.T_world_board[f] for f in frames]).reshape(-1, 4, 4),
+        thumbs=np.frombuffer(b"".join(jpegs), np.uint8),
+        thumb_start=np.concatenate([[0], np.cumsum([len(j) for j in jpegs])]).astype(np.int64),
+    )  # fmt: skip
+
+
 def write_calibration(calibration: Calibration, out_dir: str | os.PathLike) -> list[Path]:
-    """Write ``cameras.json`` (native), ``Calib.toml`` (Pose2Sim) and
-    ``calibration_report.html`` into ``out_dir``, each atomically. Returns their paths."""
+    """Write ``cameras.json`` (native), ``Calib.toml`` (Pose2Sim),
+    ``calibration_report.html`` and ``calibration.npz`` (:func:`calibration_views`) into
+    ``out_dir``, each atomically. Returns their paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     save_cameras(calibration.rig, out_dir / "cameras.json")
     toml = write_pose2sim_calibration(calibration.rig, out_dir / "Calib.toml")
     write_report(calibration, out_dir / REPORT_HTML)
-    return [out_dir / "cameras.json", toml, out_dir / REPORT_HTML]
+    save_calibration_views(calibration_views(calibration), out_dir / CALIBRATION_VIEWS)
+    return [out_dir / "cameras.json", toml, out_dir / REPORT_HTML, out_dir / CALIBRATION_VIEWS]

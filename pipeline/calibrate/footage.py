@@ -5,6 +5,8 @@ different cameras are matched by index, or by a Caliscope-style ``timestamps.csv
 (``sync_index, cam_id, frame_index, frame_time``): the frames sharing a ``sync_index``
 were taken together. A camera's rows, in ``frame_index`` order, are its frames in order
 (a table may count frames from an earlier start of the recording than the footage kept).
+Its ``frame_time`` (seconds), when present, is when each camera's frame was stamped: the
+bundle adjustment starts the cameras' time offsets from it.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import csv
 import os
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -60,19 +63,35 @@ def grey_frames(path: str | os.PathLike) -> Iterator[np.ndarray]:
         capture.release()
 
 
-def read_sync(path: str | os.PathLike, num_cameras: int) -> np.ndarray:
-    """A ``timestamps.csv`` -> (num_sync, num_cameras) position of each camera's frame in
-    its footage at each sync index (-1: no frame), rows in sync-index order; ``cam_id`` is
-    the camera's position in the order the footage was given."""
+@dataclass(frozen=True)
+class SyncTable:
+    """A sync table read from a ``timestamps.csv``.
+
+    Attributes:
+        frames: (num_sync, num_cameras) position of each camera's frame in its footage at
+            each sync index (-1: no frame), rows in sync-index order.
+        times: (num_sync, num_cameras) each frame's ``frame_time``, seconds (NaN: no
+            frame), or None when the table has no ``frame_time`` column.
+    """
+
+    frames: np.ndarray
+    times: np.ndarray | None
+
+
+def read_sync(path: str | os.PathLike, num_cameras: int) -> SyncTable:
+    """A ``timestamps.csv`` -> its :class:`SyncTable`; ``cam_id`` is the camera's position
+    in the order the footage was given."""
     path = Path(path)
     if not path.is_file():
         raise SceneFormatError(path, None, "file not found")
     rows: dict[int, np.ndarray] = {}
+    stamps: dict[int, np.ndarray] = {}
     with path.open(newline="", encoding="utf-8") as fh:
         reader = csv.DictReader(fh)
         need = {"sync_index", "cam_id", "frame_index"}
         if reader.fieldnames is None or not need <= set(reader.fieldnames):
             raise SceneFormatError(path, "header", f"expected the columns {sorted(need)}")
+        timed = "frame_time" in reader.fieldnames
         for line, row in enumerate(reader, start=2):
             try:
                 sync, cam, frame = (int(row[k]) for k in ("sync_index", "cam_id", "frame_index"))
@@ -84,6 +103,16 @@ def read_sync(path: str | os.PathLike, num_cameras: int) -> np.ndarray:
                     f"expected 0..{num_cameras - 1} (one per camera given), got {cam}",
                 )  # fmt: skip
             rows.setdefault(sync, np.full(num_cameras, -1, np.int64))[cam] = frame
+            if timed:
+                try:
+                    stamp = float(row["frame_time"])
+                except (TypeError, ValueError):
+                    raise SceneFormatError(
+                        path, f"line {line}.frame_time", "expected seconds"
+                    ) from None
+                if not np.isfinite(stamp):
+                    raise SceneFormatError(path, f"line {line}.frame_time", "expected seconds")
+                stamps.setdefault(sync, np.full(num_cameras, np.nan))[cam] = stamp
     if not rows:
         raise SceneFormatError(path, None, "no rows")
     table = np.stack([rows[k] for k in sorted(rows)])
@@ -97,4 +126,5 @@ def read_sync(path: str | os.PathLike, num_cameras: int) -> np.ndarray:
                 path, "frame_index", f"camera {c} has a frame at two sync indices"
             )
         table[have, c] = np.searchsorted(order, table[have, c])
-    return table
+    times = np.stack([stamps[k] for k in sorted(rows)]) if timed else None
+    return SyncTable(frames=table, times=times)

@@ -3,7 +3,8 @@
 Not every view goes in: views are picked greedily for coverage of the image (a grid of
 cells; each pick adds the most cells not yet covered, ties to the view with more corners),
 then filled up to ``max_views`` with views spread over the footage, so a board held still
-for many frames does not outweigh the rest of the image. Pixels in, pixels out.
+for many frames does not outweigh the rest of the image. A view that fits far worse than
+the others is left out and the rest fitted again. Pixels in, pixels out.
 """
 
 from __future__ import annotations
@@ -20,6 +21,10 @@ MIN_VIEWS = 4
 K3_VIEWS = 60
 """Views below which k3 is held at 0: on fewer views of a small board it fits noise (on
 the shared 4-webcam session, focal lengths 1-3 % nearer the peer's with k3 held)."""
+OUTLIER_VIEW_PX = 0.5
+OUTLIER_VIEW_FACTOR = 3.0
+"""A view whose RMS error in the first fit is above both OUTLIER_VIEW_PX and
+OUTLIER_VIEW_FACTOR times the median view's is left out of the second."""
 MIN_INTRINSIC_CORNERS = 6
 """Corners (not all on one line) a view needs to take part in the intrinsics."""
 
@@ -123,6 +128,21 @@ def calibrate_intrinsics(
     flags = cv2.CALIB_USE_INTRINSIC_GUESS
     if len(chosen) < K3_VIEWS:  # too few views to pin down a sixth-order radial term
         flags |= cv2.CALIB_FIX_K3
-    rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, (w, h), K0, np.zeros(5), flags=flags)
+    rms, K, dist, per_view = _calibrate(obj, img, (w, h), K0, flags)
+    # a view whose corners were found off (a board seen nearly edge-on: the corner
+    # refinement's window takes in the next corners) is left out, and the rest refitted
+    limit = max(OUTLIER_VIEW_PX, OUTLIER_VIEW_FACTOR * float(np.median(per_view)))
+    keep = [k for k in range(len(chosen)) if per_view[k] <= limit]
+    if len(keep) < len(chosen) and len(keep) >= MIN_VIEWS:
+        chosen = [chosen[k] for k in keep]
+        rms, K, dist, _ = _calibrate([obj[k] for k in keep], [img[k] for k in keep], (w, h),
+                                     K, flags)  # fmt: skip
     return Intrinsics(K=np.asarray(K, float), dist=np.asarray(dist, float).ravel()[:5],
                       rms=float(rms), views=tuple(chosen))  # fmt: skip
+
+
+def _calibrate(obj, img, size, K0, flags) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """``cv2.calibrateCameraExtended``: (RMS, K, dist, (V,) each view's RMS error)."""
+    out = cv2.calibrateCameraExtended(obj, img, size, K0.copy(), np.zeros(5), flags=flags)
+    rms, K, dist, per_view = out[0], out[1], out[2], out[7]
+    return float(rms), K, dist, np.ravel(per_view)

@@ -12,8 +12,6 @@ import os
 from collections.abc import Sequence
 
 import numpy as np
-from matplotlib.figure import Figure
-from matplotlib.patches import Rectangle
 
 from pipeline.calibrate.extrinsics import View
 from pipeline.core.files import atomic_write
@@ -26,6 +24,9 @@ def coverage_svg(
 ) -> str:
     """One camera's corners (all its views) over its image, coloured by reprojection error
     (px; grey where not adjusted), as an SVG string."""
+    from matplotlib.figure import Figure  # with the report, not at the command's start
+    from matplotlib.patches import Rectangle
+
     w, h = image_size
     fig = Figure(figsize=(4.0, 4.0 * h / w + 0.4))
     ax = fig.add_subplot()
@@ -58,17 +59,25 @@ def write_report(calibration, path: str | os.PathLike) -> None:
     def num(x: float, unit: str = "") -> str:
         return "-" if math.isnan(x) else f"{x:.3f}{unit}"
 
+    def offset(r) -> str:
+        if math.isnan(r.sync_offset_frames):
+            return "-"
+        ms = ("" if math.isnan(r.sync_offset_s)
+              else f" ({round(1000 * r.sync_offset_s) + 0.0:+.0f} ms)")  # fmt: skip
+        return f"{round(r.sync_offset_frames, 2) + 0.0:+.2f} frames{ms}"  # + 0.0: no "-0.00"
+
     parts = ["<!doctype html><meta charset='utf-8'><title>Calibration report</title>",
              "<style>body{font-family:sans-serif} td,th{padding:2px 8px;text-align:right}"
              " .cam{display:inline-block;vertical-align:top;margin:8px}</style>",
              "<h1>Calibration report</h1><table><tr><th>camera</th><th>frames</th>"
              "<th>with the board</th><th>views for intrinsics</th><th>intrinsic RMS</th>"
-             "<th>BA RMS</th><th>problem</th></tr>"]  # fmt: skip
+             "<th>BA RMS</th><th>time offset</th><th>problem</th></tr>"]  # fmt: skip
     for r in calibration.reports:
         parts.append(
             f"<tr><td>{html.escape(r.name)}</td><td>{r.frames}</td><td>{r.board_frames}</td>"
             f"<td>{r.intrinsic_views}</td><td>{num(r.intrinsic_rms, ' px')}</td>"
-            f"<td>{num(r.ba_rms, ' px')}</td><td>{html.escape(r.problem or '')}</td></tr>"
+            f"<td>{num(r.ba_rms, ' px')}</td><td>{offset(r)}</td>"
+            f"<td>{html.escape(r.problem or '')}</td></tr>"
         )
     parts.append("</table><h2>Board corners over each image</h2>")
     for c, r in enumerate(calibration.reports):

@@ -1,14 +1,19 @@
 """Rotation representations, converted in one place: axis-angle (rotation vector),
 matrices and Zhou et al.'s 6D (the first two columns, which the fit and the pose prior
 optimise). Torch where gradients flow (the fit), numpy (scipy) elsewhere; any leading
-batch shape.
+batch shape. Torch is imported by the torch functions only: the numpy ones serve the
+importers and ``mvviz calibrate``, which start without it.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
 from scipy.spatial.transform import Rotation
+
+if TYPE_CHECKING:
+    import torch
 
 
 def axis_angle_to_matrix(rotvecs: torch.Tensor) -> torch.Tensor:
@@ -16,6 +21,8 @@ def axis_angle_to_matrix(rotvecs: torch.Tensor) -> torch.Tensor:
 
     Differentiable at zero (the small-angle branch uses the Taylor series).
     """
+    import torch
+
     angle_sq = (rotvecs * rotvecs).sum(-1, keepdim=True)[..., None]  # (..., 1, 1)
     angle = torch.sqrt(angle_sq.clamp_min(1e-24))
     small = angle_sq < 1e-8
@@ -38,6 +45,8 @@ def rot6d_to_matrix(rot6d: torch.Tensor) -> torch.Tensor:
         (..., 3, 3) with columns ``b1 = a1/|a1|``, ``b2`` = unit part of ``a2`` orthogonal
         to ``b1``, ``b3 = b1 x b2``.
     """
+    import torch
+
     # Component-major: one contiguous row per coordinate, so every step is an elementwise
     # operation on whole rows. On (..., 3) slices (stride 6) each one ran unvectorised:
     # the fit's 977 x 24 rotations, forward and backward, 3.3 -> 1.3 ms, the same numbers.
@@ -55,6 +64,8 @@ def rot6d_to_matrix(rot6d: torch.Tensor) -> torch.Tensor:
 
 def matrix_to_rot6d(rotmats: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) -> (..., 6): the first two columns, concatenated."""
+    import torch
+
     return torch.cat([rotmats[..., :, 0], rotmats[..., :, 1]], -1)
 
 

@@ -89,3 +89,27 @@ def test_a_command_line_imports_only_its_subcommand():
     )  # fmt: skip
     for name in ("view", "export-rrd", "batch", "run", "eval", "train-prior"):
         assert name in full.stdout
+
+
+def test_calibrate_runs_without_torch(tmp_path):
+    """``mvviz calibrate`` needs no torch (~3 s to import): not at its start (the
+    importers it reads --intrinsics with), not in the whole run; matplotlib only when
+    the report is drawn."""
+    from tests.pipeline.calibrate_synth import SPEC, board_poses, default_rig, write_session
+
+    folders = write_session(tmp_path / "footage", default_rig().subset([0, 1]),
+                            board_poses(12, seed=2))  # fmt: skip
+    probe = (
+        "import sys; from mvviz.cli import build_parser, main; "
+        "build_parser(sys.argv[1:]).parse_args(sys.argv[1:]); "
+        "print('start', *[m for m in ('torch', 'matplotlib') if m in sys.modules]); "
+        "code = main(sys.argv[1:]); "
+        "print('end', code, *[m for m in ('torch',) if m in sys.modules])"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe, "calibrate", *map(str, folders), "--board", SPEC,
+         "-o", str(tmp_path / "out")],
+        cwd=REPO, capture_output=True, text=True, timeout=300, check=True,
+    )  # fmt: skip
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith(("start", "end"))]
+    assert lines == ["start", "end 0"], out.stdout

@@ -56,6 +56,19 @@ def board_image(*, inverted: bool = False) -> np.ndarray:
     return 255 - image if inverted else image
 
 
+def checkerboard_image(board: Board) -> np.ndarray:
+    """A checkerboard of ``board``'s squares (the first black) with a white margin, in the
+    same frame as :func:`board_image` (board mm (0, 0) at the squares' outer corner)."""
+    step = board.square_mm * PX_PER_MM
+    margin = MARGIN_MM * PX_PER_MM
+    w = int(round(board.columns * step + 2 * margin))
+    h = int(round(board.rows * step + 2 * margin))
+    y, x = np.mgrid[0:h, 0:w] + 0.5  # pixel centres
+    i, j = np.floor((x - margin) / step), np.floor((y - margin) / step)
+    inside = (i >= 0) & (i < board.columns) & (j >= 0) & (j < board.rows)
+    return np.where(inside & ((i + j) % 2 == 0), 0, 255).astype(np.uint8)
+
+
 def board_poses(num: int, seed: int = 0) -> list[np.ndarray]:
     """(4, 4) ``T_world_board`` poses: the board near (0, 0, 1000) facing -y (the cameras),
     tilted up to ~35 deg."""
@@ -70,6 +83,20 @@ def board_poses(num: int, seed: int = 0) -> list[np.ndarray]:
         T[:3, 3] = centre - T[:3, :3] @ [BOARD.columns * 30.0, BOARD.rows * 30.0, 0]
         out.append(T)
     return out
+
+
+def moving_board(t: float) -> np.ndarray:
+    """(4, 4) ``T_world_board`` of a board carried smoothly through the volume, at time
+    ``t`` in frames (30-60 mm and about 1 deg per frame)."""
+    base = Rotation.from_euler("x", -90, degrees=True)
+    tilt = Rotation.from_rotvec([0.25 * np.sin(0.11 * t), 0.25 * np.sin(0.07 * t + 1.0),
+                                 0.2 * np.cos(0.05 * t)])  # fmt: skip
+    T = np.eye(4)
+    T[:3, :3] = (tilt * base).as_matrix()
+    centre = np.array([250 * np.sin(0.2 * t), 150 * np.sin(0.15 * t + 0.5),
+                       1000 + 150 * np.cos(0.17 * t)])  # fmt: skip
+    T[:3, 3] = centre - T[:3, :3] @ [BOARD.columns * 30.0, BOARD.rows * 30.0, 0]
+    return T
 
 
 def render(cam: Camera, T_world_board: np.ndarray, board_img: np.ndarray, rng) -> np.ndarray:
@@ -102,18 +129,21 @@ def render(cam: Camera, T_world_board: np.ndarray, board_img: np.ndarray, rng) -
 
 
 def write_session(
-    root: Path, rig: CameraRig, poses: list[np.ndarray], *, inverted: bool = False,
-    blank: dict[str, set[int]] | None = None, seed: int = 0,
+    root: Path, rig: CameraRig, poses: list[np.ndarray] | dict[str, list[np.ndarray]], *,
+    inverted: bool = False, blank: dict[str, set[int]] | None = None, seed: int = 0,
+    image: np.ndarray | None = None,
 ) -> list[Path]:  # fmt: skip
-    """One folder of PNG frames per camera under ``root``; ``blank[name]``: frames that
-    camera does not see the board in."""
+    """One folder of PNG frames per camera under ``root``; ``poses``: the board per frame,
+    or per camera name its board per frame; ``blank[name]``: frames that camera does not
+    see the board in; ``image``: the board drawn (default: :data:`BOARD`, see
+    :func:`board_image`)."""
     rng = np.random.default_rng(seed)
-    board = board_image(inverted=inverted)
+    board = board_image(inverted=inverted) if image is None else image
     folders = []
     for cam in rig:
         folder = root / cam.name
         folder.mkdir(parents=True)
-        for k, T in enumerate(poses):
+        for k, T in enumerate(poses[cam.name] if isinstance(poses, dict) else poses):
             hidden = k in (blank or {}).get(cam.name, set())
             image = (
                 render(cam, T, board, rng)
