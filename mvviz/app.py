@@ -54,7 +54,7 @@ from mvviz.scene.images import (
 from mvviz.scene.layers import make_scene_layers
 from mvviz.state import ViewerState
 from mvviz.workers import LatestWins, PageAcks
-from pipeline.core.files import CACHE_DIR
+from pipeline.core.files import scene_cache_dir
 from pipeline.results.store import PipelineResults
 
 FirstTab = tuple[str, str, Callable[["ViewerApp"], Panel]]
@@ -118,7 +118,7 @@ class ViewerApp:
             server = viser.ViserServer(host=host, port=port, verbose=verbose)
         self.server = server
         self.writes = writes or WritePolicy.for_host(
-            server.get_host(), state.scene.root / CACHE_DIR / "export"
+            server.get_host(), scene_cache_dir(state.scene.root) / "export"
         )
         server.gui.configure_theme(control_width="medium", show_share_button=False)
         # Dock both panels so the 3D canvas is the free space between them, and the
