@@ -53,7 +53,7 @@ from mvviz.scene.images import (
 )
 from mvviz.scene.layers import make_scene_layers
 from mvviz.state import ViewerState
-from mvviz.workers import LatestWins, PageAcks
+from mvviz.workers import LatestWins, PageAcks, StalledClients
 from pipeline.core.files import scene_cache_dir
 from pipeline.results.store import PipelineResults
 
@@ -135,6 +135,7 @@ class ViewerApp:
         self._stats_shown_t = -np.inf
         self._renderer = LatestWins(self._render)
         self._acks = PageAcks(server)  # playback waits for the pages (drops, never lags)
+        self._stalls = StalledClients(server)  # a client that stopped reading is let go
         self._player = threading.Thread(target=self._play_loop, name="mvviz-play", daemon=True)
         self._player.start()
         if frames is not None:
@@ -309,6 +310,7 @@ class ViewerApp:
         self._image_pool.shutdown(wait=True)
         self._player.join(timeout=5)
         self._acks.stop()
+        self._stalls.stop()
         self.server.stop()
 
     # ------------------------------------------------------------------ internals
