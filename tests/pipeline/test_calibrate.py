@@ -122,6 +122,7 @@ def test_views_chosen_for_coverage():
 # --------------------------------------------------------------------------- calibration
 
 
+@pytest.mark.slow
 def test_synthetic_rig_recovered(session, tmp_path):
     rig, folders = session
     cal = calibrate_cameras(folders, BOARD)
@@ -143,6 +144,7 @@ def test_synthetic_rig_recovered(session, tmp_path):
     np.testing.assert_allclose(back[1].t, load_cameras(paths[0])[1].t, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_inverted_board_and_floor_frame(tmp_path):
     rig = default_rig().subset([0, 1])
     poses = board_poses(12, seed=3)
@@ -160,6 +162,7 @@ def test_inverted_board_and_floor_frame(tmp_path):
     assert angle_deg(R @ R0.T) < 0.3 and np.linalg.norm(t - t0) < 10
 
 
+@pytest.mark.slow
 def test_camera_with_too_few_views_is_named(tmp_path):
     rig = default_rig()
     poses = board_poses(24, seed=4)
@@ -211,6 +214,7 @@ def test_caliscope_calibration_format(tmp_path):
     assert read_caliscope_calibration(path, require_poses=False)[0].K[1, 1] == 601
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not CALISCOPE.is_dir(), reason="the shared Caliscope session is absent")
 def test_real_four_webcam_session():
     videos = [CALISCOPE / "extrinsic" / f"cam_{k}.mp4" for k in range(4)]
