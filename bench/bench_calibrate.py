@@ -42,7 +42,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import write_json  # noqa: E402
+from bench.common import markdown_table, publish, write_json  # noqa: E402
 from pipeline.calibrate.board import parse_board  # noqa: E402
 from pipeline.calibrate.calibrate import calibrate_cameras  # noqa: E402
 from pipeline.data.cameras import CameraRig  # noqa: E402
@@ -173,6 +173,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--docs", action="store_true", help="write the documentation's section")
     args = ap.parse_args()
     if not (args.data / "camera_array.toml").is_file():
         print(f"skipped: the Caliscope session is not at {args.data}")
@@ -191,7 +192,50 @@ def main() -> int:
         report(name, res)
     if args.json:
         write_json(args.json, figures)
+    if args.docs:
+        publish("bench_calibrate", "Calibration against Caliscope's", docs_section(figures))
     return 0
+
+
+def docs_section(figures: dict) -> str:
+    """The Benchmarks page's section: one column per way of calibrating."""
+    names = {"from_scratch": "from scratch", "caliscope_intrinsics": "Caliscope's intrinsics",
+             "caliscope_intrinsics_fixed_sync": "its intrinsics, `--fixed-sync`"}  # fmt: skip
+    cols = [k for k in names if k in figures]
+
+    def row(label, fn):
+        return [label, *(fn(figures[k]) for k in cols)]
+
+    def span(values, fmt):
+        values = list(values)
+        return f"{fmt.format(min(values))}-{fmt.format(max(values))}"
+
+    rows = [
+        row("focal length vs Caliscope's, %", lambda r: " / ".join(
+            f"{c['focal_diff_pct']:+.1f}" for c in r["cameras"].values())),
+        row("bundle-adjustment RMS per camera, px", lambda r: " / ".join(
+            f"{c['ba_rms_px']:.2f}" for c in r["cameras"].values())),
+        row("time offsets, ms", lambda r: " / ".join(
+            f"{c['sync_offset_ms']:+.0f}" for c in r["cameras"].values())),
+        row("pair rotations vs Caliscope's, deg", lambda r: span(
+            (p["rotation_diff_deg"] for p in r["pairs"].values()), "{:.2f}")),
+        row("pair translations vs Caliscope's, mm", lambda r: span(
+            (p["translation_diff_mm"] for p in r["pairs"].values()), "{:.1f}")),
+        row("board: adjacent corners vs 54 mm, median abs. error, frames as matched (Caliscope's)",
+            lambda r: f"{r['adjacent_corners']['ours_median_abs_err_mm']:.2f} mm "
+                      f"({r['adjacent_corners']['peer_median_abs_err_mm']:.2f})"),
+        row("the same, frames re-matched by the offsets found (Caliscope's)",
+            lambda r: f"{r['adjacent_corners_resynced']['ours_median_abs_err_mm']:.2f} mm "
+                      f"({r['adjacent_corners_resynced']['peer_median_abs_err_mm']:.2f})"),
+        row("time, s", lambda r: f"{r['seconds']['total']:.1f}"),
+    ]  # fmt: skip
+    return (
+        "`mvviz calibrate` on Caliscope's four-webcam ChArUco session (1280x720, 111 frames) "
+        "against Caliscope's own calibration of the same cameras; cameras in the order "
+        + ", ".join(next(iter(figures.values()))["cameras"])
+        + ".\n\n"
+        + markdown_table(["", *(names[k] for k in cols)], rows)
+    )
 
 
 if __name__ == "__main__":

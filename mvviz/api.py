@@ -24,7 +24,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.core.files import CACHE_DIR, SceneFormatError
+from pipeline.core.files import SceneFormatError, scene_cache_dir
 
 if TYPE_CHECKING:
     from mvviz.app import ViewerApp
@@ -141,9 +141,10 @@ def show(
     model = load_body_model_data()
     server = viser.ViserServer(host=host, port=port, verbose=False)
     try:
-        frames = FrameStore(scene, cache_dir=Path(scene.root) / CACHE_DIR / "frames").start()
+        cache = scene_cache_dir(scene.root)  # SCENE/.mvviz, elsewhere if read-only
+        frames = FrameStore(scene, cache_dir=cache / "frames").start()
         state = ViewerState.create(scene, results, model)
-        writes = WritePolicy.for_host(host, Path(scene.root) / CACHE_DIR / "export")
+        writes = WritePolicy.for_host(host, cache / "export")
         app = ViewerApp(state, server=server, frames=frames, model=model, writes=writes)
     except BaseException:
         server.stop()

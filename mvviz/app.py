@@ -53,8 +53,8 @@ from mvviz.scene.images import (
 )
 from mvviz.scene.layers import make_scene_layers
 from mvviz.state import ViewerState
-from mvviz.workers import LatestWins, PageAcks
-from pipeline.core.files import CACHE_DIR
+from mvviz.workers import LatestWins, PageAcks, StalledClients
+from pipeline.core.files import scene_cache_dir
 from pipeline.data.calibration_views import CALIBRATION_VIEWS
 from pipeline.results.store import PipelineResults
 
@@ -119,7 +119,7 @@ class ViewerApp:
             server = viser.ViserServer(host=host, port=port, verbose=verbose)
         self.server = server
         self.writes = writes or WritePolicy.for_host(
-            server.get_host(), state.scene.root / CACHE_DIR / "export"
+            server.get_host(), scene_cache_dir(state.scene.root) / "export"
         )
         server.gui.configure_theme(control_width="medium", show_share_button=False)
         # Dock both panels so the 3D canvas is the free space between them, and the
@@ -136,6 +136,7 @@ class ViewerApp:
         self._stats_shown_t = -np.inf
         self._renderer = LatestWins(self._render)
         self._acks = PageAcks(server)  # playback waits for the pages (drops, never lags)
+        self._stalls = StalledClients(server)  # a client that stopped reading is let go
         self._player = threading.Thread(target=self._play_loop, name="mvviz-play", daemon=True)
         self._player.start()
         if frames is not None:
@@ -318,6 +319,7 @@ class ViewerApp:
         self._image_pool.shutdown(wait=True)
         self._player.join(timeout=5)
         self._acks.stop()
+        self._stalls.stop()
         self.server.stop()
 
     # ------------------------------------------------------------------ internals

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,6 +56,24 @@ def resolve_inside(root: str | os.PathLike, name: str | os.PathLike, *, overwrit
     if not overwrite and target.exists():
         raise WriteRefused(f"`{text}` exists in `{root}`; tick Overwrite to replace it")
     return target
+
+
+def cannot_write(folder: str | os.PathLike) -> str | None:
+    """Why no file can be created in the existing ``folder`` (None: one can), tried (as
+    ``pipeline.core.files.cannot_write``, which this module may not import)."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".mvviz-probe.", dir=folder)
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    os.close(fd)
+    os.unlink(probe)
+    return None
+
+
+def shown_path(path: str | os.PathLike, scene_root: str | os.PathLike) -> str:
+    """``SCENE/<path inside the scene>``, or the whole path when it is elsewhere."""
+    path, root = Path(path), Path(scene_root)
+    return f"SCENE/{path.relative_to(root)}" if path.is_relative_to(root) else str(path)
 
 
 def is_loopback(host: str) -> bool:
@@ -100,6 +119,22 @@ class WritePolicy:
 
     def scene_file(self, scene_root: str | os.PathLike, name: str | os.PathLike) -> Path:
         """A file of fixed ``name`` under the scene folder, replaced when it exists
-        (refused when read-only or when a symlink leads it out of the scene)."""
+        (refused when read-only, when a symlink leads it out of the scene, or when its
+        folder cannot be written: a read-only scene)."""
         self.check()
-        return resolve_inside(scene_root, name, overwrite=True)
+        path = resolve_inside(scene_root, name, overwrite=True)
+        folder = next((p for p in (path.parent, *path.parent.parents) if p.is_dir()), None)
+        why = None if folder is None else cannot_write(folder)
+        if why is not None:
+            raise WriteRefused(f"`{folder}` cannot be written ({why})")
+        return path
+
+    def cache_file(self, scene_root: str | os.PathLike, path: str | os.PathLike) -> Path:
+        """``path``, a file of fixed name in the scene's cache folder
+        (:func:`~pipeline.core.files.scene_cache_dir`): under the scene, checked as
+        :meth:`scene_file`; in the user's cache (a read-only scene) as it is."""
+        path, root = Path(path), Path(scene_root)
+        if path.is_relative_to(root):
+            return self.scene_file(root, path.relative_to(root))
+        self.check()
+        return path

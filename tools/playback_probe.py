@@ -121,16 +121,22 @@ class PlaybackLag:
 
 def measure_playback(
     app, page, log: PictureLog, *, seconds: float = 8.0, interval_s: float = 0.1,
-    speed: float = 1.0,
+    speed: float = 1.0, min_samples: int = 0, max_seconds: float | None = None,
 ) -> PlaybackLag:  # fmt: skip
-    """Play at ``speed`` for ``seconds`` and sample the page; stops playing after."""
+    """Play at ``speed`` for ``seconds`` and sample the page; stops playing after. With
+    ``min_samples``, goes on past ``seconds`` (up to ``max_seconds``) until that many
+    samples are taken: on a busy machine a software-WebGL page can stand still for
+    seconds, and a figure needs samples."""
     n = app.state.data.num_frames
     app.state.speed, app.state.loop, app.state.playing = speed, True, True
     app.redraw("playing")
     image_lag, sent_hi, sent_lo, label_lag = [], [], [], []
     time.sleep(1.0)  # the first frames of playback
     t0, r0, played0 = time.perf_counter(), log.count(), app.frames_played
-    while time.perf_counter() - t0 < seconds:
+    limit = seconds if max_seconds is None else max(seconds, max_seconds)
+    while (elapsed := time.perf_counter() - t0) < seconds or (
+        len(image_lag) < min_samples and elapsed < limit
+    ):
         server_frame, before = app.state.frame, log.count()
         got = page.evaluate(SAMPLE_JS)
         after = log.count()

@@ -18,7 +18,7 @@ from mvviz.cli.run import add_config_options, prepare
 from pipeline.batch.jobs import SceneJob
 from pipeline.batch.sweep import setting_slug, sweep_grid
 from pipeline.config import PipelineConfig, load_config
-from pipeline.core.files import CACHE_DIR, SceneFormatError
+from pipeline.core.files import SceneFormatError, scene_cache_dir
 from pipeline.results.store import cache_key, default_results_path
 
 
@@ -99,7 +99,7 @@ def results_path(args: argparse.Namespace, d: Path, scene, setting: tuple[str, .
         return args.out.absolute() / d.name / (f"{name}.npz" if setting else "results.npz")
     if not setting:
         return default_results_path(scene)
-    return scene.root / CACHE_DIR / "sweep" / f"{name}.npz"
+    return scene_cache_dir(scene.root) / "sweep" / f"{name}.npz"
 
 
 def plan(

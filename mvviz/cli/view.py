@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import viser
 
 from mvviz.safe_paths import WritePolicy, is_loopback
-from pipeline.core.files import CACHE_DIR, SceneFormatError
+from pipeline.core.files import SceneFormatError, scene_cache_dir
 from pipeline.core.units import REPO_ROOT, SAMPLE_DATA
 from pipeline.data.calibration_views import CALIBRATION_VIEWS
 
@@ -174,11 +174,12 @@ def _build_viewer(
         scene, config, model, out=args.out, progress=progress, force=args.force
     )
     print(f"{'cached' if cached else 'computed'} results: {results.num_tracks} tracks")
-    frames = FrameStore(scene, cache_dir=scene.root / CACHE_DIR / "frames").start()
+    cache = scene_cache_dir(scene.root)  # SCENE/.mvviz, elsewhere if read-only
+    frames = FrameStore(scene, cache_dir=cache / "frames").start()
     state = ViewerState.create(scene, results, model)
     loading.remove()
     writes = WritePolicy.for_host(
-        args.host, getattr(args, "export_dir", None) or scene.root / CACHE_DIR / "export",
+        args.host, getattr(args, "export_dir", None) or cache / "export",
         allow_writes=getattr(args, "allow_writes", False),
     )  # fmt: skip
     app = ViewerApp(

@@ -45,6 +45,7 @@ from mvviz.analysis.failures import (
 )
 from mvviz.analysis.failures.protocol import protocol_summary
 from mvviz.panels.contract import PanelHost
+from mvviz.safe_paths import shown_path
 from mvviz.scene.geometry import MM, ViewerData
 from mvviz.state import ViewerState
 from mvviz.workers import LatestWins, yielding_to
@@ -246,7 +247,7 @@ class FailurePanel:
             save_notes(self.notes_file, notes)
             self.notes = notes
             self.selected_note = notes.index(note)
-            self.message = f"saved to `SCENE/{self.notes_file.relative_to(self.scene_root)}`"
+            self.message = f"saved to `{shown_path(self.notes_file, self.scene_root)}`"
             self._show_notes()
         self.gui.note_text.value = ""
         return note
@@ -422,7 +423,7 @@ class FailurePanel:
     def _writable_notes_file(self) -> None:
         """Raise :class:`~mvviz.safe_paths.WriteRefused` when the notes may not be written
         (a read-only viewer, or a symlink leading the file out of the scene)."""
-        self.host.writes.scene_file(self.scene_root, self.notes_file.relative_to(self.scene_root))
+        self.host.writes.cache_file(self.scene_root, self.notes_file)
 
     def _reload_for_write(self) -> list[Note]:
         """The notes on disk now (call with the lock held); raises if unreadable."""

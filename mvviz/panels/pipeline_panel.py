@@ -38,7 +38,7 @@ import viser
 
 from mvviz.panels.contract import PanelHost
 from mvviz.panels.run_compare import RunCompare, make_run_compare
-from mvviz.safe_paths import WriteRefused
+from mvviz.safe_paths import WriteRefused, shown_path
 from mvviz.scene.geometry import ViewerData, lazy_detection_rays, person_indices
 from pipeline.body.arrays import BodyModelData, load_body_model_data
 from pipeline.body.keypoints import FITTABLE_JOINT_SETS
@@ -720,10 +720,10 @@ class PipelinePanel:
         """Save ``self.base`` (the run config's complete results) as the default results."""
         self._save_pending = False
         root = self.scene.root
-        path = self.host.writes.scene_file(root, default_results_path(self.scene).relative_to(root))
+        path = self.host.writes.cache_file(root, default_results_path(self.scene))
         save_results(self.base, path)
         self.run_results = self.base
-        return f"results saved to `{path.relative_to(self.scene.root)}`"
+        return f"results saved to `{shown_path(path, root)}`"
 
     def _set_progress(self, percent: float | None, text: str) -> None:
         g = self.gui

@@ -17,9 +17,12 @@ directory is at ``NAME``, whole.
 from __future__ import annotations
 
 import contextlib
+import errno
+import hashlib
 import os
 import re
 import shutil
+import sys
 import tempfile
 import tomllib
 from collections.abc import Iterator
@@ -28,7 +31,56 @@ from pathlib import Path
 import numpy as np
 
 CACHE_DIR = ".mvviz"
-"""``SCENE/.mvviz/``: what mvviz computes for a scene (results, caches, notes, exports)."""
+"""``SCENE/.mvviz/``: what mvviz computes for a scene (results, caches, notes, exports);
+:func:`scene_cache_dir` says where it is for a scene whose folder cannot be written."""
+CACHE_ENV = "MVVIZ_CACHE_DIR"  # the user cache's folder (default: XDG_CACHE_HOME/mvviz)
+_OWN_CACHE: dict[Path, Path | None] = {}  # resolved scene root -> its fallback (None: in it)
+
+
+def user_cache_root() -> Path:
+    """``$MVVIZ_CACHE_DIR``, else ``$XDG_CACHE_HOME/mvviz``, else ``~/.cache/mvviz``."""
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mvviz"
+
+
+def cannot_write(folder: str | os.PathLike) -> str | None:
+    """Why no file can be created in the existing ``folder`` (None: one can). Tried, not
+    guessed from the mode bits: a read-only mount, another user's folder and root's
+    capabilities all answer for themselves."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".mvviz-probe.", dir=folder)
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    os.close(fd)
+    os.unlink(probe)
+    return None
+
+
+def scene_cache_dir(root: str | os.PathLike) -> Path:
+    """Where mvviz keeps what it computes for the scene at ``root``: ``root/.mvviz``, or,
+    when that cannot be written (a read-only folder or mount, another user's scene), a
+    folder of the scene's own in the user's cache (:func:`user_cache_root`/scenes/
+    ``<name>-<hash of the path>``), said once on stderr. Decided once per scene and
+    process; nothing is created in the scene to decide."""
+    root = Path(root)
+    key = root.resolve()
+    if key not in _OWN_CACHE:
+        own = root / CACHE_DIR
+        why = cannot_write(own if own.is_dir() else root) if root.is_dir() else None
+        fallback = None
+        if why is not None:
+            digest = hashlib.sha1(str(key).encode()).hexdigest()[:12]
+            fallback = user_cache_root() / "scenes" / f"{key.name}-{digest}"
+            print(
+                f"mvviz: {own} cannot be written ({why}): results and caches of this scene "
+                f"go to {fallback}",
+                file=sys.stderr,
+                flush=True,
+            )
+        _OWN_CACHE[key] = fallback
+    fallback = _OWN_CACHE[key]
+    return root / CACHE_DIR if fallback is None else fallback
 
 
 def _umask() -> int:
@@ -85,18 +137,22 @@ def recover(path: str | os.PathLike) -> None:
         pid = int(m.group(1) or m.group(3))
         if not process_alive(pid):
             stale[m.group(2) or "tmp"].append(entry)
-    for p in stale["tmp"]:
-        _remove(p)
-    for p in stale["new"]:  # complete: only ever renamed from a finished temporary
-        if not path.exists():
-            os.replace(p, path)
-        else:
-            _remove(p)  # the kill came before the old one moved away: the old one stays
-    for p in stale["old"]:
-        if not path.exists():
-            os.replace(p, path)  # no new one to complete with: roll back
-        else:
+    try:
+        for p in stale["tmp"]:
             _remove(p)
+        for p in stale["new"]:  # complete: only ever renamed from a finished temporary
+            if not path.exists():
+                os.replace(p, path)
+            else:
+                _remove(p)  # the kill came before the old one moved away: the old one stays
+        for p in stale["old"]:
+            if not path.exists():
+                os.replace(p, path)  # no new one to complete with: roll back
+            else:
+                _remove(p)
+    except OSError as exc:  # a read-only folder or mount: left as it is, read as it is
+        if exc.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
+            raise
 
 
 def read_text_lines(path: str | os.PathLike) -> list[str]:

@@ -37,7 +37,7 @@ import numpy as np
 
 from pipeline.config import PipelineConfig
 from pipeline.core.assignment import gated_assignment
-from pipeline.core.files import CACHE_DIR, SceneFormatError
+from pipeline.core.files import SceneFormatError, scene_cache_dir
 from pipeline.core.progress import Progress
 from pipeline.data.scene import Scene
 from pipeline.evaluation.evaluate import evaluate
@@ -68,7 +68,7 @@ def run_cached(
     (same scene files, config, body model, prior and code: ``results.cache_key``) was run
     before, else run and saved. Returns (results, reused, file)."""
     key = cache_key(scene, config, model)
-    keyed = scene.root / CACHE_DIR / RUNS_DIR / f"results_{key}.npz"
+    keyed = scene_cache_dir(scene.root) / RUNS_DIR / f"results_{key}.npz"
     default = default_results_path(scene)
     if not force and not keyed.is_file() and default.is_file():
         try:  # what `mvviz run` or the viewer left there, if it is this configuration

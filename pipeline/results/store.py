@@ -26,7 +26,12 @@ import numpy as np
 from pipeline.association.associate import Association
 from pipeline.body.arrays import BodyModelData, load_body_model_data
 from pipeline.config import PipelineConfig
-from pipeline.core.files import CACHE_DIR, SceneFormatError, load_npz, save_npz_atomic
+from pipeline.core.files import (
+    SceneFormatError,
+    load_npz,
+    save_npz_atomic,
+    scene_cache_dir,
+)
 from pipeline.core.units import PIPELINE_DIR
 from pipeline.data.scene import Scene
 from pipeline.fit.prior_path import resolve_prior_path
@@ -46,7 +51,7 @@ smoother, SMPL fit (step I) and SMPL fit corrected by the VAE pose prior (the na
 BODY_STAGES = ("smpl", "smpl_vae")
 """The stages that give bodies: :class:`PipelineResults` fields holding a ``SmplFit``."""
 RESULTS_VERSION = 6  # 6: edges only where a reader uses them, int32 / float32 (5: track_rejected)
-RESULTS_FILE = "results.npz"  # in the scene's CACHE_DIR
+RESULTS_FILE = "results.npz"  # in the scene's cache folder (SCENE/.mvviz)
 RESULTS_DIR = "results"  # ... for a long scene: a directory of memory-mapped columns
 LONG_SCENE_VIEW_FRAMES = 50_000
 """Frames x cameras from which a scene's default results are a directory (written by the
@@ -481,12 +486,17 @@ def load_results(
 
 
 def default_results_path(scene: Scene) -> Path:
-    """Where a scene's results go unless told (``--out``): ``CACHE_DIR/results.npz``, or
-    for a long scene (:data:`LONG_SCENE_VIEW_FRAMES`), or where such a directory is
-    already, the directory ``CACHE_DIR/results``."""
-    folder = scene.root / CACHE_DIR / RESULTS_DIR
-    if folder.is_dir() or scene.num_frames * len(scene.rig) >= LONG_SCENE_VIEW_FRAMES:
-        return folder
-    return scene.root / CACHE_DIR / RESULTS_FILE
+    """Where a scene's results go unless told (``--out``): ``results.npz`` in the scene's
+    cache folder (:func:`~pipeline.core.files.scene_cache_dir`: ``SCENE/.mvviz``, or the
+    user's cache for a folder that cannot be written), or for a long scene
+    (:data:`LONG_SCENE_VIEW_FRAMES`), or where such a directory is already, the
+    directory ``results`` there."""
+    return results_path_in(scene, scene_cache_dir(scene.root))
 
 
+def results_path_in(scene: Scene, folder: Path) -> Path:
+    """:func:`default_results_path` in the cache folder ``folder``."""
+    long = scene.num_frames * len(scene.rig) >= LONG_SCENE_VIEW_FRAMES
+    if long or (folder / RESULTS_DIR).is_dir():
+        return folder / RESULTS_DIR
+    return folder / RESULTS_FILE

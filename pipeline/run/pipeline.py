@@ -18,7 +18,7 @@ import numpy as np
 
 from pipeline.body.arrays import BodyModelData
 from pipeline.config import PipelineConfig
-from pipeline.core.files import SceneFormatError
+from pipeline.core.files import CACHE_DIR, SceneFormatError
 from pipeline.core.progress import Progress
 from pipeline.data.scene import Scene
 from pipeline.results.store import (
@@ -29,6 +29,7 @@ from pipeline.results.store import (
     is_npz_path,
     load_results,
     pack,
+    results_path_in,
     save_results,
 )
 from pipeline.run.bodies import fit_bodies
@@ -112,9 +113,16 @@ def run_or_load(
     """Load cached results if their key matches, else run and save. Returns (results, cached)."""
     path = Path(out) if out else default_results_path(scene)
     key = cache_key(scene, config, model)
-    if path.exists() and not force:
+    # a scene folder that cannot be written keeps its results elsewhere; those it holds
+    # (computed before it was made read-only) are read all the same
+    found = [path]
+    if not out:
+        found = list(dict.fromkeys([path, results_path_in(scene, scene.root / CACHE_DIR)]))
+    for have in found if not force else ():
+        if not have.exists():
+            continue
         try:
-            res = load_results(path, model=model)
+            res = load_results(have, model=model)
             if res.cache_key == key:
                 return res, True
         except SceneFormatError:

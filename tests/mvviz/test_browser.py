@@ -27,7 +27,7 @@ from tests.mvviz.conftest import (
 
 DOCS = REPO / "docs" / "screenshots"
 
-pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore::DeprecationWarning")]
 
 
 @pytest.fixture(scope="module")

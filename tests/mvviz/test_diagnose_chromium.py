@@ -32,7 +32,7 @@ from tests.mvviz.conftest import (
     wait_rendered,
 )
 
-pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore::DeprecationWarning")]
 DELAY, LATE = 4, "1"
 
 

@@ -40,6 +40,7 @@ def test_selected_camera_is_highlighted(running_app):
     assert app.camera_panel.gui.legend.content == CAMERA_LEGEND
 
 
+@pytest.mark.slow
 def test_panels_are_tabs_in_the_page(browser, running_app, tmp_path):
     """Each tab shows its own panel and hides the others'; screenshots of two tabs."""
     app = running_app
@@ -71,6 +72,7 @@ def test_panels_are_tabs_in_the_page(browser, running_app, tmp_path):
     assert np.isfinite(app.state.frame)
 
 
+@pytest.mark.slow
 def test_timeline_shows_the_failure_marks(browser, running_app, tmp_path):
     """The strip under the frame slider, as wide as the panel, carries a mark per
     failure in its criterion's colour; "failure ▶" goes to the next one."""

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import trimesh
 
 from mvviz.scene.layers import icosphere
@@ -40,6 +41,7 @@ print(json.dumps({
 """
 
 
+@pytest.mark.slow
 def test_viewer_and_cached_results_load_without_torch_or_matplotlib(viewer_scene):
     scene, results, model = viewer_scene
     path = default_results_path(scene)
@@ -69,6 +71,7 @@ def test_icosphere_is_trimesh_s():
     np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.025, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_a_command_line_imports_only_its_subcommand():
     """``mvviz view`` builds its own parser only: the other subcommands' modules would
     bring ray, torch and matplotlib (~12 s) before the server starts."""

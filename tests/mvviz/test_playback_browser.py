@@ -40,6 +40,7 @@ def test_acks_without_pages_do_not_wait(own_app):
     assert time.perf_counter() - t0 < 0.5 * own_app._acks.timeout_s  # far from a timeout
 
 
+@pytest.mark.slow
 def test_a_page_answers_after_applying_the_frame(browser, own_app):
     page = open_viewer(browser, own_app.url)
     try:
@@ -58,17 +59,20 @@ def test_a_page_answers_after_applying_the_frame(browser, own_app):
         page.close()
 
 
+@pytest.mark.slow
 def test_playback_drops_frames_instead_of_lagging(browser, own_app):
     # viser's adaptive pixel ratio on, as a user's page has it: this measures lag
     page = open_viewer(browser, own_app.url, adaptive_dpr=True)
     log = PictureLog(own_app)
     try:
-        lag = measure_playback(own_app, page, log, seconds=8.0, interval_s=0.1)
+        lag = measure_playback(
+            own_app, page, log, seconds=8.0, interval_s=0.1, min_samples=5, max_seconds=90.0
+        )
     finally:
         page.close()
     print(f"\n{lag.summary()}")
     assert lag.samples >= 5, lag.summary()
-    assert lag.frames_advanced >= 8 * 25 * 0.5, "playback barely advanced"  # 25 fps video
+    assert lag.frames_advanced >= lag.seconds * 25 * 0.5, "playback barely advanced"  # 25 fps
     # the page shows the newest frame sent or the one before it (the one in flight).
     # Each sample lies between two bounds: the frames sent before the page was read
     # (certain) and those sent by the time the read returned. A read that stalls (a new

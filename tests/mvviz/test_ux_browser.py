@@ -40,7 +40,7 @@ def own_app(viewer_scene, frame_store):
     app.stop()
 
 
-pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore::DeprecationWarning")]
 
 
 def idle(app) -> None:

@@ -108,6 +108,7 @@ def test_skeleton_counts(viewer_state):
             assert len(t.raw) <= 2 * st.layers.trail_window
 
 
+@pytest.mark.slow
 def test_outlier_views_are_flagged(viewer_scene):
     """Push one view's wrist 80 px off: triangulation rejects that view, and its ray is
     drawn as an outlier, in the warning colour."""
@@ -130,6 +131,7 @@ def test_outlier_views_are_flagged(viewer_scene):
     assert (r.colors[~r.outlier] != OUTLIER).any(axis=1).all()
 
 
+@pytest.mark.slow
 def test_camera_without_detections(blind_camera_scene):
     scene, res, model = blind_camera_scene
     state = all_on(ViewerState.create(scene, res, model))
@@ -337,6 +339,7 @@ def test_server_without_browser(viewer_scene, frame_store):
         app.stop()
 
 
+@pytest.mark.slow
 def test_stop_stops_every_panel(viewer_scene):
     """The app owns its panels: stop() ends every thread the app and its panels started
     (render, images, playback, filter B, failure lists, the pipeline re-run worker, the
@@ -412,6 +415,7 @@ def test_meshes_are_created_when_their_layer_is_first_shown(viewer_scene, frame_
         app.stop()
 
 
+@pytest.mark.slow
 def test_server_survives_odd_scenes(viewer_scene, blind_camera_scene):
     """A camera without detections, no ground truth, no videos; then new results."""
     blind, res, model = blind_camera_scene

@@ -103,6 +103,7 @@ def _move_state(rng, n: int, C: int, V: int, geometric: bool):
     return gain, col, seen, views, size, dist, has_ray
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("geometric", [False, True])
 def test_compiled_best_move_is_numpys(geometric):
     """pipeline.association.fused.best_move against the NumPy step it replaces on big frames:
@@ -124,6 +125,7 @@ def test_compiled_best_move_is_numpys(geometric):
     assert kinds == {True, False}  # moves and no move both seen
 
 
+@pytest.mark.slow
 def test_refine_takes_the_same_moves_compiled_and_not(monkeypatch):
     """refine_clusters on a frame big enough for the compiled move, both ways: the same
     labels after real moves (clusters cut in halves and misplaced detections)."""

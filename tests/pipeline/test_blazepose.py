@@ -481,6 +481,7 @@ def _shelf_frame(view: int, frame: int) -> np.ndarray:
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (SHELF_SCENE / "videos").is_dir(), reason="no shipped Shelf renders")
 def test_detector_on_synthetic_renders(runner):
     """The shipped Shelf scene's renders (the project's renderer: untextured, shaded
@@ -526,6 +527,7 @@ def test_detector_on_pose2sim_demo(runner):
     assert counts and all(n >= 1 for n in counts.values())
 
 
+@pytest.mark.slow
 @needs_interpreter
 def test_cli_detect_on_frames_without_people(tmp_path, capsys):
     from mvviz.cli import main

@@ -133,6 +133,7 @@ def test_landmarks_follow_their_segment_when_posed(model):
     assert local[2] < -0.03 and local[1] < -0.02
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("joint_set", sorted(JOINT_SETS))
 def test_virtual_vertices_equal_the_table_on_the_full_mesh(model, joint_set):
     g = torch.Generator().manual_seed(5)
@@ -213,6 +214,7 @@ def test_free_joint_and_torso_rules(model):
     }  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("joint_set", LAYOUTS)
 def test_fit_recovers_the_body_from_each_layout(model, joint_set):
     # Exact keypoints of one GT person of the sample scene in the layout -> the fitted

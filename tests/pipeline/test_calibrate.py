@@ -131,6 +131,7 @@ def test_views_chosen_for_coverage():
 # --------------------------------------------------------------------------- calibration
 
 
+@pytest.mark.slow
 def test_synthetic_rig_recovered(session, tmp_path):
     rig, folders = session
     cal = calibrate_cameras(folders, BOARD)
@@ -195,6 +196,7 @@ def test_calibration_views_saved_for_the_viewer(session, tmp_path):
         load_calibration_views(tmp_path / "cut.npz")
 
 
+@pytest.mark.slow
 def test_inverted_board_and_floor_frame(tmp_path):
     rig = default_rig().subset([0, 1])
     poses = board_poses(12, seed=3)
@@ -212,6 +214,7 @@ def test_inverted_board_and_floor_frame(tmp_path):
     assert angle_deg(R @ R0.T) < 0.3 and np.linalg.norm(t - t0) < 10
 
 
+@pytest.mark.slow
 def test_moving_board_and_a_late_camera(tmp_path):
     """The board moves ~40 mm a frame; "front" takes each frame half a frame later than the
     others: the bundle adjustment finds the offset and sees the board where it was."""
@@ -234,6 +237,7 @@ def test_moving_board_and_a_late_camera(tmp_path):
         assert angle_deg(R @ R0.T) < 0.2 and np.linalg.norm(t - t0) < 5
 
 
+@pytest.mark.slow
 def test_camera_with_too_few_views_is_named(tmp_path):
     rig = default_rig()
     poses = board_poses(24, seed=4)
@@ -285,6 +289,7 @@ def test_caliscope_calibration_format(tmp_path):
     assert read_caliscope_calibration(path, require_poses=False)[0].K[1, 1] == 601
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not CALISCOPE.is_dir(), reason="the shared Caliscope session is absent")
 def test_real_four_webcam_session():
     videos = [CALISCOPE / "extrinsic" / f"cam_{k}.mp4" for k in range(4)]

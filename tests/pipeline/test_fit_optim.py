@@ -49,6 +49,7 @@ def _reference(groups, loss_fn, iterations):
     return float(loss.detach())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_adam_cosine_matches_torch_optim_adam_bit_for_bit(seed):
     groups, (a, b, c, t) = _problem(seed)
@@ -75,6 +76,7 @@ def test_adam_cosine_skips_parameters_without_a_gradient():
     assert torch.equal(unused, torch.ones(4)) and torch.equal(c, rc)
 
 
+@pytest.mark.slow
 def test_fitting_does_not_import_torch_dynamo():
     code = (
         "import sys\n"

@@ -25,6 +25,8 @@ from pipeline.run.pipeline import run_or_load
 from pipeline.synth.mocap_scene import MocapSceneConfig, write_mocap_scene
 from tests.conftest import REPO
 
+pytestmark = pytest.mark.slow
+
 CMU = REPO / "sample_data" / "mocap" / "cmu131"
 
 

@@ -229,6 +229,7 @@ def _make_rig(names, params) -> CameraRig:
     return CameraRig(tuple(cams))
 
 
+@pytest.mark.slow
 @settings(
     max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pipeline.core.files import load_npz, recover, save_npz_atomic
 from pipeline.data.scene import load_scene
@@ -63,6 +64,7 @@ def _leftovers(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
 
 
+@pytest.mark.slow
 def test_killed_results_writer_leaves_a_whole_file_and_no_temp_for_long(tmp_path):
     rng = random.Random(0)
     out = tmp_path / ".mvviz" / "results.npz"
@@ -77,6 +79,7 @@ def test_killed_results_writer_leaves_a_whole_file_and_no_temp_for_long(tmp_path
         assert int(load_npz(out)["stamp"]) == -1
 
 
+@pytest.mark.slow
 def test_killed_overwrite_keeps_the_old_or_the_new_scene_whole(tmp_path):
     rng = random.Random(1)
     out = tmp_path / "scene"
@@ -89,6 +92,7 @@ def test_killed_overwrite_keeps_the_old_or_the_new_scene_whole(tmp_path):
         assert _leftovers(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_killed_convert_leaves_no_hidden_folders_after_the_next_run(tmp_path):
     rng = random.Random(2)
     for _ in range(3):

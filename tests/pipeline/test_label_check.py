@@ -106,6 +106,7 @@ def longest_track(results) -> int:
 # --------------------------------------------------------------------------- correct data
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SCENES)
 def test_shipped_scenes_are_not_flagged(shipped, name):
     scene, results = shipped[name]
@@ -185,6 +186,7 @@ def test_body25b_2d_read_as_body25_end_to_end(shipped):
     assert len(line) == 1 and "SUSPICIOUS" in line[0] and "scene: shoulders and hips" in line[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["shelf_synth_noisy", "pose2sim_demo"])
 def test_a_mirrored_camera_is_flagged(shipped, name):
     scene, _ = shipped[name]

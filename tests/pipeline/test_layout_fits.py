@@ -54,6 +54,7 @@ def test_every_layout_is_fitted():
     assert set(LAYOUTS) <= set(FITTABLE_JOINT_SETS)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("joint_set", LAYOUTS)
 def test_smpl_rows_within_5mm_of_coco17(scores, joint_set):
     scene, results, ev = scores(joint_set)

@@ -125,6 +125,7 @@ def _mmpose_instance(kp: np.ndarray, scale: float = 1.0) -> dict:
     return {"keypoints": kp[:, :2].tolist(), "keypoint_scores": (kp[:, 2] * scale).tolist()}
 
 
+@pytest.mark.slow
 def test_mmpose_per_frame_files_and_instance_info(tmp_path):
     js = JOINT_SETS["coco_wholebody133"]
     dets = layout_detections(js, frames=slice(0, 60, 3))

@@ -9,6 +9,7 @@ from pipeline.body.kinematics import rotvec_to_matrix
 from pipeline.fit import limit_penalty
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.floats(0.1, 1.5))
 def test_swing_twist_matches_the_numpy_reference(seed, scale):

@@ -204,6 +204,7 @@ FUZZ = settings(max_examples=150, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture])  # fmt: skip
 
 
+@pytest.mark.slow
 @FUZZ
 @given(edits=st.dictionaries(st.sampled_from(SCENE_KEYS), JSON, max_size=4))
 def test_fuzz_scene_json(edits, tiny, tmp_path_factory):
@@ -217,6 +218,7 @@ def test_fuzz_scene_json(edits, tiny, tmp_path_factory):
         pass
 
 
+@pytest.mark.slow
 @FUZZ
 @given(edits=st.dictionaries(st.sampled_from(CAMERA_KEYS), JSON, max_size=3), whole=JSON)
 def test_fuzz_cameras_json(edits, whole, tmp_path_factory):
@@ -260,6 +262,7 @@ def test_fuzz_detection_and_gt_arrays(arrays):
             pass
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(data=st.dictionaries(
     st.sampled_from(["source", "disabled_views", "fit_smpl", "kalman", "triangulation",
@@ -278,6 +281,7 @@ def test_fuzz_config_and_set(data, sets):
         pass
 
 
+@pytest.mark.slow
 @FUZZ
 @given(doc=JSON)
 def test_fuzz_openpose_and_mmpose_files(doc, tmp_path_factory):

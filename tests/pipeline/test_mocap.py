@@ -76,6 +76,7 @@ def test_resample():
     np.testing.assert_array_equal(resample(t, 50, 50), t)
 
 
+@pytest.mark.slow
 def test_fit_to_real_motion_reports_the_residual_per_joint(walk):
     hop = load_mocap_clip(CMU / "131_03.bvh", fps=30)
     clips = [
@@ -97,6 +98,7 @@ def test_fit_to_real_motion_reports_the_residual_per_joint(walk):
     assert "hips" in format_residuals(fits)
 
 
+@pytest.mark.slow
 def test_bvh_as_prior_data_and_the_cli_records_sources(tmp_path):
     poses = load_pose_data(CMU / "131_03.bvh")
     assert poses.shape == (276, 72) and np.isfinite(poses).all()
@@ -122,6 +124,7 @@ def _shin_foot_deg(joints: np.ndarray, side: str) -> np.ndarray:
     return _angle_deg(a - k, f - a)
 
 
+@pytest.mark.slow
 def test_the_fit_keeps_the_mocap_ankle_and_the_subject_stands_with_bent_knees(walk):
     """Why the CMU 131 fits' ankles are toes-up (10-27 deg dorsiflexion on average): not the
     conversion. Fitted to the whole walking clip, the body's shin-foot angle follows the mocap

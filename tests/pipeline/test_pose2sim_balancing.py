@@ -59,6 +59,7 @@ def test_our_reprojection_is_no_worse_than_pose2sims_on_every_camera(trial):
         assert np.isfinite(ours[:, v]).sum() > 1000
 
 
+@pytest.mark.slow
 def test_fitted_body_follows_the_triangulated_joints(trial):
     # Step I on the subject's RTS track, with and without the heel and toe offsets: the
     # body's keypoints against the joints they were fitted to, per camera (median px).

@@ -25,6 +25,7 @@ def demo():
     return scene, results
 
 
+@pytest.mark.slow
 def test_people_are_detected_in_every_view(demo):
     scene, _ = demo
     d = scene.detections

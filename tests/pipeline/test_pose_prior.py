@@ -115,6 +115,7 @@ def test_amass_layout_and_cli(tmp_path):
     assert prior.config.latent == 4 and str(tmp_path / "a.npz") in prior.info["data"]
 
 
+@pytest.mark.slow
 def test_the_fit_side_loads_no_training_modules():
     """Importing the prior and reading the shipped checkpoint, what every fit does (a
     batch worker before its first scene), loads neither the motion library nor the BVH

@@ -194,6 +194,7 @@ def test_agrees_with_the_independent_rules_on_noisy_estimates():
         assert ours.per_actor[a] == pytest.approx(v, abs=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SHELF_REAL.is_dir(), reason="../shared/data/shelf_real is absent")
 def test_real_shelf_run_scored_by_the_protocol(tmp_path):
     """The real Shelf OpenPose detections, converted and run with default settings: the

@@ -134,6 +134,7 @@ def test_blocked_screen_equals_the_unblocked_one(monkeypatch):
     np.testing.assert_array_equal(new, new.T)
 
 
+@pytest.mark.slow
 def test_screen_keeps_every_close_pair_and_unpruned_equals_dense():
     o, d, w, views = _detections(np.random.default_rng(3), n_people=8, n_views=10)
     p = AssociationParams()

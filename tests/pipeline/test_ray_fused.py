@@ -90,6 +90,7 @@ def test_fused_without_a_flip_and_on_tiny_frames(monkeypatch):
         assert dist.shape == mirrored.shape == (n, n) and np.isnan(dist).all()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_rows_of_pairs_equal_one_pair_at_a_time_to_the_bit(seed):
     """The vectorised pass (a row of kept pairs per detection, every joint's term added
@@ -146,6 +147,7 @@ def test_compiled_linkage_distances_equal_numpys_and_cluster_as_the_loop(seed):
         np.testing.assert_array_equal(average_linkage(aff, views, threshold), ref)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_compiled_frame_affinity_equals_numpys_steps(monkeypatch, seed):
     """pipeline.association.fused.frame_affinity (one pass: the better distance, the affinity and

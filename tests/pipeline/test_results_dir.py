@@ -144,6 +144,7 @@ def test_bad_directories_name_the_file_and_field(tmp_path):
         load_results(tmp_path / "nothing")
 
 
+@pytest.mark.slow
 def test_a_long_scene_defaults_to_a_streamed_results_directory(tmp_path, monkeypatch):
     """default_results_path: one .npz for a short scene; for a long one (frames x cameras
     >= LONG_SCENE_VIEW_FRAMES), or where such a directory already is, the directory that

@@ -45,6 +45,7 @@ def campus(model, tmp_path_factory):
     return scene, results, evaluate(scene, results)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["sample", "campus"])
 def test_association_precision_recall(which, request):
     _, _, ev = request.getfixturevalue(which)
@@ -117,6 +118,7 @@ def test_kalman_and_rts(which, request):
     assert rts["accel"] < kal["accel"] and rts["mpjpe"] < kal["mpjpe"]
 
 
+@pytest.mark.slow
 def test_results_round_trip_and_cache(tmp_path, model, campus):
     scene, results, _ = campus
     # a frame's person-frames are consecutive rows (what the lazy layout's reads rely on)
@@ -142,6 +144,7 @@ def test_results_round_trip_and_cache(tmp_path, model, campus):
         assert not cached3  # a different config is recomputed
 
 
+@pytest.mark.slow
 def test_smpl_source_runs_and_scores(model, campus):
     scene, _, _ = campus
     res = run_pipeline(scene, PipelineConfig(source="smpl"), model, progress=False)

@@ -118,6 +118,7 @@ def _score(scene: Scene, config: PipelineConfig) -> dict[str, float]:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(SCENES))
 def test_tracks_equal_people_on_big_rigs(scale_scenes, name):
     s = _score(scale_scenes[name], PipelineConfig(fit_smpl=False, use_pose_prior=False))
@@ -127,6 +128,7 @@ def test_tracks_equal_people_on_big_rigs(scale_scenes, name):
     assert s["precision"] >= 0.99 and s["recall"] >= 0.99, s
 
 
+@pytest.mark.slow
 def test_wide_ring_needs_the_geometric_checks(scale_scenes):
     """Pairwise affinities alone merge far people seen by few cameras: without the
     split and the geometric moves the association's precision drops by at least 2
@@ -143,6 +145,7 @@ def test_wide_ring_needs_the_geometric_checks(scale_scenes):
     assert full["precision"] >= 0.99, full
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(SCENES))
 def test_compiled_pass_gives_the_numpy_clusters_on_big_rigs(scale_scenes, monkeypatch, name):
     """pipeline.association.fused on every frame against the NumPy screen and kernel on every

@@ -114,6 +114,7 @@ def test_keypoint_skinning_on_the_open_model(model):
     assert (kp - model.coco_keypoints(out.vertices)).abs().max() < 2e-6  # metres
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("joint_set", ["smpl24", "coco17"])
 def test_fit_recovers_pose_and_shape_of_model_joints(model, gt, joint_set):
     # 20 frames of one person, targets produced by the body model itself (the scene's GT
@@ -153,6 +154,7 @@ def test_sample_scene_sequence_mpjpe(model, gt):
     assert joints_row["mpjpe"] < 12.0
 
 
+@pytest.mark.slow
 def test_missing_joints_and_absent_frames(model, gt):
     rows = np.flatnonzero(gt.person_id == 1)[:12]
     tracks = np.full((2, 12, 24, 3), np.nan)
@@ -193,6 +195,7 @@ def test_bad_input_raises(model):
         )
 
 
+@pytest.mark.slow
 def test_prior_correction_makes_noisy_fits_plausible(model, gt):
     # Noisy targets (25 mm per axis): step I bends joints past their limits to follow the
     # noise; the VAE-corrected fit has no more violations and is not less accurate.
@@ -217,6 +220,7 @@ def test_prior_correction_makes_noisy_fits_plausible(model, gt):
     }  # fmt: skip
 
 
+@pytest.mark.slow
 def test_foot_offsets_follow_a_detectors_toes_without_moving_the_ankles(model, gt):
     # BODY_25B targets made by the body model, with the toes and heels where a detector
     # puts them rather than on the model's landmark vertices: 30 mm up and 40 mm back in
@@ -268,6 +272,7 @@ def test_only_heels_and_toes_get_foot_offsets(model):
         assert (buf.offset_mask.numpy() >= buf.foot_offset.numpy()).all()
 
 
+@pytest.mark.slow
 def test_limb_offsets_follow_keypoints_off_the_limb_joints(model, gt):
     # COCO-17 targets made by the body model with the knees and elbows 25 mm off the
     # model's (forward and up in the thigh / upper-arm frame), constant over the clip, as

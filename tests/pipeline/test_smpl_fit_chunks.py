@@ -35,6 +35,7 @@ def _mpjpe(gt, fit):
     return stage_metrics(target_slots(fit), kp_dense)[0]["mpjpe"]
 
 
+@pytest.mark.slow
 def test_chunks_fit_as_well_as_one_batch_with_one_body_per_track(case):
     model, gt, tracks = case
     whole, _ = fit_sequence(tracks, "coco17", model, progress=False)
@@ -61,6 +62,7 @@ def test_chunk_arguments_are_checked(case):
         fit_in_chunks(tracks, "coco17", model, chunk_frames=4, overlap=4, progress=False)
 
 
+@pytest.mark.slow
 def test_fit_bodies_fits_a_long_sequence_in_chunks(monkeypatch):
     """Past ``LONG_FIT_FRAMES`` the pipeline's fit is :func:`fit_in_chunks` (a 10,000-frame
     batch fit would not fit in memory); up to it, the batch fit as before."""

@@ -23,6 +23,7 @@ def _arrays(r: PipelineResults) -> dict[str, np.ndarray]:
     }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["shelf_synth", "shelf_synth_noisy"])
 def test_chunked_stages_equal_the_stages_that_keep_every_frame(name):
     scene = load_scene(SCENES / name)

@@ -46,6 +46,7 @@ def degenerate(scene):
     return dataclasses.replace(scene, detections=dataclasses.replace(det, keypoints=kp))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["shelf_synth", "shelf_synth_noisy", "degenerate"])
 def test_streamed_directory_equals_the_in_memory_results_saved(tmp_path, monkeypatch, case):
     scene = load_scene(SCENES / ("shelf_synth" if case == "degenerate" else case))
@@ -72,6 +73,7 @@ def test_streamed_directory_equals_the_in_memory_results_saved(tmp_path, monkeyp
         assert not np.array_equal(got.det_joints2d[flipped], j2d[flipped])
 
 
+@pytest.mark.slow
 def test_lean_streamed_run_has_empty_edges_and_a_cancelled_run_keeps_the_old(tmp_path):
     scene = load_scene(SCENES / "shelf_synth")
     config = PipelineConfig()
@@ -105,6 +107,7 @@ def _as_directory_scene(src: Path, out: Path):
     return s
 
 
+@pytest.mark.slow
 def test_a_scene_with_a_detections_directory_is_read_lazily_and_runs_the_same(tmp_path):
     npz = _as_directory_scene(SCENES / "shelf_synth", tmp_path / "scene")
     lazy = load_scene(tmp_path / "scene")
@@ -149,6 +152,7 @@ def test_a_bad_detections_directory_names_the_file_and_field(tmp_path):
         load_scene(tmp_path / "scene")
 
 
+@pytest.mark.slow
 def test_run_or_load_into_a_directory_streams_and_equals_the_saved_run(tmp_path):
     """``mvviz run --out DIR``: the streamed stages plus the SMPL fits write the files
     that saving the in-memory run writes, and a second call loads them (cached)."""

@@ -129,6 +129,7 @@ def rigs_and_points(draw):
     return CameraRig(tuple(cams)), points
 
 
+@pytest.mark.slow
 @settings(max_examples=100, deadline=None)
 @given(rigs_and_points())
 def test_round_trip_dlt(case):
@@ -139,6 +140,7 @@ def test_round_trip_dlt(case):
     np.testing.assert_allclose(got, X, rtol=0, atol=1e-6)
 
 
+@pytest.mark.slow
 @settings(max_examples=100, deadline=None)
 @given(rigs_and_points())
 def test_round_trip_people(case):

@@ -9,10 +9,10 @@ from dataclasses import asdict, dataclass
 from datetime import datetime
 from pathlib import Path
 
-from pipeline.core.files import CACHE_DIR, SceneFormatError, atomic_write
+from pipeline.core.files import SceneFormatError, atomic_write, scene_cache_dir
 
 NOTES_VERSION = 1
-NOTES_FILE = "notes.json"  # in the scene's CACHE_DIR
+NOTES_FILE = "notes.json"  # in the scene's cache folder (scene_cache_dir)
 
 
 @dataclass(frozen=True)
@@ -29,8 +29,9 @@ def new_note(frame: int, text: str) -> Note:
 
 
 def notes_path(scene_root: str | os.PathLike) -> Path:
-    """Where a scene's notes live: ``SCENE/.mvviz/notes.json`` (beside the results)."""
-    return Path(scene_root) / CACHE_DIR / NOTES_FILE
+    """Where a scene's notes live: ``SCENE/.mvviz/notes.json`` (beside the results; in the
+    user's cache for a scene folder that cannot be written: :func:`scene_cache_dir`)."""
+    return scene_cache_dir(scene_root) / NOTES_FILE
 
 
 def load_notes(path: str | os.PathLike) -> list[Note]:

@@ -95,6 +95,7 @@ def every_finite_edge(scene, res):
     return dataclasses.replace(res, edge_a=a, edge_b=b, edge_affinity=aff, edge_distance=dist)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["tiny", "shelf_synth_noisy"])
 def test_the_edges_kept_give_the_failures_every_edge_gives(name, tiny):
     """Results keep a person's own pairs and the compatible ones (affinity > 0): what the
@@ -659,6 +660,7 @@ def test_panel_leaves_a_corrupt_notes_file_alone(app, no_notes):
 # --------------------------------------------------------------------------- browser
 
 
+@pytest.mark.slow
 def test_clicking_a_failure_in_the_page_moves_the_timeline(browser, app, tiny, no_notes, tmp_path):
     scene, res = tiny
     panel = app.failure_panel
@@ -729,6 +731,7 @@ def test_merge_spans_joins_entries_near_any_earlier_entry_of_the_run() -> None:
     assert spans == [(0, 103, 102, 3.0), (107, 108, 1, 5.0), (200, 200, 1, 4.0)]
 
 
+@pytest.mark.slow
 def test_association_failures_read_the_edges_in_blocks(monkeypatch, tmp_path):
     """The association criterion reads the edges block by block (a 10,000-frame run has
     ~200 M): blocks of 997 edges and the whole in one block find the same failures, with
@@ -766,6 +769,7 @@ def test_association_failures_read_the_edges_in_blocks(monkeypatch, tmp_path):
             assert np.isnan(own[d])
 
 
+@pytest.mark.slow
 def test_reprojection_failures_read_the_errors_in_blocks(monkeypatch, tmp_path):
     """The usual error per joint and camera and the hits over it, a few cameras / rows at
     a time (a 10,000-frame run's errors are 850 MB): the failures of one block."""
@@ -788,6 +792,7 @@ def test_reprojection_failures_read_the_errors_in_blocks(monkeypatch, tmp_path):
         np.testing.assert_array_equal([f.score for f in got], [f.score for f in want])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("level", [1.3, 2.0])
 def test_reprojection_runs_merged_in_arrays_are_what_merge_spans_makes(level):
     """The reprojection criterion merges its hits into runs in arrays (millions of hits
@@ -872,6 +877,7 @@ def _close_to_two_plain(scene, res, threshold: float, margin: float) -> list:
     return singles, merge_spans(singles)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("margin", [0.2, 0.6])
 def test_close_to_two_is_its_plain_definition(margin):
     """The "close to two" entries, found and merged in arrays, are those of the plain loop
@@ -897,6 +903,7 @@ def test_close_to_two_is_its_plain_definition(margin):
         assert 1 <= len(want) <= 10
 
 
+@pytest.mark.slow
 def test_close_to_two_does_not_flag_people_a_pair_of_rays_links():
     """On the clean sample (no association error; people >= ~0.9 m apart) one pair of
     rays from two cameras passes near another person's in ~3 pairs of people a frame
@@ -918,6 +925,7 @@ def test_close_to_two_does_not_flag_people_a_pair_of_rays_links():
         assert len(got) <= most, name
 
 
+@pytest.mark.slow
 def test_agreements_by_place_equal_the_sorted_keys():
     """_agreements sums (detection, other person) by the other's place among its frame's
     people (one bincount); people out of frame order take np.unique's sorted keys: the

@@ -55,6 +55,7 @@ def scene_with_truth(tmp_path_factory):
     return load_scene(root), results
 
 
+@pytest.mark.slow
 def test_stored_truth_round_trip(scene_with_truth):
     scene, _ = scene_with_truth
     protocol, truth = load_scene_protocol(scene.root)

@@ -15,6 +15,8 @@ from pipeline.run.pipeline import run_stages
 from pipeline.stages.kalman import KalmanParams
 from tests.conftest import REPO
 
+pytestmark = pytest.mark.slow
+
 
 @pytest.mark.parametrize("params", [KalmanParams(q=100.0), KalmanParams(q=10.0, smoother=False)])
 def test_filter_run_over_blocks_of_tracks_is_the_run_over_all(monkeypatch, params):

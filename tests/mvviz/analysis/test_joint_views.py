@@ -35,6 +35,7 @@ def spoiled(viewer_scene):
     return prepare(bad, res, None), int(res.person_track[q]), frame, view, joint, low_joint, row
 
 
+@pytest.mark.slow
 def test_rows_equal_an_independent_computation(viewer_state):
     data = viewer_state.data
     k, f = 0, 7

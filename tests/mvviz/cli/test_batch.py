@@ -81,6 +81,7 @@ def assert_same_files(batch_file, run_file) -> None:
         assert json.loads(str(batch["meta"])) == json.loads(str(run["meta"]))
 
 
+@pytest.mark.slow
 def test_results_equal_mvviz_run_bit_for_bit(dataset, first_batch, reference):
     """Scene a in 5-frame chunks (inputs, chunk and join tasks)."""
     code, report = first_batch
@@ -92,6 +93,7 @@ def test_results_equal_mvviz_run_bit_for_bit(dataset, first_batch, reference):
         assert ok["key"] == json.loads(str(run["meta"]))["cache_key"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ship", [False, True], ids=["files", "objects"])
 def test_one_task_scene_equals_mvviz_run(dataset, reference, tmp_path, ship):
     """Scene a in one task (12 frames <= --chunk-frames): on the embedded Ray the worker
@@ -116,6 +118,7 @@ def test_one_task_scene_equals_mvviz_run(dataset, reference, tmp_path, ship):
     assert_same_files(out / "a" / "results.npz", reference)
 
 
+@pytest.mark.slow
 def test_embedded_ray_listens_on_loopback_only():
     """Every server of the embedded Ray (GCS, raylet, agents, workers, the driver's own)
     on 127.0.0.1: without mvviz's loopback node Ray listens on every interface."""
@@ -136,6 +139,7 @@ def test_embedded_ray_listens_on_loopback_only():
     assert not outside, outside
 
 
+@pytest.mark.slow
 def test_embedded_ray_starts_a_lean_head_and_restores_ray():
     """The embedded head runs without the autoscaler monitor, the log monitor and the
     dashboard's API server (ray_run.LEAN_HEAD_SKIPS), still runs tasks and returns their
@@ -162,6 +166,7 @@ def test_embedded_ray_starts_a_lean_head_and_restores_ray():
     assert ray_node.Node.__dict__["start_api_server"] is api
 
 
+@pytest.mark.slow
 def test_embedded_ray_config_reaches_its_processes(monkeypatch):
     """The embedded node's processes get EMBEDDED_RAY_CONFIG (10 ms socket retries, the
     same 10 s bound; workers prestarted with the raylet) unless the user set a value,
@@ -194,6 +199,7 @@ def _worker_priority() -> int:
     return os.getpriority(os.PRIO_PROCESS, 0)
 
 
+@pytest.mark.slow
 def test_embedded_ray_workers_run_at_the_normal_priority(monkeypatch):
     """A task runs at the priority ``mvviz run`` gets (nice 0), not at Ray's default 15,
     under which any other runnable thread takes the core first; a user's value is kept."""
@@ -248,6 +254,7 @@ def test_ended_ray_sessions_are_pruned_beyond_the_newest(tmp_path):
     assert ray_run.prune_ray_sessions(tmp_path / "absent") == []
 
 
+@pytest.mark.slow
 def test_idle_cpu_hook_and_automatic_split(dataset, reference, tmp_path, monkeypatch):
     """3 equal scenes on 2 CPUs: each runs as one task (none is more than an even share
     of the work), and the driver's closing work (``on_idle_cpu``) runs once, as soon as
@@ -311,6 +318,7 @@ def _is_loopback(ip: str) -> bool:
     return (getattr(addr, "ipv4_mapped", None) or addr).is_loopback
 
 
+@pytest.mark.slow
 def test_failing_scene_is_reported_while_the_others_finish(first_batch):
     _, report = first_batch
     bad = next(r for r in report["rows"] if r["label"] == "b_keypoints_only")
@@ -319,6 +327,7 @@ def test_failing_scene_is_reported_while_the_others_finish(first_batch):
     assert report["counts"] == {"computed": 1, "cached": 0, "failed": 1}
 
 
+@pytest.mark.slow
 def test_report_figures(dataset, first_batch):
     _, report = first_batch
     row = next(r for r in report["rows"] if r["label"] == "a")
@@ -334,6 +343,7 @@ def test_report_figures(dataset, first_batch):
     assert report["worst_scenes"] == {"metric": "mpjpe_mm", "labels": ["a"]}
 
 
+@pytest.mark.slow
 def test_rerun_skips_current_results(dataset, first_batch):
     results = dataset / "root" / "a" / ".mvviz" / "results.npz"
     before = results.stat().st_mtime_ns
@@ -349,6 +359,7 @@ def test_rerun_skips_current_results(dataset, first_batch):
     assert results.stat().st_mtime_ns == before  # not rewritten
 
 
+@pytest.mark.slow
 def test_sweep_runs_the_grid(dataset, tmp_path):
     scene = dataset / "root" / "a"
     out = tmp_path / "out"
@@ -385,6 +396,7 @@ def test_sweep_runs_the_grid(dataset, tmp_path):
     assert (out / "batch_report.html").is_file()
 
 
+@pytest.mark.slow
 def test_bad_prior_fails_its_jobs_before_any_scene_runs(dataset, tmp_path):
     """The checkpoint is read on a worker (the driver never imports torch): a file that is
     no checkpoint fails the job with an error naming it, and no results are written."""
@@ -412,6 +424,7 @@ print(sorted(m for m in sys.modules if m.partition(".")[0] in ("torch", "scipy",
 """
 
 
+@pytest.mark.slow
 def test_the_driver_plans_without_torch(dataset):
     """Importing the batch command and Ray's side and planning (scene, config, body
     model, cache key) load no torch (~1.3 s of a batch's fixed cost), and no SciPy or
@@ -428,6 +441,7 @@ def test_no_scenes_is_an_input_error(tmp_path, capsys):
         load_report(tmp_path)
 
 
+@pytest.mark.slow
 def test_report_in_chromium(dataset, first_batch, tmp_path):
     """The HTML as a person sees it: tables, the plot, the viewer commands."""
     if not CHROMIUM.exists():

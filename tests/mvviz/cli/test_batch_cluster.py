@@ -30,6 +30,8 @@ from pipeline.synth.scene_gen import SynthConfig, write_synth_scene
 from tests.mvviz.conftest import wait_until
 from tests.pipeline.helpers import campus_rig
 
+pytestmark = pytest.mark.slow
+
 RAY = shutil.which("ray") or str(Path(sys.executable).with_name("ray"))
 NUM_SCENES = 4
 TASK_TITLES = ("ray::_scene_task", "ray::_join_task", "ray::_chunk_task", "ray::_inputs_task")
@@ -192,6 +194,7 @@ def test_worker_node_killed_mid_run(scenes, tmp_path):
             for k in run.files:
                 assert np.array_equal(batch[k], run[k], equal_nan=batch[k].dtype.kind == "f"), k
             assert json.loads(str(batch["meta"])) == json.loads(str(run["meta"]))
+
     def gone(pid: int) -> bool:
         return not Path(f"/proc/{pid}").exists() or _zombie(pid)
 

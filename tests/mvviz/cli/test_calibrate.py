@@ -11,6 +11,7 @@ from tests.conftest import SHARED_DATA
 from tests.pipeline.calibrate_synth import SPEC, board_poses, default_rig, write_session
 
 
+@pytest.mark.slow
 def test_calibrate_writes_both_files_and_prints_each_camera(tmp_path, capsys):
     rig = default_rig().subset([0, 1])
     folders = write_session(tmp_path / "footage", rig, board_poses(24, seed=2))
@@ -80,6 +81,7 @@ def test_bad_inputs_are_one_line_and_write_nothing(tmp_path, capsys):
 CALISCOPE = SHARED_DATA / "caliscope_charuco"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not CALISCOPE.is_dir(), reason="../shared/data/caliscope_charuco is absent")
 def test_calibrate_detect_run_on_the_real_session(tmp_path):
     """The real four-webcam session end to end: its board calibrates the cameras, the

@@ -139,6 +139,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(case, tiny, tmp_path, c
     assert sorted(p.relative_to(scene) for p in scene.rglob("*")) == before
 
 
+@pytest.mark.slow
 def test_a_full_disk_is_one_line_and_the_old_results_stay(tiny, tmp_path):
     """A write that runs out of room (here a file-size limit, RLIMIT_FSIZE) is exit 2, one
     line naming the file, and the previous results are left as they were."""

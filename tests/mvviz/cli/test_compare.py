@@ -33,6 +33,7 @@ def _compare(scene, tmp_path, capsys, *args):
     return json.loads(out.read_text()), capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_a_larger_kalman_q_changes_the_filter_only(scene, tmp_path, capsys):
     ab, text = _compare(scene, tmp_path, capsys, "--b-set", "kalman.q=100000", "--top", "3")
     fig = ab["figures"]
@@ -64,6 +65,7 @@ def test_a_larger_kalman_q_changes_the_filter_only(scene, tmp_path, capsys):
     assert "run A: reused cached" in again and "run B: reused cached" in again
 
 
+@pytest.mark.slow
 def test_a_disabled_camera_shows_where_it_was_used(scene, tmp_path, capsys):
     ab, text = _compare(scene, tmp_path, capsys, "--b-set", "disabled_views=0")
     fig = ab["figures"]

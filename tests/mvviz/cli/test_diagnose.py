@@ -8,6 +8,7 @@ import json
 import re
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from mvviz.cli import main
@@ -30,6 +31,7 @@ def _write(scene, path):
     return path
 
 
+@pytest.mark.slow
 def test_late_camera_and_upside_down_world(tmp_path, capsys):
     scene = load_scene(NOISY)
     T = np.eye(4)
@@ -63,6 +65,7 @@ def test_late_camera_and_upside_down_world(tmp_path, capsys):
         assert abs(a.center[2] - b.center[2]) < 30.0
 
 
+@pytest.mark.slow
 def test_the_printed_offset_applied_puts_the_camera_in_sync(tmp_path, capsys):
     root = _write(delay_camera(load_scene(NOISY), "3", -2), tmp_path / "late")
     out_json = tmp_path / "d.json"
@@ -77,6 +80,7 @@ def test_the_printed_offset_applied_puts_the_camera_in_sync(tmp_path, capsys):
     assert "sync_apply" not in again and "to apply" not in printed
 
 
+@pytest.mark.slow
 def test_rotated_camera_named_and_refined_on_request(tmp_path, capsys):
     scene = perturb_camera_pose(load_scene(NOISY), "3", rotation_deg=1.0, axis=(0, 0, 1))
     root = _write(scene, tmp_path / "rot")

@@ -76,6 +76,7 @@ def test_an_unexpected_error_is_one_line_and_its_traceback_is_behind_debug(
     assert cli.INPUT_ERRORS  # documented in mvviz/cli/__init__.py
 
 
+@pytest.mark.slow
 def test_app_py_and_mvviz_exit_2_on_a_bad_scene(tmp_path):
     """Real processes: the exit code and stderr a user sees."""
     for argv in (["app.py", str(tmp_path)], ["-m", "mvviz.cli", "view", str(tmp_path)]):

@@ -7,6 +7,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from tests.conftest import REPO
 
 PROBE = """
@@ -33,6 +35,7 @@ def test_exit_now_keeps_the_code_the_exit_functions_and_the_output():
     assert done.stdout.endswith("exit function ran\n")
 
 
+@pytest.mark.slow
 def test_exit_now_waits_for_a_running_thread():
     done = _probe("thread")
     assert done.returncode == 3, done.stderr

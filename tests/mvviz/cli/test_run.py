@@ -22,6 +22,7 @@ def scene_dir(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_run_writes_and_reuses_results(scene_dir, capsys):
     assert main(["run", str(scene_dir)]) == 0
     assert "computed results" in capsys.readouterr().out
@@ -32,6 +33,7 @@ def test_run_writes_and_reuses_results(scene_dir, capsys):
     assert "computed results" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_eval_json_has_the_documented_keys(scene_dir, tmp_path, capsys):
     out = tmp_path / "eval.json"
     assert main(["eval", str(scene_dir), "--json", str(out)]) == 0
@@ -71,6 +73,7 @@ def test_bad_override_and_missing_scene_fail_cleanly(scene_dir, tmp_path, capsys
     assert "scene.json: file not found" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_eval_reports_sync(tmp_path, capsys):
     """A camera of the shipped Shelf scene delayed by 2 frames: ``mvviz eval`` prints it
     LATE with the setting that applies it; ``--no-sync`` leaves the check out."""

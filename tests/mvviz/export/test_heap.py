@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from mvviz.export.heap import release_free_heap
+from mvviz.export.heap import _glibc, release_free_heap
 
 # What the export's chunks do to glibc's heap, in small: a big buffer freed raises the
 # mmap threshold, so the next 4 MB buffers come from the heap, and small allocations
@@ -36,6 +36,7 @@ print(base, freed, rss_mb(), done)
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
 def test_freed_buffers_held_by_the_heap_are_released():
     out = subprocess.run(
@@ -50,4 +51,11 @@ def test_freed_buffers_held_by_the_heap_are_released():
 
 
 def test_release_free_heap_is_safe_to_call_often():
-    assert all(release_free_heap() == release_free_heap() for _ in range(3))
+    # whether a call trims depends on what the process freed before (other tests): only
+    # that it answers, every time, and that the limit decides
+    assert all(isinstance(release_free_heap(), bool) for _ in range(6))
+    calls = _glibc()
+    if calls is not None:  # glibc
+        assert release_free_heap(keep_free=0) is True  # always trims
+        if calls[1] is not None:  # mallinfo2 tells how much is free: never that much
+            assert release_free_heap(keep_free=1 << 62) is False

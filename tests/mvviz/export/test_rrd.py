@@ -82,6 +82,7 @@ def rows_of(path: Path, entity: str, component: str) -> list:
 # --------------------------------------------------------------------------- the file
 
 
+@pytest.mark.slow
 def test_export_writes_a_file_that_rerun_verifies(exported):
     path, _ = exported
     assert path.stat().st_size > 10_000
@@ -211,6 +212,7 @@ def body_stages(results) -> list[str]:
     return stages
 
 
+@pytest.mark.slow
 def test_fitted_bodies_are_decimated_meshes_per_track_and_frame(tiny, exported):
     """world/bodies/<stage>/<track>: static faces in the track colour, one decimated mesh
     (the fit's vertices at the kept indices) per frame the track is fitted, empty where not."""
@@ -241,6 +243,7 @@ def test_fitted_bodies_are_decimated_meshes_per_track_and_frame(tiny, exported):
             )
 
 
+@pytest.mark.slow
 def test_full_body_meshes_without_decimation(tiny, tmp_path):
     scene, results, model = tiny
     path = tmp_path / "full.rrd"
@@ -486,6 +489,7 @@ def mesh_rows(path: Path) -> dict[str, dict[int, np.ndarray]]:
     return out
 
 
+@pytest.mark.slow
 def test_meshes_sent_in_chunks_are_the_meshes_sent_at_once(tiny, tmp_path):
     """GT meshes and fitted bodies go out 3 frames at a time (a long scene's memory stays
     one chunk's): the same vertices per entity and frame as in one piece, with a person
@@ -528,6 +532,7 @@ def test_meshes_sent_in_chunks_are_the_meshes_sent_at_once(tiny, tmp_path):
         assert all(len(track0[f]) > 0 for f in (0, 1, 2, 7, 8, 9))
 
 
+@pytest.mark.slow
 def test_chunks_follow_the_exports_flushes_not_its_speed(tiny, tmp_path, monkeypatch):
     """Rows go into the file's chunks when the export flushes (every ``mesh_chunk_frames``
     frames), however slowly it runs: on rerun's 200 ms clock a slow export wrote a chunk
@@ -614,6 +619,7 @@ def test_plots_sent_in_pieces_are_the_plots_sent_at_once(tiny, tmp_path):
     assert [whole["/plots/metrics/tracks"][f] for f in range(NUM_FRAMES)] == counts.tolist()
 
 
+@pytest.mark.slow
 def test_drains_hand_back_the_pages_of_mapped_results(tiny, tmp_path, monkeypatch):
     """Results opened from a directory are memory-mapped; every drain (each mesh chunk,
     each plot piece, every ``mesh_chunk_frames`` frames) hands the pages read so far back

@@ -188,6 +188,7 @@ def test_failure_panel_jumps_and_focuses_through_the_host(host):
     panel.stop()
 
 
+@pytest.mark.slow
 def test_filter_panel_applies_b_through_the_host(host):
     panel = make_filter_panel(host)
     assert panel.wait_idle(30)

@@ -135,6 +135,7 @@ def page_text(page) -> str:
     return page.evaluate("() => document.body.textContent")
 
 
+@pytest.mark.slow
 def test_app_batch_switches_scenes_in_chromium(batch_dir, tmp_path):
     # Playwright's sync API refuses a thread where an asyncio loop is marked running
     # (an earlier test in the session can leave one); a fresh thread has none.

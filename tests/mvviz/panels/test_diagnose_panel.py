@@ -48,6 +48,7 @@ def diagnosed(late_scene):
     host.stop()
 
 
+@pytest.mark.slow
 def test_the_late_camera_shows_its_offset(diagnosed):
     host, panel = diagnosed
     d = panel.findings.diagnosis

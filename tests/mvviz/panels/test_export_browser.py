@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 import viser
 import viser.transforms as vtf
 
@@ -21,6 +22,8 @@ from tests.mvviz.conftest import (
     keep_screenshot,
     settle,
 )
+
+pytestmark = pytest.mark.slow
 
 
 def _colour_fraction(img: np.ndarray, rgb, tol: float = 60.0) -> float:

@@ -76,6 +76,7 @@ def test_filter_a_reproduces_the_run(viewer_scene):
     np.testing.assert_array_equal(again.rejected, gated.rejected)
 
 
+@pytest.mark.slow
 def test_changing_b_q_refilters_the_sequence(app):
     fp, results = app.filter_panel, app.state.results
     a = results.config.kalman
@@ -111,6 +112,7 @@ def test_changing_b_q_refilters_the_sequence(app):
     )
 
 
+@pytest.mark.slow
 def test_rapid_edits_collapse_to_the_last(app):
     fp = app.filter_panel
     for q in np.linspace(1.0, 60.0, 25):
@@ -122,6 +124,7 @@ def test_rapid_edits_collapse_to_the_last(app):
     assert fp.run_b.params.q == pytest.approx(120.0)
 
 
+@pytest.mark.slow
 def test_metrics_of_a_and_b(app):
     fp = app.filter_panel
     scene, results = app.state.scene, app.state.results
@@ -152,6 +155,7 @@ def test_scores_without_ground_truth(viewer_scene):
     assert "jitter" in md and "MPJPE" not in md and "no ground truth" in md
 
 
+@pytest.mark.slow
 def test_invalid_b_is_reported_not_run(app):
     fp = app.filter_panel
     before = fp.run_b
@@ -164,6 +168,7 @@ def test_invalid_b_is_reported_not_run(app):
     assert fp.run_b.params.r == 100.0 and "not valid" not in fp.gui.status.content
 
 
+@pytest.mark.slow
 def test_apply_b_saves_the_config_and_swaps_the_results(app):
     fp = app.filter_panel
     root = app.state.scene.root
@@ -203,6 +208,7 @@ def test_apply_b_saves_the_config_and_swaps_the_results(app):
     assert fp._worker.errors == [] and app.render_errors == []
 
 
+@pytest.mark.slow
 def test_reset_b_to_a(app):
     fp = app.filter_panel
     fp.gui.model.value = "random_walk"
@@ -219,6 +225,7 @@ def test_reset_b_to_a(app):
     assert not fp._nodes[B_ROOT].visible and "B = A" in fp.gui.status.content
 
 
+@pytest.mark.slow
 def test_b_overlay_only_when_b_differs_and_its_strip_lands_on_nobody(app):
     """B starts as A: not drawn even with "Show B" on; an edit draws it over A (dashed);
     "strip" shifts it past the x range of every person of the run."""
@@ -244,6 +251,7 @@ def test_b_overlay_only_when_b_differs_and_its_strip_lands_on_nobody(app):
     np.testing.assert_allclose(seg[:, :, 0], [[0, 1], [2, 3], [4, 5], [6, 7]])
 
 
+@pytest.mark.slow
 def test_panel_plot_follows_selection_and_frame(app):
     fp = app.filter_panel
     app.jump_to(frame=5, track=0, joint=3)
@@ -285,6 +293,7 @@ def element_image(locator) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
 
 
+@pytest.mark.slow
 def test_browser_plot_follows_filter_b(browser, running_app, tmp_path):
     """Change B from Python: the plot image in the page changes; B's skeletons show."""
     app, fp = running_app, running_app.filter_panel

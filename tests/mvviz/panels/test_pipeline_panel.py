@@ -106,6 +106,7 @@ def test_config_diff_lists_exactly_the_changed_fields():
     assert config_diff(back, run) == ["disabled cameras: none (run config: 1)"]
 
 
+@pytest.mark.slow
 def test_patch_frame_equals_a_full_rerun_in_that_frame(viewer_scene):
     scene, results, model = viewer_scene
     cfg = dataclasses.replace(results.config, disabled_views=(scene.rig.names[0],))
@@ -159,6 +160,7 @@ def test_preview_data_equals_prepare(viewer_state):
 # --------------------------------------------------------------------------- the panel
 
 
+@pytest.mark.slow
 def test_disabling_a_camera_reruns_the_current_frame(app):
     panel: PipelinePanel = app.pipeline_panel
     before = app.state.results
@@ -185,6 +187,7 @@ def test_disabling_a_camera_reruns_the_current_frame(app):
         assert (full.person_members[people(full, f), v] == -1).all()
 
 
+@pytest.mark.slow
 def test_frames_reached_while_pending_are_rerun(app, monkeypatch):
     gate = threading.Event()
     real = pipeline_panel.run_stages
@@ -217,6 +220,7 @@ def test_frames_reached_while_pending_are_rerun(app, monkeypatch):
     assert (res.person_members[people(res, never), v] == -1).all()
 
 
+@pytest.mark.slow
 def test_outlier_threshold_changes_the_used_flags(app):
     panel = app.pipeline_panel
     res0 = app.state.results
@@ -230,6 +234,7 @@ def test_outlier_threshold_changes_the_used_flags(app):
     assert panel.diff_lines() == ["triangulation.outlier_threshold_px: 20 -> 2"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("source", ["keypoints", "smpl"])
 def test_background_rerun_equals_run_pipeline(app, source):
     panel = app.pipeline_panel
@@ -284,6 +289,7 @@ def test_reset_cancels_a_running_rerun(app):
     assert app.state.results is run and not panel.pending
 
 
+@pytest.mark.slow
 def test_changes_list_names_exactly_the_changed_fields(app):
     panel = app.pipeline_panel
     cam = app.state.scene.rig.names[2]
@@ -300,6 +306,7 @@ def test_changes_list_names_exactly_the_changed_fields(app):
     assert [s[2:] for s in md.splitlines() if s.startswith("- ")] == lines
 
 
+@pytest.mark.slow
 def test_save_into_run_config_is_warm_at_the_next_start(app):
     panel = app.pipeline_panel
     scene = app.state.scene
@@ -317,6 +324,7 @@ def test_save_into_run_config_is_warm_at_the_next_start(app):
     assert "results saved" in panel.gui.status.content
 
 
+@pytest.mark.slow
 def test_export_rrd_writes_the_current_run(app):
     panel = app.pipeline_panel
     panel.gui.cameras[app.state.scene.rig.names[0]].value = False
@@ -360,6 +368,7 @@ def browser_app(viewer_scene, frame_store):
     a.stop()
 
 
+@pytest.mark.slow
 def test_switching_a_camera_off_changes_the_canvas(browser, browser_app, tmp_path):
     app, panel = browser_app, browser_app.pipeline_panel
     page = open_viewer(browser, app.url)

@@ -41,6 +41,7 @@ def compare_app(viewer_scene, frame_store, tmp_path_factory):
     app.stop()
 
 
+@pytest.mark.slow
 def test_compare_with_the_saved_config(compare_app):
     app = compare_app
     section = app.pipeline_panel.compare
@@ -93,6 +94,7 @@ def test_the_table_text():
     )
 
 
+@pytest.mark.slow
 def test_the_compare_table_in_the_browser(browser, compare_app, tmp_path):
     app, section = compare_app, compare_app.pipeline_panel.compare
     if section.comparison is None:

@@ -39,6 +39,7 @@ def _exact_silhouettes(data, view, frame):
     return out > 0
 
 
+@pytest.mark.slow
 def test_silhouettes_agree_with_every_face_filled(viewer_state):
     data = viewer_state.data
     assert data.fit_bodies is not None

@@ -145,6 +145,7 @@ def click_latency(app, page) -> float:
     return time.monotonic() - t0
 
 
+@pytest.mark.slow
 def test_meshes_stay_interactive_in_software_webgl(browser, app, tmp_path):
     """In headless chromium (SwiftShader): the software notice shows; frame rate and a
     click's latency with both mesh layers, full and solid (the old default) against the

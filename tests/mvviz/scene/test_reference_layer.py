@@ -139,6 +139,7 @@ def test_convert_with_reference_flag(tmp_path, capsys):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_screenshot_of_the_reference_layer(ref_scene, browser, tmp_path):
     """One look in a real browser: the grey reference skeleton beside the others."""
     scene, results, model, _ = ref_scene

@@ -24,6 +24,7 @@ def _raw_mpjpe(scene, results) -> float:
     return evaluate(scene, results).stages["raw"]["mpjpe"]
 
 
+@pytest.mark.slow
 def test_good_calibration_has_no_suspect():
     scene = shipped_scene()
     found = check_calibration(scene, run_without_fit(scene))
@@ -32,6 +33,7 @@ def test_good_calibration_has_no_suspect():
     assert all(f.step is None for f in found.values())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "fault", [dict(rotation_deg=1.0, axis=(0.3, 1.0, 0.2)), dict(translation_mm=(50.0, 0, 0))]
 )
@@ -59,6 +61,7 @@ def test_wrong_camera_is_named_and_refined_back(fault):
     assert _raw_mpjpe(scene, results) > mpjpe_true + 1.0  # the fault did cost something
 
 
+@pytest.mark.slow
 def test_camera_knocked_mid_capture_shows_a_step():
     """Camera 3's 2D from frame 125 on as seen by a camera turned 1.5 degrees (the GT
     keypoints projected through it, with the same noise the detector had), its

@@ -37,6 +37,7 @@ def _rigid(rot: Rotation, shift) -> np.ndarray:
     return T
 
 
+@pytest.mark.slow
 def test_shipped_scene_is_z_up_with_the_floor_at_zero():
     f = _floor(_scene())
     assert f.method == "feet plane" and f.ok
@@ -46,6 +47,7 @@ def test_shipped_scene_is_z_up_with_the_floor_at_zero():
     assert np.allclose(T[:3, :3], np.eye(3)) and abs(T[2, 3]) < 30.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("rot", "expected_up"),
     [

@@ -18,6 +18,8 @@ from pipeline.diagnose.sync import estimate_offsets
 from pipeline.run.pipeline import run_pipeline
 from tests.pipeline.diagnose.shipped import body_model, run_without_fit, shipped_scene
 
+pytestmark = pytest.mark.slow
+
 CONFIG = PipelineConfig(fit_smpl=False)
 
 

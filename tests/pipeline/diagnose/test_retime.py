@@ -102,6 +102,7 @@ def _undelayed_mpjpe():
     return evaluate(scene, run_pipeline(scene, CONFIG, _model(), progress=False)).stages
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("delay", [3, 1.5])
 def test_applying_the_found_offset_restores_the_mpjpe(delay):
     """Measured (shelf_synth, camera 1): undelayed raw 12.73 mm; delayed by 3: 17.78,

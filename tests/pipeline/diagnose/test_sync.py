@@ -18,6 +18,8 @@ from pipeline.diagnose.sync import OFFSET_TOLERANCE, estimate_offsets, offsets_o
 from pipeline.run.pipeline import run_pipeline
 from tests.pipeline.helpers import REPO
 
+pytestmark = pytest.mark.slow
+
 NOISY = REPO / "sample_data" / "shelf_synth_noisy"
 CLEAN = REPO / "sample_data" / "shelf_synth"  # default detector noise
 CONFIG = PipelineConfig(fit_smpl=False)  # the per-frame stages and tracks are enough

@@ -4,6 +4,7 @@ joints (within 1 mm; measured ~1e-3 mm), for real fits and for large random rota
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pipeline.exports import export_results
 from pipeline.exports.bvh import write_bvh_track
@@ -18,6 +19,7 @@ def _world_joints(path, names):
     return motion, world[:, idx]
 
 
+@pytest.mark.slow
 def test_bvh_round_trip_of_a_real_fit_within_1mm(fitted_run, tmp_path):
     scene, res = fitted_run
     fit = res.smpl_vae

@@ -4,6 +4,7 @@ vertices back within 1e-4 m."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from pipeline.exports import export_results
@@ -20,6 +21,7 @@ def _vertices(model, z):
     return out.vertices.double().numpy() + z["trans"][:, None]  # metres
 
 
+@pytest.mark.slow
 def test_amass_npz_round_trip_of_the_vertices(fitted_run, model, tmp_path):
     scene, res = fitted_run
     fit = res.smpl_vae

@@ -87,6 +87,7 @@ def _before(rig, model, cfg: SynthConfig, monkeypatch):
         return synthesize(rig, model, cfg, progress=False)
 
 
+@pytest.mark.slow
 def test_one_thread_and_the_cell_prefilter_change_no_detection(shelf, monkeypatch):
     model, rig, cfg = shelf
     threads = torch.get_num_threads()
@@ -110,6 +111,7 @@ def test_one_thread_and_the_cell_prefilter_change_no_detection(shelf, monkeypatc
             np.testing.assert_array_equal(a, b, err_msg=field.name)
 
 
+@pytest.mark.slow
 def test_fast_path_statistics_are_those_before_it_and_of_the_renders(shelf, monkeypatch):
     """The fast path (regressor batched over frames: other random draws) against the
     path before it and against the full renders the shipped sample was made with."""

@@ -35,6 +35,7 @@ def scene(tmp_path_factory):
     return load_scene(out)
 
 
+@pytest.mark.slow
 def test_scene_has_detections_of_both_people_and_no_video(scene):
     det = scene.detections
     assert scene.joint_set.name == "coco17" and scene.num_frames == 40
@@ -50,6 +51,7 @@ def test_scene_has_detections_of_both_people_and_no_video(scene):
     assert all("NSF" in c["licence"] for c in meta["clips"])
 
 
+@pytest.mark.slow
 def test_ground_truth_is_the_bvh_skeleton(scene):
     gt = scene.gt
     assert gt.smpl_pose is None and gt.keypoints3d.shape[1:] == (17, 3)
@@ -92,6 +94,7 @@ def test_repeated_clips_start_at_other_frames():
     assert _segments([short, clip], 2, 40)[1][0] == 1
 
 
+@pytest.mark.slow
 def test_pipeline_on_real_motion(scene):
     model = load_body_model()
     results = run_pipeline(scene, PipelineConfig(), model, progress=False)

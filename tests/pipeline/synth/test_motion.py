@@ -101,6 +101,7 @@ def test_gait_ankles_stay_inside_the_limits_at_the_fastest_walk():
         assert pose_limits.limit_excess(pose_from_params(p)).max() < 1e-6
 
 
+@pytest.mark.slow
 def test_long_crowded_scenes_are_planned_by_windows_keeping_distance():
     """20 people for 600 frames on a 31-camera dome's floor: whole random paths never
     keep their distance there; planned by windows they do, at every frame, and walk on

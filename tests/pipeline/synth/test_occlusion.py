@@ -34,6 +34,7 @@ def crowd():
     return model, rig, people, verts
 
 
+@pytest.mark.slow
 def test_keypoint_depths_equal_a_full_render(crowd):
     model, rig, people, verts = crowd
     faces = model.faces.numpy()
@@ -61,6 +62,7 @@ def test_proxy_is_the_model_at_its_vertices_and_much_smaller(crowd):
     np.testing.assert_allclose(posed, verts[:, proxy.vertex_ids], atol=1e-3)
 
 
+@pytest.mark.slow
 def test_proxy_occlusion_agrees_with_the_full_mesh(crowd):
     model, rig, people, verts = crowd
     proxy = proxy_for(model)

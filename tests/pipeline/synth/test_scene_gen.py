@@ -35,6 +35,7 @@ def campus_scene(tmp_path_factory):
     return load_scene(out)
 
 
+@pytest.mark.slow
 def test_scene_loads_with_all_parts(campus_scene):
     s = campus_scene
     assert len(s.rig) == 3 and s.num_frames == 12
@@ -102,6 +103,7 @@ def test_keypoints_are_near_the_truth(campus_scene):
     assert np.median(errs) < 15
 
 
+@pytest.mark.slow
 def test_deterministic_for_a_seed(tmp_path):
     rig = read_voxelpose_calibration(RIG)
     cfg = SynthConfig(num_people=1, num_frames=4, seed=11, render_video=False)
@@ -130,6 +132,7 @@ def test_visible_area_is_inside_the_rig():
         assert seen >= 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("occlusion", ["proxy", "render"])
 def test_detections_streamed_to_columns_equal_those_kept_in_memory(
     tmp_path, monkeypatch, occlusion
