@@ -47,7 +47,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -61,7 +60,7 @@ import psutil
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from bench.common import free_port, write_json  # noqa: E402
+from bench.common import free_port, markdown_table, publish, write_json  # noqa: E402
 
 MB = 1024 * 1024
 
@@ -444,6 +443,7 @@ def main(argv: list[str] | None = None) -> dict:  # noqa: C901 - a script's flow
                     help="playback before the soak's start figures")  # fmt: skip
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--docs", action="store_true", help="write the documentation's section")
     args = ap.parse_args(argv)
     assert args.clients >= 1 and 1 <= args.repeats <= args.changes
 
@@ -502,7 +502,41 @@ def main(argv: list[str] | None = None) -> dict:  # noqa: C901 - a script's flow
         app.stop()
     if args.json:
         write_json(args.json, out)
+    if args.docs:
+        publish("bench_load", "One viewer, many clients", docs_section(out))
     return out
+
+
+def docs_section(out: dict) -> str:
+    """The Benchmarks page's section: frame changes with 1 and N clients, disconnects,
+    the stalled client and the soak where they ran."""
+    rows = [
+        ["frame change, 1 client (ms)", f"{out['one_client_median_ms']:.1f}",
+         f"{out['one_client_p95_ms']:.1f}"],
+        [f"frame change, {out['clients']} clients (ms)", f"{out['median_ms']:.1f}",
+         f"{out['p95_ms']:.1f}"],
+    ]  # fmt: skip
+    text = (
+        f"One viewer on `{out['scene']}`, {out['changes']} frame changes a configuration "
+        f"(1 client, then {out['clients']}), in alternating blocks; headless websocket "
+        "clients speaking viser's protocol.\n\n"
+        + markdown_table(["", "median", "p95"], rows)
+        + f"\n\n{out['clients']} clients: **{out['median_ratio']:.2f}x** the one-client "
+        f"median; {out['disconnected']} disconnected; server RSS {out['rss_mb']['start']:.0f} "
+        f"-> max {out['rss_mb']['max']:.0f} MB."
+    )
+    if out.get("stalled_client_rss_growth_mb") is not None:
+        text += (f" With a client that stops reading and a background tab: server RSS "
+                 f"+{out['stalled_client_rss_growth_mb']:.1f} MB.")  # fmt: skip
+    soak = out.get("soak")
+    if soak:
+        text += (
+            f"\n\nSoak, {soak['minutes']:g} minutes of playback with two clients "
+            f"({soak['frames_played']} frames): RSS {soak['rss_growth_mb']:+.1f} MB, threads "
+            f"{soak['threads_change']:+d}, file descriptors {soak['open_fds_change']:+d}, open "
+            f"files {soak['open_files_change']:+d}; {soak['disconnected']} disconnected."
+        )
+    return text
 
 
 if __name__ == "__main__":
