@@ -29,7 +29,7 @@ it to the client holding it or a newer one) and the frame changes it never saw (
 a newer one instead); bytes per client; frames shown per second in playback; the
 server's RSS over the run (sampled every 0.25 s); clients that were disconnected.
 
-Targets (issue 49): with 10 clients the median frame change <= 1.5x the one-client
+Targets: with 10 clients the median frame change <= 1.5x the one-client
 median and <= 50 ms, no client disconnected; the stalled client costs the others
 nothing measurable and the server's RSS stays within 100 MB of its start; a 30-minute
 soak grows RSS by <= 50 MB, threads and files unchanged.
