@@ -18,6 +18,7 @@ from pipeline.core.files import SceneFormatError, atomic_write
 from pipeline.core.schema import Anything, Bool, CameraOffsets, Int, Number, Spec, Str, StrList
 from pipeline.fit.types import FitParams
 from pipeline.stages.kalman import KalmanParams
+from pipeline.stages.proportions import ProportionParams
 from pipeline.stages.stitch import StitchParams
 from pipeline.stages.track import TrackingParams
 
@@ -60,6 +61,7 @@ class PipelineConfig:
     triangulation: TriangulationParams = field(default_factory=TriangulationParams)
     tracking: TrackingParams = field(default_factory=TrackingParams)
     stitch: StitchParams = field(default_factory=StitchParams)
+    proportions: ProportionParams = field(default_factory=ProportionParams)
     kalman: KalmanParams = field(default_factory=lambda: KalmanParams(q=100.0))
     """q = 100 (mm/frame^2)^2: on the sample scene the forward filter then cuts the
     acceleration error by ~48% while lowering MPJPE (q = 200: 42%; q = 50: 53%, more lag)."""
@@ -133,6 +135,8 @@ RANGES: dict[str, Spec] = {
     "association.min_confidence": Number(ge=0, le=1),
     "association.max_distance_mm": Number(gt=0),
     "kalman.control_gain": Number(),
+    "proportions.trusted_views": Int(min=2, doc="agreement needs two views"),
+    "proportions.min_track_frames": Int(min=1),
     "sync.offsets": CameraOffsets(),
 }
 

@@ -41,8 +41,11 @@ RUN_FIELDS = {  # FilterRun field -> FilterResult field
 BLOCK_STEPS = 1 << 17  # frames x joints x tracks filtered at once (see below)
 
 
-def run_filter(track_raw: np.ndarray, params: KalmanParams) -> FilterRun:
-    """Filter ``track_raw`` (K, F, J, 3) mm as the pipeline does (forward and RTS at once).
+def run_filter(
+    track_raw: np.ndarray, params: KalmanParams, *, skip: np.ndarray | None = None
+) -> FilterRun:
+    """Filter ``track_raw`` (K, F, J, 3) mm as the pipeline does (forward and RTS at once),
+    not taking the measurements ``skip`` (K, F, J) marks (the results' ``track_contradicted``).
 
     Over blocks of tracks: every joint trajectory is filtered on its own, so the numbers
     are those of one call, but the filter's ~25 (F, tracks x J, 3) working arrays are a
@@ -55,7 +58,8 @@ def run_filter(track_raw: np.ndarray, params: KalmanParams) -> FilterRun:
     out: dict[str, np.ndarray] = {}
     for k0 in range(0, max(K, 1), block):
         raw = np.asarray(track_raw[k0 : k0 + block], float)
-        fr = kalman_filter(np.moveaxis(raw, 1, 0), smooth)
+        skipped = None if skip is None else np.moveaxis(np.asarray(skip[k0 : k0 + block]), 1, 0)
+        fr = kalman_filter(np.moveaxis(raw, 1, 0), smooth, skip=skipped)
         for name, field in RUN_FIELDS.items():
             a = np.moveaxis(getattr(fr, field), 0, 1)  # (F, k, ...) -> (k, F, ...)
             if name not in out:

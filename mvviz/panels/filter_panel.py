@@ -337,7 +337,7 @@ class FilterPanel:
         with self._lock:
             data, run = self._data, self.run_b
         if run is None or run.params != params:
-            run = run_filter(data.results.track_raw, params)
+            run = run_filter(data.results.track_raw, params, skip=data.results.track_contradicted)
         path = save_filter_config(data.scene.root, params, data.results.config)
         self.host.set_results(with_filter(data.results, run))
         self.message = (
@@ -501,7 +501,13 @@ class FilterPanel:
             t0 = time.perf_counter()
             same = params == self.run_a.params  # reset to A: A's run, nothing to filter
             with yielding_to(self._rendering):  # the frame changes first
-                run = self.run_a if same else run_filter(data.results.track_raw, params)
+                run = (
+                    self.run_a
+                    if same
+                    else run_filter(
+                        data.results.track_raw, params, skip=data.results.track_contradicted
+                    )
+                )
             self.timings["filter_ms"] = (time.perf_counter() - t0) * 1e3
             with self._lock:
                 if data is not self._data:

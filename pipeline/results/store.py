@@ -50,7 +50,9 @@ smoother, SMPL fit (step I) and SMPL fit corrected by the VAE pose prior (the na
 ``--stage``, of the evaluation's rows and of the exports)."""
 BODY_STAGES = ("smpl", "smpl_vae")
 """The stages that give bodies: :class:`PipelineResults` fields holding a ``SmplFit``."""
-RESULTS_VERSION = 6  # 6: edges only where a reader uses them, int32 / float32 (5: track_rejected)
+RESULTS_VERSION = 7  # 7: joints checked by the tracks' bones (track_resolved,
+# track_contradicted, the latter also in track_rejected); 6: edges only where a reader
+# uses them, int32 / float32 (5: track_rejected)
 RESULTS_FILE = "results.npz"  # in the scene's cache folder (SCENE/.mvviz)
 RESULTS_DIR = "results"  # ... for a long scene: a directory of memory-mapped columns
 LONG_SCENE_VIEW_FRAMES = 50_000
@@ -88,11 +90,17 @@ class SequenceResult:
         tracks: raw joints per track (K, F, J, 3) and lifetimes.
         filtered: Kalman result over (F, K, J, 3) measurements; ``forward`` is the
             forward filter, ``filtered`` the RTS-smoothed one.
+        track_resolved: (K, F, J) bool, joints re-solved from the views that fit the
+            track's bones (:mod:`pipeline.stages.proportions`); None: not checked.
+        track_contradicted: (K, F, J) bool, joints kept but not filtered: they contradict
+            the track's bones and no views fit them.
     """
 
     person_track: np.ndarray
     tracks: Tracks
     filtered: FilterResult
+    track_resolved: np.ndarray | None = None
+    track_contradicted: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,6 +139,10 @@ class PipelineResults:
     cache_key: str = ""
     det_flipped: np.ndarray | None = None  # (N,) bool: left/right swapped in the input,
     # un-mirrored by association (det_joints2d holds the un-mirrored joints)
+    track_resolved: np.ndarray | None = None  # (K, F, J) bool: re-solved from the views
+    # that fit the track's bones (pipeline.stages.proportions)
+    track_contradicted: np.ndarray | None = None  # (K, F, J) bool: contradicts the track's
+    # bones, kept in track_raw, skipped by the filter where it can coast (track_rejected)
 
     @property
     def num_tracks(self) -> int:
@@ -276,6 +288,8 @@ def assemble_results(
         person_track=seq.person_track,
         track_raw=seq.tracks.joints,
         **filter_arrays(seq.filtered),
+        track_resolved=seq.track_resolved,
+        track_contradicted=seq.track_contradicted,
         cache_key=cache_key,
     )
 
@@ -366,8 +380,9 @@ def code_digest() -> str:
 
 # Fields stored as one array each; the others go into the file's JSON meta or, for the
 # optional arrays and the fits, are handled one by one.
+OPTIONAL_ARRAYS = ("det_restored", "det_flipped", "track_resolved", "track_contradicted")
 _NOT_ARRAYS = {
-    "config", "joint_set", "num_frames", "num_views", "cache_key", "det_restored", "det_flipped",
+    "config", "joint_set", "num_frames", "num_views", "cache_key", *OPTIONAL_ARRAYS,
 }  # fmt: skip
 _ARRAY_FIELDS = [
     f.name
@@ -406,7 +421,7 @@ def _file_contents(results: PipelineResults) -> tuple[dict, dict[str, np.ndarray
         body_model=str(results.smpl.model.source) if results.smpl is not None else None,
     )  # fmt: skip
     arrays = {k: getattr(results, k) for k in _ARRAY_FIELDS}
-    for optional in ("det_restored", "det_flipped"):
+    for optional in OPTIONAL_ARRAYS:
         if getattr(results, optional) is not None:
             arrays[optional] = getattr(results, optional)
     arrays.update(fit_arrays(results))
@@ -479,8 +494,7 @@ def load_results(
         num_frames=int(meta["num_frames"]),
         num_views=int(meta["num_views"]),
         cache_key=meta.get("cache_key", ""),
-        det_restored=a.get("det_restored"),
-        det_flipped=a.get("det_flipped"),
+        **{k: a.get(k) for k in OPTIONAL_ARRAYS},
         **{k: a[k] for k in _ARRAY_FIELDS},
     )
 

@@ -40,6 +40,7 @@ from pipeline.results.store import (
 from pipeline.run.frames import (
     FRAMES_STAGE,
     frame_rows,
+    person_evidence,
     run_frame,
     sequence_of_people,
     source_joint_set,
@@ -103,7 +104,12 @@ def run_stages_chunked(
     cols = join_columns(chunks + [join_columns(pending, V, J)], V, J)
     del chunks, pending
     js = source_joint_set(scene, config)
-    seq = sequence_of_people(cols.person_frame, cols.person_joints, scene.num_frames, config, js)
+    evidence = person_evidence(
+        scene, config, labels.joints2d, cols.person_members, cols.person_used
+    )
+    seq = sequence_of_people(
+        cols.person_frame, cols.person_joints, scene.num_frames, config, js, evidence
+    )
     return assemble_results(
         labels, cols, seq, config=config, joint_set=js.name, num_frames=scene.num_frames,
         num_views=V, restored=restored, cache_key=key,

@@ -3,7 +3,8 @@
 Per frame (re-runnable on its own, which is what the viewer does when a parameter
 changes): 2D source selection (keypoints, or SMPL joints restored from the monocular
 predictions) -> cross-view association -> triangulation. Then, over the sequence:
-tracking -> Kalman filtering (forward and RTS-smoothed).
+tracking -> the tracks' proportions (joints that contradict a person's bones
+re-solved or flagged) -> Kalman filtering (forward and RTS-smoothed).
 
 Units: mm, pixels, frames.
 """
@@ -23,6 +24,7 @@ from pipeline.data.joint_sets import SMPL24, JointSet
 from pipeline.data.scene import Scene
 from pipeline.results.store import FrameResult, SequenceResult
 from pipeline.stages.kalman import FilterResult, kalman_filter
+from pipeline.stages.proportions import PersonEvidence, check_proportions
 from pipeline.stages.retime import retimed_frames, retimed_rows
 from pipeline.stages.stitch import stitch_tracks
 from pipeline.stages.track import Tracks, track_people, tracks_from_labels
@@ -59,7 +61,11 @@ def restored_joints(scene: Scene, model: BodyModel | BodyModelData) -> np.ndarra
     out[..., 2] = 0.0
     if det.has_smpl:
         out = restore_joints_2d(
-            det.smpl_pose, det.smpl_betas, det.cam_weak, det.bbox, torch_body_model(model),
+            det.smpl_pose,
+            det.smpl_betas,
+            det.cam_weak,
+            det.bbox,
+            torch_body_model(model),
             score=score,
         )
     mono = det.mono_valid
@@ -206,9 +212,14 @@ def run_frames(
 
 
 def run_sequence(
-    frames: list[FrameResult], num_frames: int, config: PipelineConfig, joint_set: JointSet
+    frames: list[FrameResult],
+    num_frames: int,
+    config: PipelineConfig,
+    joint_set: JointSet,
+    scene: Scene | None = None,
 ) -> SequenceResult:
-    """Tracking and filtering over the per-frame people."""
+    """Tracking and filtering over the per-frame people (with ``scene``, the proportion
+    check re-solves joints from its views; without, it only flags them)."""
     if frames and frames[0].triangulation.points.ndim == 3:
         J = frames[0].triangulation.points.shape[1]
     else:
@@ -219,7 +230,41 @@ def run_sequence(
     person_joints = np.concatenate(
         [fr.triangulation.points.reshape(-1, J, 3) for fr in frames] or [np.zeros((0, J, 3))]
     )
-    return sequence_of_people(person_frame, person_joints, num_frames, config, joint_set)
+    evidence = None
+    if scene is not None:
+        V = len(scene.rig)
+        joints2d = np.zeros((len(scene.detections.view), J, 3))
+        members, used = [np.zeros((0, V), int)], [np.zeros((0, J, V), bool)]
+        for fr in frames:
+            joints2d[fr.rows] = fr.joints2d  # un-mirrored, disabled views at confidence 0
+            a = fr.association
+            members.append(np.where(a.members >= 0, fr.rows[np.maximum(a.members, 0)], -1))
+            used.append(fr.triangulation.used.reshape(-1, J, V))
+        evidence = person_evidence(
+            scene, config, joints2d, np.concatenate(members), np.concatenate(used)
+        )
+    return sequence_of_people(person_frame, person_joints, num_frames, config, joint_set, evidence)
+
+
+def person_evidence(
+    scene: Scene,
+    config: PipelineConfig,
+    joints2d: np.ndarray,
+    members: np.ndarray,
+    used: np.ndarray,
+) -> PersonEvidence:
+    """The 2D evidence of the person-frames for :func:`check_proportions`.
+
+    Args:
+        joints2d: (N, J, 3) the 2D joints that fed the stages (un-mirrored).
+        members: (Q, V) detection row per view, -1. used: (Q, J, V) bool.
+    """
+    members = np.where(enabled_view_mask(scene, config)[None], members, -1)
+    tp = config.triangulation
+    return PersonEvidence(
+        rig=scene.rig, joints2d=joints2d, members=members, used=used,
+        min_confidence=tp.min_confidence, outlier_threshold_px=tp.outlier_threshold_px,
+    )  # fmt: skip
 
 
 def sequence_of_people(
@@ -228,13 +273,49 @@ def sequence_of_people(
     num_frames: int,
     config: PipelineConfig,
     joint_set: JointSet,
+    evidence: PersonEvidence | None = None,
 ) -> SequenceResult:
     """:func:`run_sequence` from the per-frame people as columns: (Q,) frame and (Q, J, 3)
     triangulated joints of each person-frame, in frame order (what
-    :mod:`pipeline.run.chunked` keeps of the frames instead of their results)."""
+    :mod:`pipeline.run.chunked` keeps of the frames instead of their results), and the
+    2D ``evidence`` the proportion check re-solves joints from (None: flagged only)."""
     tracks = tracks_of_people(person_frame, person_joints, num_frames, config, joint_set)
-    filtered = filter_tracks(tracks.joints, tracks.last_frame, config)
-    return SequenceResult(person_track=tracks.track_of, tracks=tracks, filtered=filtered)
+    tracks, resolved, contradicted = proportions_of_tracks(
+        tracks, person_frame, person_joints, num_frames, config, joint_set, evidence
+    )
+    filtered = filter_tracks(tracks.joints, tracks.last_frame, config, skip=contradicted)
+    return SequenceResult(
+        person_track=tracks.track_of, tracks=tracks, filtered=filtered,
+        track_resolved=resolved, track_contradicted=contradicted,
+    )  # fmt: skip
+
+
+def proportions_of_tracks(
+    tracks: Tracks,
+    person_frame: np.ndarray,
+    person_joints: np.ndarray,
+    num_frames: int,
+    config: PipelineConfig,
+    joint_set: JointSet,
+    evidence: PersonEvidence | None,
+) -> tuple[Tracks, np.ndarray, np.ndarray]:
+    """The tracks with their joints checked against their bones
+    (:mod:`pipeline.stages.proportions`): (tracks with re-solved joints, (K, F, J)
+    re-solved, (K, F, J) contradicted)."""
+    check = check_proportions(
+        person_joints, tracks.track_of, tracks.num_tracks, np.array(joint_set.bones),
+        evidence, config.proportions,
+    )  # fmt: skip
+    K, J = tracks.num_tracks, tracks.joints.shape[2]
+    resolved = np.zeros((K, num_frames, J), bool)
+    contradicted = np.zeros((K, num_frames, J), bool)
+    rows = tracks.track_of >= 0
+    k, f = tracks.track_of[rows], np.asarray(person_frame, int)[rows]
+    resolved[k, f] = check.resolved[rows]
+    contradicted[k, f] = check.contradicted[rows]
+    if check.resolved.any():
+        tracks = tracks_from_labels(tracks.track_of, person_frame, check.joints, num_frames)
+    return tracks, resolved, contradicted
 
 
 def tracks_of_people(
@@ -257,7 +338,11 @@ def tracks_of_people(
 
 
 def filter_tracks(
-    joints: np.ndarray, last_frame: np.ndarray, config: PipelineConfig
+    joints: np.ndarray,
+    last_frame: np.ndarray,
+    config: PipelineConfig,
+    *,
+    skip: np.ndarray | None = None,
 ) -> FilterResult:
     """The Kalman forward filter and RTS smoother of tracks, each ending at its last frame.
 
@@ -267,6 +352,7 @@ def filter_tracks(
     Args:
         joints: (K, F, J, 3) the tracks' raw joints, mm, NaN where absent.
         last_frame: (K,) the frame each track was last seen.
+        skip: (K, F, J) bool, measurements the filter does not take (contradicted).
 
     Returns:
         FilterResult over (F, K, J, ...).
@@ -274,7 +360,11 @@ def filter_tracks(
     measurements = np.moveaxis(joints, 1, 0)  # (F, K, J, 3)
     # Always smooth too: the forward and RTS outputs are both in the result, and the
     # configured ``smoother`` flag only picks which one is "the" filtered trajectory.
-    filtered = kalman_filter(measurements, dataclasses.replace(config.kalman, smoother=True))
+    filtered = kalman_filter(
+        measurements,
+        dataclasses.replace(config.kalman, smoother=True),
+        skip=None if skip is None else np.moveaxis(skip, 1, 0),
+    )
     # A track that has died does not coast on: its filter output ends at its last
     # measurement (coasting through gaps inside a track's life is kept).
     frames_idx = np.arange(joints.shape[1])[:, None]

@@ -52,7 +52,7 @@ def pack_run(
 ) -> PipelineResults:
     """The sequence stages (tracking, filtering) over ``frames``, packed."""
     js = source_joint_set(scene, config)
-    seq = run_sequence(frames, scene.num_frames, config, js)
+    seq = run_sequence(frames, scene.num_frames, config, js, scene)
     return pack(
         frames, seq, config=config, joint_set=js.name, num_frames=scene.num_frames,
         num_views=len(scene.rig), restored=restored,

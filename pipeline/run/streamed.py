@@ -58,6 +58,8 @@ from pipeline.run.frames import (
     FRAMES_STAGE,
     filter_tracks,
     frame_rows,
+    person_evidence,
+    proportions_of_tracks,
     restored_joints,
     run_frame,
     select_2d,
@@ -202,26 +204,40 @@ def stream_stages(
         names.append("det_restored")
     js = source_joint_set(scene, config)
     person_frame, person_joints = np.concatenate(sink.frames), np.concatenate(sink.joints)
+    evidence = person_evidence(
+        scene, config, sink.joints2d,
+        np.load(out / "person_members.npy", mmap_mode="r"),
+        np.load(out / "person_used.npy", mmap_mode="r"),
+    )  # fmt: skip
     del sink
-    names += _stream_tracks(out, person_frame, person_joints, F, config, js)
+    names += _stream_tracks(out, person_frame, person_joints, F, config, js, evidence)
     meta = results_meta(
         config, joint_set=js.name, num_frames=F, num_views=V, cache_key=key, body_model=None
     )
     return meta, names
 
 
-def _stream_tracks(out: Path, person_frame, person_joints, num_frames, config, js) -> list[str]:
-    """Tracking, then the filter over blocks of tracks, into ``out``: the ``person_track``
-    and ``track_*`` files' names."""
+def _stream_tracks(
+    out: Path, person_frame, person_joints, num_frames, config, js, evidence
+) -> list[str]:
+    """Tracking, the proportion check, then the filter over blocks of tracks, into
+    ``out``: the ``person_track`` and ``track_*`` files' names."""
     tracks = tracks_of_people(person_frame, person_joints, num_frames, config, js)
+    tracks, resolved, contradicted = proportions_of_tracks(
+        tracks, person_frame, person_joints, num_frames, config, js, evidence
+    )
     np.save(out / "person_track.npy", tracks.track_of, allow_pickle=False)
     np.save(out / "track_raw.npy", tracks.joints, allow_pickle=False)
+    np.save(out / "track_resolved.npy", resolved, allow_pickle=False)
+    np.save(out / "track_contradicted.npy", contradicted, allow_pickle=False)
     K, F, J = tracks.joints.shape[:3]
     block = max(1, FILTER_BLOCK_STEPS // max(F * J, 1))
     files: dict[str, np.ndarray] = {}
     for k0 in range(0, K, block):
         k1 = min(K, k0 + block)
-        filtered = filter_tracks(tracks.joints[k0:k1], tracks.last_frame[k0:k1], config)
+        filtered = filter_tracks(
+            tracks.joints[k0:k1], tracks.last_frame[k0:k1], config, skip=contradicted[k0:k1]
+        )
         for name, a in filter_arrays(filtered).items():  # each (k, F, J[, 3])
             if name not in files:
                 files[name] = open_npy_for_writing(out / f"{name}.npy", a.dtype, (K, *a.shape[1:]))
@@ -229,14 +245,14 @@ def _stream_tracks(out: Path, person_frame, person_joints, num_frames, config, j
             release_pages(files[name])
         del filtered
     if not files:  # no tracks: the filter of none gives the arrays' dtypes and shapes
-        filtered = filter_tracks(tracks.joints, tracks.last_frame, config)
+        filtered = filter_tracks(tracks.joints, tracks.last_frame, config, skip=contradicted)
         for name, a in filter_arrays(filtered).items():
             np.save(out / f"{name}.npy", a, allow_pickle=False)
             files[name] = a
     for a in files.values():
         if isinstance(a, np.memmap):
             a.flush()
-    return ["person_track", "track_raw", *files]
+    return ["person_track", "track_raw", "track_resolved", "track_contradicted", *files]
 
 
 class _Cancelled(Exception):

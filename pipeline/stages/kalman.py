@@ -159,7 +159,8 @@ class FilterResult:
         mahalanobis: (num_frames, ...) sqrt(sum_axes y^2 / S); NaN without a measurement.
         velocity: (num_frames, ..., 3) velocity of ``filtered``, mm/frame (constant
             velocity model; NaN for the random walk).
-        rejected: (num_frames, ...) bool, measurement present but rejected by the gate.
+        rejected: (num_frames, ...) bool, measurement present but rejected by the gate
+            (or skipped: ``skip``).
         started: (num_frames, ...) bool, trajectory (re)initialised at this frame.
     """
 
@@ -295,10 +296,15 @@ class _Steps(NamedTuple):
     started: np.ndarray
 
 
-def _forward_pass(z_all: np.ndarray, observed: np.ndarray, params: KalmanParams) -> _Steps:
+def _forward_pass(
+    z_all: np.ndarray, observed: np.ndarray, skip: np.ndarray, params: KalmanParams
+) -> _Steps:
     """The loop over frames: predict, (re)initialise, gate, update, drop.
 
-    ``z_all`` (T, N, 3) mm with NaN rows where ``observed`` (T, N) is False.
+    ``z_all`` (T, N, 3) mm with NaN rows where ``observed`` (T, N) is False; ``skip``
+    (T, N) measurements not taken while their trajectory is alive and would not be dropped
+    for the gap (a trajectory that is not, after a drop or before its start, or that
+    would be, takes them: a doubtful point beats none).
     """
     T, N = observed.shape
     cv = params.model == "constant_velocity"
@@ -310,7 +316,6 @@ def _forward_pass(z_all: np.ndarray, observed: np.ndarray, params: KalmanParams)
         rejected=np.zeros(shape1, dtype=bool), started=np.zeros(shape1, dtype=bool),
     )  # fmt: skip
     z_fill = np.where(observed[..., None], z_all, 0.0)  # NaN-free; missing rows get K = 0
-    observed_f = observed.astype(np.float64)
     q, r, B = float(params.q), float(params.r), float(params.control_gain)
     gate, max_gap = params.gate, params.max_gap
     # NaN in x / Ppp marks a trajectory that is not alive; it stays NaN through the steps.
@@ -323,6 +328,10 @@ def _forward_pass(z_all: np.ndarray, observed: np.ndarray, params: KalmanParams)
     gap = np.zeros(N)
     for t in range(T):
         b = predict(b, u, cv=cv, q=q, B=B)  # 1. x = F x + B u, P = F P F' + Q
+        skipped = skip[t] & alive & observed[t]
+        if max_gap is not None:
+            skipped &= gap + 1.0 <= max_gap  # a skip must not make it drop (below)
+        taken = observed[t] & ~skipped
         new = observed[t] & ~alive  # 2. (re)initialise: first measurement since start/drop
         if new.any():
             b = initialise(b, z_all[t], new, p0=params.p0, p0_velocity=params.p0_velocity)
@@ -334,9 +343,10 @@ def _forward_pass(z_all: np.ndarray, observed: np.ndarray, params: KalmanParams)
         S = b.Ppp + r  # S = H P H' + R
         s.innovation[t] = y
         if gate is None:
-            m = observed_f[t]
+            m = taken.astype(np.float64)
         else:
-            m, s.rejected[t] = gate_measurements(y, S, observed[t], new, gate)
+            m, s.rejected[t] = gate_measurements(y, S, taken, new, gate)
+        s.rejected[t] |= skipped
         b = update(b, y, S, m, cv=cv)  # K = 0 without an accepted measurement
         gap = (gap + 1.0) * (1.0 - m)  # 4. drop trajectories that coasted > max_gap frames
         if max_gap is not None:
@@ -353,7 +363,9 @@ def _forward_pass(z_all: np.ndarray, observed: np.ndarray, params: KalmanParams)
     return s
 
 
-def kalman_filter(measurements: np.ndarray, params: KalmanParams | None = None) -> FilterResult:
+def kalman_filter(
+    measurements: np.ndarray, params: KalmanParams | None = None, *, skip: np.ndarray | None = None
+) -> FilterResult:
     """Filter every trajectory in ``measurements`` at once (loop over time only).
 
     The steps are the pure functions :func:`predict`, :func:`initialise`,
@@ -363,6 +375,9 @@ def kalman_filter(measurements: np.ndarray, params: KalmanParams | None = None) 
     Args:
         measurements: (num_frames, ..., 3) joint positions, mm; NaN = missing.
         params: filter parameters (default ``KalmanParams()``).
+        skip: (num_frames, ...) bool, measurements the filter does not take while their
+            trajectory is alive (it coasts there as through a gap); they are reported
+            ``rejected``, with their innovation.
 
     Returns:
         FilterResult with leading shape (num_frames, ...).
@@ -374,7 +389,15 @@ def kalman_filter(measurements: np.ndarray, params: KalmanParams | None = None) 
     z_all = z_all.reshape(T, N, 3)
     cv = params.model == "constant_velocity"
     observed = np.isfinite(z_all).all(axis=-1)  # (T, N)
-    s = _forward_pass(z_all, observed, params)
+    skipped = np.zeros((T, N), bool)
+    if skip is not None:
+        if np.shape(skip) != z_all.shape[:1] + lead:
+            raise ValueError(
+                f"skip must be {z_all.shape[:1] + lead} (frames and trajectories of the"
+                f" measurements), got {np.shape(skip)}"
+            )
+        skipped = np.asarray(skip, bool).reshape(T, N) & observed
+    s = _forward_pass(z_all, observed, skipped, params)
 
     # Outputs derived from the stored steps; blank frames where the trajectory is not
     # alive (before its start, or on/after a drop) and innovations without a measurement.
@@ -504,5 +527,3 @@ def _rts(
         vs[dead] = np.nan
         return xs, Ps, vs
     return xs, Ps, np.full_like(xs, np.nan)
-
-

@@ -48,6 +48,8 @@ def random_results(seed: int = 0, *, F: int = 12, V: int = 4, J: int = 17) -> Pi
         track_innovation=track(J, 3),
         track_mahalanobis=track(J),
         track_rejected=track(J) > 1.0,
+        track_resolved=track(J) > 1.5,
+        track_contradicted=track(J) > 2.0,
         cache_key=f"key{seed}",
         det_flipped=rng.random(N) > 0.9,
     )

@@ -27,9 +27,9 @@ def test_filter_run_over_blocks_of_tracks_is_the_run_over_all(monkeypatch, param
     config = dataclasses.replace(PipelineConfig(), kalman=params)
     res = run_stages(scene, config, select_2d(scene, config, None), restored=None,
                      progress=False)  # fmt: skip
-    whole = filter_runs.run_filter(res.track_raw, params)
+    whole = filter_runs.run_filter(res.track_raw, params, skip=res.track_contradicted)
     monkeypatch.setattr(filter_runs, "BLOCK_STEPS", 1)
-    blocks = filter_runs.run_filter(res.track_raw, params)
+    blocks = filter_runs.run_filter(res.track_raw, params, skip=res.track_contradicted)
     assert res.num_tracks >= 4 and whole.forward.shape == res.track_raw.shape
     for name in filter_runs.RUN_FIELDS:
         a, b = getattr(whole, name), getattr(blocks, name)

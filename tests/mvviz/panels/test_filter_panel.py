@@ -64,7 +64,10 @@ def expected_forward(track_raw: np.ndarray, params: KalmanParams) -> np.ndarray:
 
 def test_filter_a_reproduces_the_run(viewer_scene):
     _, results, _ = viewer_scene
-    a, again = results_run(results), run_filter(results.track_raw, results.config.kalman)
+    a, again = (
+        results_run(results),
+        run_filter(results.track_raw, results.config.kalman, skip=results.track_contradicted),
+    )
     np.testing.assert_array_equal(a.forward, again.forward)
     np.testing.assert_array_equal(a.smoothed, again.smoothed)
     np.testing.assert_array_equal(a.mahalanobis, again.mahalanobis)
@@ -142,7 +145,7 @@ def test_metrics_of_a_and_b(app):
     # the smoother is scored when B asks for it
     fp.gui.smoother.value = True
     idle(app)
-    rts = run_filter(results.track_raw, fp.run_b.params).smoothed
+    rts = run_filter(results.track_raw, fp.run_b.params, skip=results.track_contradicted).smoothed
     np.testing.assert_array_equal(fp.run_b.shown, rts)
 
 
