@@ -40,6 +40,7 @@ CRITERION_RGB: dict[str, tuple[int, int, int]] = {
     "association": (234, 128, 0),
     "id": (37, 99, 235),
     "kalman": (13, 148, 136),
+    "proportions": (101, 163, 13),
     "smpl": (146, 84, 30),
     "labels": (219, 39, 119),
     "protocol": (71, 85, 105),

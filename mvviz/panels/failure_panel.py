@@ -60,6 +60,7 @@ CRITERION_LABELS = {
     "association": "Association conflicts",
     "id": "Identity: births, deaths, switches",
     "kalman": "Kalman Mahalanobis",
+    "proportions": "Bones: re-solved, contradicted joints",
     "smpl": "SMPL residual, joint limits",
     "labels": "Label check",
     "protocol": "Shelf / Campus PCP: wrong limbs",
@@ -70,6 +71,7 @@ CRITERION_SHORT = {
     "association": "assoc.",
     "id": "ID",
     "kalman": "Kalman",
+    "proportions": "bones",
     "smpl": "SMPL",
     "labels": "labels",
     "protocol": "PCP",
@@ -83,6 +85,8 @@ CRITERION_HELP = {
     "confident unassigned detections (enabled cameras only)",
     "id": "track births after frame 0, deaths before the last frame, ID switches vs GT",
     "kalman": "Mahalanobis distance of the measurement above 3, per track and span",
+    "proportions": "joints whose bones were more than 25 % off their track's median length: "
+    "re-solved from the views that fit, or kept but not filtered (contradicted)",
     "smpl": "fit residuals at least 2× that joint's usual residual (ranked by the ratio) "
     "and joint rotations outside their limits (÷ 10°)",
     "labels": "keypoint labels that look wrong (left/right, joint order, one camera "

@@ -23,6 +23,9 @@ criterion                 a problem (``kind``)                                 s
                           ID switch against ground truth
 ``kalman``                (track) with a joint's Mahalanobis distance above   Mahalanobis
                           the threshold, its worst joint named
+``proportions``           (track, joint) re-solved from other views, or kept     bone off /
+                          but not filtered, for contradicting the track's      tolerance
+                          bone lengths
 ``smpl``                  (track, joint) with a fit residual >= 2x that       see below
                           joint's usual; rotation outside its
                           ``pose_limits.LIMITS`` box
@@ -54,6 +57,7 @@ from mvviz.analysis.failures.criteria import (
     kalman_failures,
     label_failures,
     mpjpe_failures,
+    proportion_failures,
     reprojection_failures,
     smpl_failures,
 )
@@ -121,6 +125,7 @@ __all__ = [
     "find_failures",
     "id_failures",
     "kalman_failures",
+    "proportion_failures",
     "kind_counts",
     "label",
     "label_failures",

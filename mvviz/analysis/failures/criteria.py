@@ -36,6 +36,7 @@ from pipeline.evaluation.evaluate import evaluate, ground_truth_slots, gt_per_fr
 from pipeline.evaluation.label_check import check_results
 from pipeline.results.store import PipelineResults
 from pipeline.run.frames import row_frames
+from pipeline.stages.track import bone_lengths
 
 
 def reprojection_failures(
@@ -543,6 +544,50 @@ def kalman_failures(
             )
         )  # fmt: skip
     return out  # a span merges whichever joint is worst frame by frame: MERGE_IGNORES
+
+
+def proportion_failures(scene: Scene, results: PipelineResults) -> list[Failure]:
+    """Each (frame, track, joint) the proportion check (:mod:`pipeline.stages.proportions`)
+    re-solved or found contradicting its track's bones, scored by how far the frame's
+    triangulation put the joint's worst bone from the track's median length (relative,
+    over the check's tolerance: 1 = at the limit)."""
+    del scene
+    resolved, contradicted = results.track_resolved, results.track_contradicted
+    if resolved is None or contradicted is None or not (resolved | contradicted).any():
+        return []
+    bones = np.array(get_joint_set(results.joint_set).bones).reshape(-1, 2)
+    tolerance = results.config.proportions.tolerance
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a bone no frame of a track has
+        median = np.nanmedian(bone_lengths(results.track_raw, bones), axis=1)  # (K, B)
+    person_of = {
+        (int(k), int(f)): q
+        for q, (k, f) in enumerate(zip(results.person_track, results.person_frame, strict=True))
+        if k >= 0
+    }
+    names = joint_names(results)
+    out = []
+    for k, f, j in zip(*np.nonzero(resolved | contradicted), strict=True):
+        k, f, j = int(k), int(f), int(j)
+        q = person_of.get((k, f))
+        measured = results.person_joints[q] if q is not None else results.track_raw[k, f]
+        mine = (bones == j).any(1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dev = np.abs(bone_lengths(measured, bones[mine]) / median[k, mine] - 1.0)
+        worst = float(np.nanmax(dev)) if np.isfinite(dev).any() else tolerance
+        moved = float(np.linalg.norm(measured[j] - results.track_raw[k, f, j]))
+        if contradicted[k, f, j]:
+            kind, detail = "contradicted", f"a bone {100 * worst:.0f} % off; not filtered"
+        else:
+            kind = "re-solved"
+            detail = f"a bone {100 * worst:.0f} % off; moved {moved:.0f} mm by other views"
+        out.append(
+            Failure(
+                "proportions", worst / tolerance, f, k, j, None, where_label(k, names[j]),
+                detail, kind=kind, value=worst,
+            )
+        )  # fmt: skip
+    return out
 
 
 def smpl_failures(

@@ -14,7 +14,8 @@ from pipeline.evaluation.metrics import MATCH_GATE_MM  # noqa: F401  (re-exporte
 from pipeline.results.store import PipelineResults
 
 CRITERIA = (
-    "reprojection", "mpjpe", "association", "id", "kalman", "smpl", "labels", "protocol",
+    "reprojection", "mpjpe", "association", "id", "kalman", "proportions", "smpl", "labels",
+    "protocol",
 )  # fmt: skip
 MAHALANOBIS_THRESHOLD = 3.0
 # "close to two": a detection whose mean affinity to another person's detections reaches

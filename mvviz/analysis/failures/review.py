@@ -14,6 +14,7 @@ from mvviz.analysis.failures.criteria import (
     kalman_failures,
     label_failures,
     mpjpe_failures,
+    proportion_failures,
     reprojection_failures,
     smpl_failures,
 )
@@ -94,6 +95,8 @@ def all_failures(
         found = id_failures(scene, results)
     elif criterion == "kalman":
         found = kalman_failures(scene, results, threshold=mahalanobis_threshold)
+    elif criterion == "proportions":
+        found = proportion_failures(scene, results)
     elif criterion == "labels":
         found = label_failures(scene, results)
     elif criterion == "protocol":
@@ -130,6 +133,8 @@ def available_criteria(scene: Scene, results: PipelineResults) -> tuple[str, ...
         out.remove("protocol")
     if results.smpl is None and results.smpl_vae is None:
         out.remove("smpl")
+    if results.track_contradicted is None:
+        out.remove("proportions")  # results of a run without the proportion check
     return tuple(out)
 
 

@@ -238,6 +238,54 @@ def test_mahalanobis_spike_ranks_first(tiny):
     assert {x.track for x in every} == {0, 1}
 
 
+def test_a_joint_off_its_bones_is_listed_with_how_far(tiny):
+    """A frame's elbow 200 mm further out than its track's arm: flagged as contradicted it
+    ranks first, scored by its bone's deviation over the tolerance; re-solved, the entry
+    says how far the other views moved it; results without the check have no entries."""
+    scene, res = tiny
+    f, k, j = 12, 1, NAMES.index("left_elbow")
+    q = int(np.flatnonzero((res.person_track == k) & (res.person_frame == f))[0])
+    joints = res.person_joints.copy()
+    shoulder = joints[q, NAMES.index("left_shoulder")]
+    arm = (joints[q, j] - shoulder) / np.linalg.norm(joints[q, j] - shoulder)
+    joints[q, j] = joints[q, j] + 200.0 * arm  # the frame's triangulation was off
+    flags = np.zeros(res.track_raw.shape[:3], bool)
+    flags[k, f, j] = True
+    none = np.zeros_like(flags)
+    flagged = dataclasses.replace(
+        res, person_joints=joints, track_contradicted=flags, track_resolved=none
+    )
+    found = find_failures(scene, flagged, criterion="proportions")
+    assert len(found) == 1
+    e = found[0]
+    assert (e.frame, e.track, e.joint, e.kind) == (f, k, j, "contradicted")
+    raw = res.track_raw[k]  # the elbow's two bones against their medians over the track
+    others = [NAMES.index("left_shoulder"), NAMES.index("left_wrist")]
+    expected = max(
+        abs(
+            np.linalg.norm(joints[q, j] - joints[q, o])
+            / np.nanmedian(np.linalg.norm(raw[:, j] - raw[:, o], axis=-1))
+            - 1
+        )
+        for o in others
+    )
+    assert e.value == pytest.approx(expected, rel=0.05)
+    assert e.score == pytest.approx(e.value / res.config.proportions.tolerance)
+    moved = dataclasses.replace(flagged, track_contradicted=none, track_resolved=flags)
+    (r,) = find_failures(scene, moved, criterion="proportions")
+    assert r.kind == "re-solved" and "moved 200 mm" in r.text
+    assert (
+        find_failures(
+            scene,
+            dataclasses.replace(res, track_contradicted=none, track_resolved=none),
+            criterion="proportions",
+        )
+        == []
+    )
+    old = dataclasses.replace(res, track_contradicted=None, track_resolved=None)
+    assert "proportions" not in available_criteria(scene, old)
+
+
 def test_ground_truth_offset_ranks_first_in_mpjpe(tiny):
     scene, res = tiny
     gt = scene.gt
@@ -561,9 +609,7 @@ def test_panel_lists_and_jumps(app, tiny):
     deadline = time.monotonic() + 10
     while set(panel.counts) != set(WITHOUT_PROTOCOL) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert panel.counts == {
-        c: len(all_failures(scene, res, criterion=c)) for c in WITHOUT_PROTOCOL
-    }
+    assert panel.counts == {c: len(all_failures(scene, res, criterion=c)) for c in WITHOUT_PROTOCOL}
     assert "MPJPE" in panel.gui.overview.content and "Kalman" in panel.gui.overview.content
     app.set_frame(0)
     first = panel.click(0)  # reprojection: names a view
