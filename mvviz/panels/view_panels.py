@@ -30,6 +30,7 @@ from mvviz.panels.failure_panel import CRITERION_SHORT
 from mvviz.scene.geometry import FRUSTUM_WIDTHS, MESH_DETAILS, MESH_STYLES
 from mvviz.scene.images import BodyOutlines, blank_frame, bodies_text
 from mvviz.state import PANEL_WIDTHS, ViewerState
+from pipeline.evaluation.evaluate import fit_distance_frames
 
 SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
 STEP_BACK, STEP_FORWARD = "◀ −1", "+1 ▶"
@@ -60,7 +61,36 @@ def selection_info(state: ViewerState) -> str:
         lines.append(f"Mahalanobis {m:.2f}  ")
     lines.append("")  # each view's part in this joint, and why a view was left out
     lines.append(joint_views_markdown(joint_views(data, k, j, f)))
+    fits = fit_distance_markdown(res, k)
+    if fits:
+        lines += ["", fits]
     return "\n".join(lines)
+
+
+FIT_LABELS = {"smpl": "step I", "smpl_vae": "SMPL + VAE", "floor": "floor"}
+
+
+def fit_distance_markdown(results, track: int) -> str:
+    """The track's body fits against their input (median over its frames), next to the
+    floor of constant bone lengths; empty without fits."""
+    if results.smpl is None and results.smpl_vae is None:
+        return ""
+    medians = {}
+    for name, v in fit_distance_frames(results, track).items():
+        v = v[np.isfinite(v)]
+        if v.size:
+            medians[name] = float(np.median(v))
+    if not medians:
+        return ""
+    order = [n for n in ("smpl", "smpl_vae", "floor") if n in medians]
+    parts = [f"{FIT_LABELS[n]} {medians[n]:.1f}" for n in order]
+    text = "body fit vs its input (mm, median over the track): " + " · ".join(parts)
+    if "floor" in medians:
+        text += (
+            "  \n_floor: the best skeleton of constant bone lengths; no body of fixed "
+            "proportions beats it_"
+        )
+    return text
 
 
 def frame_label(state: ViewerState, frame: int) -> str:

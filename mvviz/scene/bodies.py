@@ -55,12 +55,15 @@ def skinned_bodies(
     transl_mm: np.ndarray,
     model: BodyModel | BodyModelData,
     num_frames: int,
+    bone_scales: np.ndarray | None = None,
 ) -> Bodies | None:
     """Bone poses of body-frames (numpy: the viewer's start never imports torch).
 
     Args:
         ids: (R,) body id of each row; frames: (R,) frame of each row.
         pose: (R, 24, 3) axis-angle; betas: (R, B); transl_mm: (R, 3).
+        bone_scales: optional (R, 24) bone length factors (a fit's): the bones are posed
+            at those lengths, the mesh bound at the shaped body's (it follows its joints).
     Each body's bind shape is taken from its first row.
     """
     uniq = np.unique(ids)
@@ -69,7 +72,7 @@ def skinned_bodies(
         return None
     m = body_data(model)
     # 1. forward kinematics of every row
-    glob_rot, posed = m.pose_chain(np.asarray(pose).reshape(-1, 24, 3), betas)
+    glob_rot, posed = m.pose_chain(np.asarray(pose).reshape(-1, 24, 3), betas, bone_scales)
     pos = posed + transl_mm[:, None, :] * MM
     # 2. bind pose per body, from its first row
     first = np.array([np.flatnonzero(ids == p)[0] for p in uniq])
@@ -117,5 +120,5 @@ def fitted_bodies(results: PipelineResults) -> Bodies | None:
     k, f = np.nonzero(fit.present)
     return skinned_bodies(
         k, f, fit.pose_rotvecs[k, f], fit.betas[k], fit.transl[k, f], fit.model,
-        results.num_frames,
+        results.num_frames, None if fit.bone_scales is None else fit.bone_scales[k],
     )  # fmt: skip

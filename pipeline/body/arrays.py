@@ -111,10 +111,13 @@ class BodyModelData:
         """(B, nb) betas -> (B, V, 3) rest-pose vertices with the shape blend shapes, m."""
         return self.v_template + np.einsum("vcb,nb->nvc", self.shapedirs, self.padded_betas(betas))
 
-    def pose_chain(self, pose_rotvecs: np.ndarray, betas: np.ndarray):
+    def pose_chain(
+        self, pose_rotvecs: np.ndarray, betas: np.ndarray, bone_scales: np.ndarray | None = None
+    ):
         """Forward kinematics (no translation; the root stays at its rest position).
 
-        Args: pose_rotvecs (B, J, 3) local axis-angle; betas (B, nb).
+        Args: pose_rotvecs (B, J, 3) local axis-angle; betas (B, nb); bone_scales
+            (B, J) each bone's length factor (:func:`scale_bones_np`), None: 1.
         Returns: global rotations (B, J, 3, 3) of the joint frames, posed joints (B, J, 3) m.
         """
         # scipy.spatial loads ~0.3 s of modules: only where a pose is posed, not in every
@@ -123,9 +126,34 @@ class BodyModelData:
 
         B = len(pose_rotvecs)
         rot = Rotation.from_rotvec(np.asarray(pose_rotvecs, np.float64).reshape(-1, 3))
-        return forward_kinematics_np(
-            rot.as_matrix().reshape(B, NUM_JOINTS, 3, 3), self.rest_joints(betas), self
-        )
+        rest = self.rest_joints(betas)
+        if bone_scales is not None:
+            rest = scale_bones_np(rest, bone_scales, self.parents)
+        return forward_kinematics_np(rot.as_matrix().reshape(B, NUM_JOINTS, 3, 3), rest, self)
+
+
+def ancestry(parents: np.ndarray) -> np.ndarray:
+    """(J,) parents -> (J, J) 1.0 where column ``a`` is joint ``j`` (row) or one of its
+    ancestors: a joint's position is the sum of the bone vectors of its row."""
+    J = len(parents)
+    out = np.zeros((J, J))
+    for j in range(J):
+        a = j
+        while a >= 0:
+            out[j, a] = 1.0
+            a = parents[a]
+    return out
+
+
+def scale_bones_np(rest: np.ndarray, bone_scales: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """Rest joints (B, J, 3) with each bone (joint minus parent) scaled by ``bone_scales``
+    (B, J) (a root's entry unused; NaN counts as 1): a skeleton of other proportions whose
+    joints still carry the body's surface, as the skinning attaches it to them."""
+    parents = np.asarray(parents, int)
+    s = np.where(np.isfinite(bone_scales), bone_scales, 1.0)
+    s = np.where(parents[None] >= 0, s, 1.0)
+    local = rest - np.where((parents >= 0)[:, None], rest[:, np.maximum(parents, 0)], 0.0)
+    return np.einsum("ja,nac->njc", ancestry(parents), local * s[..., None])
 
 
 def forward_kinematics_np(

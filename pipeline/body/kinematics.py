@@ -24,7 +24,12 @@ from pipeline.body.keypoints import (
     lever_arms,
     torso_points,
 )
-from pipeline.body.model import BodyModel, KinematicTree, forward_kinematics_components
+from pipeline.body.model import (
+    BodyModel,
+    KinematicTree,
+    forward_kinematics_components,
+    scale_bones,
+)
 from pipeline.core.rotations import (  # noqa: F401  (re-exported: the fit's and the prior's)
     matrix_to_rot6d,
     matrix_to_rotvec,
@@ -191,6 +196,30 @@ def rest_joints(betas: torch.Tensor, buf: KeypointBuffers) -> torch.Tensor:
     return buf.J_template + torch.einsum("jcb,nb->njc", buf.J_shapedirs, betas)
 
 
+SCALED_BONES: dict[str, tuple[str, ...]] = {
+    "hips": ("left_hip", "right_hip"),
+    "thighs": ("left_knee", "right_knee"),
+    "shins": ("left_ankle", "right_ankle"),
+    "shoulders": ("left_shoulder", "right_shoulder"),
+    "upper_arms": ("left_elbow", "right_elbow"),
+    "forearms": ("left_wrist", "right_wrist"),
+}
+"""The bone groups a fit may scale, each named by the joints at the bones' outer ends
+(a bone is a joint minus its parent: ``hips`` is pelvis to hip, ``shoulders`` collar to
+shoulder): the limbs and the widths of hips and shoulders, which every fittable joint
+set pins at both ends. Left and right share a scale (people are near symmetric, and a
+shared scale is measured by twice the keypoints). The spine, neck, head, hands and feet
+keep the shape space's lengths: few joint sets see both ends of those bones."""
+
+
+def bone_scale_matrix() -> np.ndarray:
+    """(len(SCALED_BONES), 24): a group's scale to each joint's bone (0 where unscaled)."""
+    out = np.zeros((len(SCALED_BONES), NUM_JOINTS))
+    for g, names in enumerate(SCALED_BONES.values()):
+        out[g, [_J[n] for n in names]] = 1.0
+    return out
+
+
 def predict_targets(
     rotmats: torch.Tensor,
     betas: torch.Tensor,
@@ -199,6 +228,7 @@ def predict_targets(
     offsets: torch.Tensor | None = None,
     *,
     rows_per_body: Sequence[int] | None = None,
+    bone_scales: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The model's target joints and its SMPL-24 joints.
 
@@ -212,6 +242,9 @@ def predict_targets(
             the model's, in the frame of its joint ``buf.offset_joint`` (the keypoint's
             anchor, else the joint that moves it most); added to the targets, not to the
             joints.
+        bone_scales: optional (N, 24), or (K, 24) with ``rows_per_body``: each bone's
+            length as a factor of the shaped body's
+            (:func:`~pipeline.body.model.scale_bones`).
     Returns:
         targets (N, T, 3) in ``buf.joint_set`` and joints (N, 24, 3), metres, world.
     """
@@ -222,7 +255,11 @@ def predict_targets(
             raise ValueError(f"rows_per_body {list(rows_per_body)} does not cover {N} rows of "
                              f"{len(betas)} bodies")  # fmt: skip
         betas = torch.repeat_interleave(betas, torch.as_tensor(rows_per_body), 0)
+        if bone_scales is not None:
+            bone_scales = torch.repeat_interleave(bone_scales, torch.as_tensor(rows_per_body), 0)
     rest = rest_joints(betas, buf)
+    if bone_scales is not None:
+        rest = scale_bones(rest, bone_scales, buf.parents)
     glob_c, posed_c = forward_kinematics_components(rotmats, rest, buf.tree)
     glob, posed = glob_c.permute(3, 2, 0, 1), posed_c.permute(2, 1, 0)  # (N, J, 3, 3), (N, J, 3)
     joints = posed + transl[:, None]

@@ -28,6 +28,7 @@ from pipeline.body.arrays import (  # noqa: F401  (re-exported: the loaders' old
     NUM_JOINTS,
     REQUIRED_KEYS,
     BodyModelData,
+    ancestry,
     body_data,
     kinematic_levels,
     load_body_model_arrays,
@@ -110,6 +111,18 @@ def forward_kinematics_components(
         poss.append(poss[-1][:, par] + (Rp * offset[None]).sum(1))
     order = tree.level_order
     return torch.cat(rots, 2)[:, :, order], torch.cat(poss, 1)[:, order]
+
+
+def scale_bones(rest: torch.Tensor, bone_scales: torch.Tensor, parents: np.ndarray) -> torch.Tensor:
+    """Rest joints (N, J, 3) with each bone (joint minus parent) scaled by ``bone_scales``
+    (N, J) (a root's entry unused): :func:`pipeline.body.arrays.scale_bones_np` in torch,
+    differentiable (the fit learns the scales)."""
+    parents = np.asarray(parents, int)
+    has_parent = torch.as_tensor(parents >= 0)
+    local = rest - rest[:, np.maximum(parents, 0)] * has_parent.to(rest.dtype)[:, None]
+    s = torch.where(has_parent, bone_scales, torch.ones_like(bone_scales))
+    anc = torch.as_tensor(ancestry(parents), dtype=rest.dtype)
+    return torch.einsum("ja,nac->njc", anc, local * s[..., None])
 
 
 def rigid_chain(
@@ -218,8 +231,10 @@ class BodyModel(torch.nn.Module):
         _, posed = forward_kinematics(rot_mats, rest, self.tree)  # no 4x4 frames needed
         return posed if transl is None else posed + transl[:, None]
 
-    def forward(self, pose, betas=None, transl=None) -> BodyOutput:
-        """Full linear blend skinning; same arguments as :meth:`joints`."""
+    def forward(self, pose, betas=None, transl=None, bone_scales=None) -> BodyOutput:
+        """Full linear blend skinning; same arguments as :meth:`joints`, and optional
+        ``bone_scales`` (B, 24): each bone's length as a factor of the shaped body's
+        (:func:`scale_bones`; the surface moves with its joints)."""
         pose, betas, transl = self._prepare(pose, betas, transl)
         B = pose.shape[0]
         # 1. shape blend shapes
@@ -231,8 +246,13 @@ class BodyModel(torch.nn.Module):
             eye = torch.eye(3, dtype=pose.dtype)
             feat = (rot_mats[:, 1:] - eye).reshape(B, -1)
             v_shaped = v_shaped + (feat @ self.posedirs).reshape(B, -1, 3)
-        # 3. forward kinematics; joint transforms relative to the rest pose
-        posed, T = rigid_chain(rot_mats, rest, self.tree)
+        # 3. forward kinematics (of the scaled skeleton); joint transforms relative to the
+        # rest pose the vertices are bound to
+        chain_rest = rest
+        if bone_scales is not None:
+            scales = torch.as_tensor(bone_scales, dtype=rest.dtype).reshape(B, -1)
+            chain_rest = scale_bones(rest, scales, self.parents)
+        posed, T = rigid_chain(rot_mats, chain_rest, self.tree)
         rel_t = posed - (T[..., :3, :3] @ rest[..., None])[..., 0]  # (B, J, 3)
         # 4. blend per-vertex transforms by the skinning weights
         Rv = torch.einsum("vj,njab->nvab", self.weights, T[..., :3, :3])

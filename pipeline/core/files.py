@@ -44,16 +44,23 @@ def user_cache_root() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mvviz"
 
 
+PROBE_PREFIX = ".mvviz-probe."
+
+
 def cannot_write(folder: str | os.PathLike) -> str | None:
     """Why no file can be created in the existing ``folder`` (None: one can). Tried, not
     guessed from the mode bits: a read-only mount, another user's folder and root's
     capabilities all answer for themselves."""
     try:
-        fd, probe = tempfile.mkstemp(prefix=".mvviz-probe.", dir=folder)
+        fd, probe = tempfile.mkstemp(prefix=PROBE_PREFIX, dir=folder)
     except OSError as exc:
         return exc.strerror or type(exc).__name__
     os.close(fd)
-    os.unlink(probe)
+    # A probe lives between two system calls; one found here is a killed process's
+    # (or, harmlessly, one being removed this instant: its own unlink tolerates that).
+    for stale in Path(folder).glob(PROBE_PREFIX + "*"):
+        with contextlib.suppress(OSError):
+            stale.unlink()
     return None
 
 

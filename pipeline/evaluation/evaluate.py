@@ -21,7 +21,8 @@ Predicted people are matched to ground truth per frame by Hungarian on MPJPE.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -49,6 +50,9 @@ class Evaluation:
     smpl24: dict[str, dict[str, float]]  # SMPL fits scored on all 24 SMPL joints vs joints3d
     # pipeline.evaluation.label_check on the raw tracks (no GT needed)
     labels: LabelCheck | None = None
+    # per track (and "all"): median over frames of each fit's mean distance to its input
+    # (the RTS tracks) and of the constant-bone-length floor's (fit_distances)
+    fit_distance: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return {
@@ -78,6 +82,7 @@ class Evaluation:
                 for k, v in self.smpl24.items()
             },
             "labels": self.labels.to_json() if self.labels is not None else None,
+            "fit_distance_mm": self.fit_distance,
         }
 
 
@@ -231,7 +236,47 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
         plausibility=plaus,
         smpl24=smpl24,
         labels=check_results(results, scene.rig),
+        fit_distance=fit_distances(results),
     )
+
+
+def fit_distances(results: PipelineResults) -> dict[str, dict[str, float]]:
+    """How near each body fit comes to its input, next to what no body of constant
+    proportions can beat: per track (``"0"``, ``"1"``, ...) and over all person-frames
+    (``"all"``), the median over frames of the mean joint distance (mm) of ``floor``
+    (:mod:`pipeline.fit.floor`, from ``results.fit_floor``), ``smpl`` and ``smpl_vae``
+    to the RTS tracks the fits were given. Empty without fits."""
+    if results.smpl is None and results.smpl_vae is None:
+        return {}
+    per_frame = [fit_distance_frames(results, k) for k in range(results.num_tracks)]
+    out = {str(k): {n: _median(v) for n, v in d.items()} for k, d in enumerate(per_frame)}
+    out = {k: row for k, row in out.items() if np.isfinite(list(row.values())).any()}
+    names = per_frame[0].keys() if per_frame else ()
+    out["all"] = {n: _median(np.concatenate([d[n] for d in per_frame])) for n in names}
+    return out
+
+
+def fit_distance_frames(results: PipelineResults, track: int) -> dict[str, np.ndarray]:
+    """(F,) per frame of ``track``: the mean joint distance (mm) of ``floor``, ``smpl``
+    and ``smpl_vae`` (those the results hold) to the RTS joints the fits were given."""
+    out: dict[str, np.ndarray] = {}
+    if results.fit_floor is not None:
+        out["floor"] = np.asarray(results.fit_floor[track], float)
+    target = np.asarray(results.track_smoothed[track])
+    for name in ("smpl", "smpl_vae"):
+        fit = getattr(results, name)
+        if fit is None:
+            continue
+        d = np.linalg.norm(np.asarray(fit.keypoints[track]) - target, axis=-1)  # (F, T)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # frames without the track
+            out[name] = np.nanmean(d, -1)
+    return out
+
+
+def _median(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    return float(np.median(x)) if x.size else float("nan")
 
 
 def stage_tracks(results: PipelineResults) -> dict[str, np.ndarray]:
@@ -311,4 +356,17 @@ def format_table(ev: Evaluation, *, view_names: list[str] | None = None) -> str:
     )
     if ev.labels is not None:
         lines.append(f"labels: {ev.labels.summary()}")
+    if ev.fit_distance:
+        lines.append("")
+        lines.append(
+            "body fits vs their input (RTS), median over frames of the mean joint distance"
+        )
+        names = [n for n in ("floor", "smpl", "smpl_vae") if n in ev.fit_distance["all"]]
+        head = f"{'track':<8}" + "".join(f"{n + ' mm':>13}" for n in names)
+        lines.append(head)
+        lines.append("-" * len(head))
+        for k, row in ev.fit_distance.items():
+            lines.append(f"{k:<8}" + "".join(f"{row.get(n, float('nan')):13.1f}" for n in names))
+        lines.append("(floor = the best skeleton of constant bone lengths: what no body of fixed")
+        lines.append(" proportions can beat on these joints)")
     return "\n".join(lines)

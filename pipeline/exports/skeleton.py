@@ -8,7 +8,7 @@ position ``J_0`` (not rotated) plus the translation, and each child ``j`` at
 metres):
 
 * joint offsets: the shaped rest joints' differences ``J_j - J_parent`` (canonical
-  frame = the file's, both y up), the root's offset zero;
+  frame = the file's, both y up) times the fit's bone scales, the root's offset zero;
 * root position per frame: ``M @ (J_0 + transl / 1000)``;
 * root rotation per frame: ``M @ R_0``; every other joint's local rotation as fitted.
 
@@ -39,7 +39,9 @@ class TrackSkeleton:
         names: (J,) joint names (the body model's, else SMPL's).
         parents: (J,) parent index, -1 for the root.
         rest_joints: (J, 3) shaped rest joints, metres, canonical (= file) axes, y up.
-        offsets: (J, 3) ``rest_joints[j] - rest_joints[parent]``, the root's zero.
+        offsets: (J, 3) ``rest_joints[j] - rest_joints[parent]`` times the fit's bone
+            scale (``SmplFit.bone_scales``), the root's zero; a glTF binds the mesh at
+            ``rest_joints``, so its surface follows the scaled joints.
         local_rotations: (F, J, 3, 3) local rotations, the root's in the file's axes.
         root_position: (F, 3) metres, file axes.
         present: (F,) bool, frames the fit has; the others repeat ``held_from``.
@@ -77,6 +79,8 @@ def track_skeleton(fit: SmplFit, k: int) -> TrackSkeleton:
     offsets = rest.copy()
     offsets[0] = 0.0
     offsets[1:] = rest[1:] - rest[parents[1:]]
+    if fit.bone_scales is not None:  # the fit's bone lengths (the mesh stays bound to rest)
+        offsets[1:] *= np.nan_to_num(np.asarray(fit.bone_scales[k], float), nan=1.0)[1:, None]
     pose = np.asarray(fit.pose_rotvecs[k][held], float)  # (F, J, 3)
     F, J = pose.shape[:2]
     local = Rotation.from_rotvec(pose.reshape(-1, 3)).as_matrix().reshape(F, J, 3, 3)

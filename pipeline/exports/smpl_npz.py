@@ -21,7 +21,11 @@ and ``world_convention`` (the text above).
 Frames: the track's span, from its first to its last fitted frame
 (``frame_offset`` = the scene frame of row 0); a gap inside it holds the last fitted
 pose, and ``present`` (F,) says which rows were fitted. Also ``joints`` (F, 24, 3)
-metres (the fitted joints), ``track``, ``stage`` and ``joint_set`` (what was fitted to).
+metres (the fitted joints), ``track``, ``stage`` and ``joint_set`` (what was fitted to),
+and ``bone_scales`` (24,): the fit's bone length factors on top of the betas
+(``SmplFit.bone_scales``, 1 = the shape space's length). AMASS's loaders do not know
+them: posed by ``poses`` and ``betas`` alone, the body has the shape space's proportions
+and ``joints`` differ from its joints where a factor is not 1.
 """
 
 from __future__ import annotations
@@ -74,6 +78,11 @@ def smpl_npz_arrays(fit: SmplFit, k: int, *, fps: float) -> dict[str, np.ndarray
         "gender": np.array("neutral"),
         "mocap_framerate": np.array(float(fps)),
         "joints": np.asarray(fit.joints[k][held], np.float64) / MM_PER_M,
+        "bone_scales": (
+            np.ones(fit.pose_rotvecs.shape[2])
+            if fit.bone_scales is None
+            else np.nan_to_num(np.asarray(fit.bone_scales[k], np.float64), nan=1.0)
+        ),
         "present": span.copy(),
         "frame_offset": np.array(lo),
         "track": np.array(k),
@@ -81,7 +90,7 @@ def smpl_npz_arrays(fit: SmplFit, k: int, *, fps: float) -> dict[str, np.ndarray
         "joint_set": np.array(fit.joint_set),
         "world_convention": np.array(WORLD_CONVENTION),
         **{key: np.array(v) for key, v in ident.items()},
-        "mvviz_meta": np.array(json.dumps({"format": "mvviz smpl-npz", "version": 1})),
+        "mvviz_meta": np.array(json.dumps({"format": "mvviz smpl-npz", "version": 2})),
     }
 
 

@@ -70,7 +70,8 @@ def fit_in_chunks(
 
         buf = dataclasses.replace(buf, offset_mask=torch.as_tensor(buf.fitted, dtype=torch.float32))
     out: list[dict[str, np.ndarray] | None] = [None, None]
-    shape: list[tuple[np.ndarray, np.ndarray] | None] = [None, None]  # betas, offsets (mm)
+    # betas, offsets (mm), bone scales (None: the fit learns none)
+    shape: list[tuple[np.ndarray, np.ndarray, np.ndarray | None] | None] = [None, None]
     last: list[SmplFit | None] = [None, None]
     seconds = [0.0, 0.0]
     starts = range(0, max(F, 1), chunk_frames)
@@ -84,18 +85,21 @@ def fit_in_chunks(
                 transl = np.full((K, e - ws, 3), np.nan)
                 pose[:, : s - ws] = out[0]["pose_rotvecs"][:, ws:s]
                 transl[:, : s - ws] = out[0]["transl"][:, ws:s]
-                warm = WarmStart(shape[0][0], shape[0][1], pose, transl)
+                warm = WarmStart(shape[0][0], shape[0][1], pose, transl, shape[0][2])
             fits = _fit(x[:, ws:e], buf, model, prior, params, None, False, warm)
             for i, fit in enumerate(fits):
                 if fit is None:
                     continue
                 if out[i] is None:
                     out[i] = _blank(fit, F)
-                    shape[i] = (fit.betas.copy(), fit.keypoint_offsets.copy())
+                    scales = None if fit.bone_scales is None else fit.bone_scales.copy()
+                    shape[i] = (fit.betas.copy(), fit.keypoint_offsets.copy(), scales)
                 for k in PER_FRAME:
                     out[i][k][:, s:e] = getattr(fit, k)[:, s - ws :]
                 new = ~np.isfinite(shape[i][0]).all(1) & np.isfinite(fit.betas).all(1)
                 shape[i][0][new], shape[i][1][new] = fit.betas[new], fit.keypoint_offsets[new]
+                if shape[i][2] is not None and fit.bone_scales is not None:
+                    shape[i][2][new] = fit.bone_scales[new]
                 seconds[i] += fit.seconds
                 last[i] = fit
             bar.update()
@@ -106,7 +110,8 @@ def fit_in_chunks(
             continue
         results.append(
             dataclasses.replace(
-                last[i], betas=shape[i][0], keypoint_offsets=shape[i][1], seconds=seconds[i],
+                last[i], betas=shape[i][0], keypoint_offsets=shape[i][1],
+                bone_scales=shape[i][2], seconds=seconds[i],
                 **out[i],
             )  # fmt: skip
         )

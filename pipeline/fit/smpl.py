@@ -91,6 +91,7 @@ import torch
 from pipeline.body.kinematics import (
     NUM_JOINTS,
     KeypointBuffers,
+    bone_scale_matrix,
     keypoint_buffers,
     matrix_to_rot6d,
     matrix_to_rotvec,
@@ -408,10 +409,12 @@ def _smooth_loss(joints: torch.Tensor, prob: _Problem) -> torch.Tensor:
     return (acc * acc).sum(-1).mean()
 
 
-def _objective(R, betas, transl, prob, buf, params, offsets=None) -> torch.Tensor:
+def _objective(R, betas, transl, prob, buf, params, offsets=None, scales=None) -> torch.Tensor:
     """Data term + temporal smoothness for local rotations R (N, 24, 3, 3), betas (K, B)
-    one per track."""
-    kp, joints = predict_targets(R, betas, transl, buf, offsets, rows_per_body=prob.rows_per_track)
+    and bone scales (K, 24) one per track."""
+    kp, joints = predict_targets(
+        R, betas, transl, buf, offsets, rows_per_body=prob.rows_per_track, bone_scales=scales
+    )
     loss = _data_loss(kp, prob, params.smooth_l1_beta_m)
     return loss + params.w_smooth * _smooth_loss(joints, prob)
 
@@ -424,14 +427,17 @@ def _rest_distance(rotmats: torch.Tensor) -> torch.Tensor:
 # --------------------------------------------------------------------------- the fit
 
 
-def _make_fit(prob, buf, model, rotmats, betas, transl, *, seconds, stage, offsets=None) -> SmplFit:
+def _make_fit(
+    prob, buf, model, rotmats, betas, transl, *, seconds, stage, offsets=None, scales=None
+) -> SmplFit:
     """Scatter the fitted rows (metres) back into (K, F, ...) arrays in mm, NaN elsewhere;
-    ``offsets`` (K, T, 3) m or None."""
+    ``offsets`` (K, T, 3) m or None; ``scales`` (K, 24) or None."""
     with torch.no_grad():
         off = None if offsets is None else offsets[prob.track_rows]
         kp, joints = predict_targets(
-            rotmats, betas, transl, buf, off, rows_per_body=prob.rows_per_track
-        )
+            rotmats, betas, transl, buf, off, rows_per_body=prob.rows_per_track,
+            bone_scales=scales,
+        )  # fmt: skip
     err = (kp - prob.target).norm(dim=-1).double().numpy()
     kp_mm = MM_PER_M * kp.double().numpy()
     kp_mm[:, ~buf.fitted] = np.nan  # keypoints the body model cannot give
@@ -453,9 +459,13 @@ def _make_fit(prob, buf, model, rotmats, betas, transl, *, seconds, stage, offse
     if offsets is not None:
         out_o = MM_PER_M * offsets.detach().double().numpy()
     out_o[np.setdiff1d(np.arange(prob.K), seen)] = np.nan
+    out_s = None
+    if scales is not None:
+        out_s = np.full((prob.K, NUM_JOINTS), np.nan)
+        out_s[seen] = scales.detach().double().numpy()[seen]
     return SmplFit(
         joint_set=buf.joint_set, betas=out_b, seconds=seconds, stage=stage, model=model,
-        keypoint_offsets=out_o, **out,
+        keypoint_offsets=out_o, bone_scales=out_s, **out,
     )  # fmt: skip
 
 
@@ -512,6 +522,7 @@ class WarmStart:
         betas: (K, B) per track, NaN for a track the earlier fit did not see (phase 0's
             betas then).
         keypoint_offsets: (K, T, 3) mm per track, NaN likewise (then zero).
+        bone_scales: (K, 24) per track, NaN likewise (then 1); None: all 1.
         pose_rotvecs: (K, F, 24, 3) local axis-angle per person-frame, NaN where phase 0
             starts (frames the earlier fit did not cover).
         transl: (K, F, 3) mm, NaN likewise.
@@ -521,6 +532,7 @@ class WarmStart:
     keypoint_offsets: np.ndarray
     pose_rotvecs: np.ndarray
     transl: np.ndarray
+    bone_scales: np.ndarray | None = None
 
 
 def _fit(
@@ -542,39 +554,44 @@ def _fit(
             torch.zeros(0, 3), seconds=0.0, stage="smpl",
         )  # fmt: skip
         return empty, (None if prior is None else dataclasses.replace(empty, stage="smpl_vae"))
-    R1, betas, transl, off1 = _step_one(prob, buf, params, progress, warm)
+    R1, betas, transl, off1, scales = _step_one(prob, buf, params, progress, warm)
     fit1 = _make_fit(
         prob, buf, model, R1, betas, transl, seconds=time.perf_counter() - t0, stage="smpl",
-        offsets=off1,
+        offsets=off1, scales=scales,
     )  # fmt: skip
     if prior is None:
         return fit1, None
-    corr = _prior_correction(prob, buf, prior, params, R1, betas, transl, off1, progress)
+    corr = _prior_correction(prob, buf, prior, params, R1, betas, transl, off1, scales, progress)
     fit2 = _make_fit(
         prob, buf, model, corr.rotmats, betas, corr.transl, seconds=corr.seconds,
-        stage="smpl_vae", offsets=off1,
+        stage="smpl_vae", offsets=off1, scales=scales,
     )  # fmt: skip
     return fit1, fit2
 
 
 def _phase_zero(prob: _Problem, buf: KeypointBuffers, params: FitParams, warm: WarmStart | None):
-    """Initial rotations (N, 24, 3, 3), translations (N, 3), betas (K, nb) and keypoint
-    offsets (K, T, 3), metres, numpy: phase 0's closed forms, replaced by ``warm``'s values
-    where it has them; and (K,) bool, the tracks whose betas and offsets ``warm`` holds."""
+    """Initial rotations (N, 24, 3, 3), translations (N, 3), betas (K, nb), keypoint
+    offsets (K, T, 3) and bone scales (K, 24), metres, numpy: phase 0's closed forms,
+    replaced by ``warm``'s values where it has them; and (K,) bool, the tracks whose
+    betas and offsets ``warm`` holds."""
     R0, transl = initial_alignment(prob, buf, min_points=params.min_torso_points)
     rotmats = analytic_pose(prob, buf, R0)
     betas = initial_betas(prob, buf)
     offsets = np.zeros((prob.K, buf.num_targets, 3))
+    scales = np.ones((prob.K, NUM_JOINTS))
     if warm is None:
-        return rotmats, transl, betas, offsets, np.zeros(prob.K, bool)
+        return rotmats, transl, betas, offsets, scales, np.zeros(prob.K, bool)
     seen = np.isfinite(warm.betas).all(1) & np.isfinite(warm.keypoint_offsets).all((1, 2))
     betas[seen] = warm.betas[seen]
     offsets[seen] = warm.keypoint_offsets[seen] / MM_PER_M
+    if warm.bone_scales is not None:
+        known = seen & np.isfinite(warm.bone_scales).all(1)
+        scales[known] = warm.bone_scales[known]
     pose = warm.pose_rotvecs[prob.track, prob.frame]  # (N, 24, 3)
     posed = np.isfinite(pose).all((1, 2)) & np.isfinite(warm.transl[prob.track, prob.frame]).all(1)
     rotmats[posed] = rotvec_to_matrix(pose[posed])
     transl[posed] = warm.transl[prob.track[posed], prob.frame[posed]] / MM_PER_M
-    return rotmats, transl, betas, offsets, seen
+    return rotmats, transl, betas, offsets, scales, seen
 
 
 def _step_one(
@@ -585,9 +602,9 @@ def _step_one(
     then step I by Adam (``params.iters``, or ``params.iters_warm`` from a warm start).
     The betas and offsets of the tracks ``warm`` holds stay as they are (a track's body is
     the one of its first chunk, so all its frames share one shape).
-    Returns rotations (N, 24, 3, 3), betas (K, nb), translations (N, 3) and the learnt
-    keypoint offsets (K, T, 3) or None, all detached."""
-    rotmats0, t_init, betas0, offsets0, held = _phase_zero(prob, buf, params, warm)
+    Returns rotations (N, 24, 3, 3), betas (K, nb), translations (N, 3), the learnt
+    keypoint offsets (K, T, 3) or None and bone scales (K, 24) or None, all detached."""
+    rotmats0, t_init, betas0, offsets0, scales0, held = _phase_zero(prob, buf, params, warm)
     held_t = torch.as_tensor(held)
     rot6d = matrix_to_rot6d(torch.as_tensor(rotmats0, dtype=torch.float32)).requires_grad_(True)
     transl = torch.as_tensor(t_init, dtype=torch.float32).requires_grad_(True)
@@ -596,6 +613,12 @@ def _step_one(
     w_joint[0] = 0.0
     offsets = torch.as_tensor(offsets0, dtype=torch.float32).requires_grad_(True)
     use_offsets = params.w_offset > 0
+    use_scales = params.w_bone_scale > 0
+    # one log scale per bone group and track (kinematics.SCALED_BONES), from the start's
+    # per-joint scales (a group's bones share theirs)
+    groups_of = torch.as_tensor(bone_scale_matrix(), dtype=torch.float32)  # (G, 24)
+    per_group = np.log(scales0) @ bone_scale_matrix().T / bone_scale_matrix().sum(1)
+    log_scales = torch.as_tensor(per_group, dtype=torch.float32).requires_grad_(True)
     # (T, 1): the targets whose offsets this fit learns (the others stay zero)
     learnt = (buf.offset_mask - (0.0 if params.foot_offsets else buf.foot_offset))[:, None]
 
@@ -604,10 +627,18 @@ def _step_one(
         b = torch.where(held_t[:, None], betas.detach(), betas) if held.any() else betas
         o = torch.where(held_t[:, None, None], offsets.detach(), offsets) if held.any() else offsets
         off = (o * learnt)[prob.track_rows] if use_offsets else None
-        loss = _objective(R, b, transl, prob, buf, params, off)
+        sc = None
+        if use_scales:
+            ls = log_scales
+            if held.any():
+                ls = torch.where(held_t[:, None], log_scales.detach(), log_scales)
+            sc = torch.exp(ls @ groups_of)  # (K, 24), 1 for the bones no group scales
+        loss = _objective(R, b, transl, prob, buf, params, off, sc)
         loss = loss + params.w_betas * (b * b).mean()
         if use_offsets:
             loss = loss + params.w_offset * (o * o).sum(-1).mean()
+        if use_scales:
+            loss = loss + params.w_bone_scale * (ls * ls).sum(-1).mean()
         if params.w_limit > 0:
             loss = loss + params.w_limit * limit_penalty(R).mean()
         return loss + (_rest_distance(R) * w_joint).sum(1).mean()
@@ -615,25 +646,30 @@ def _step_one(
     groups = [([rot6d], params.lr_rot), ([transl], params.lr_transl_m), ([betas], params.lr_betas)]
     if use_offsets:
         groups.append(([offsets], params.lr_offset_m))
+    if use_scales:
+        groups.append(([log_scales], params.lr_bone_scale))
     iters = params.iters if warm is None else params.iters_warm
     adam_cosine(groups, loss_step1, iters, progress=progress, desc="SMPL fit (step I)")
     with torch.no_grad():
         R1 = rot6d_to_matrix(rot6d)
     off1 = (offsets * learnt).detach() if use_offsets else None
-    return R1, betas.detach(), transl.detach(), off1
+    scales1 = torch.exp(log_scales @ groups_of).detach() if use_scales else None
+    return R1, betas.detach(), transl.detach(), off1, scales1
 
 
-def _prior_correction(prob, buf, prior, params, R1, betas, transl, off1, progress):
+def _prior_correction(prob, buf, prior, params, R1, betas, transl, off1, scales, progress):
     """Step I corrected by the VAE pose prior (:func:`correct_with_prior`), the data
-    term the same as step I's with its betas and offsets held."""
+    term the same as step I's with its betas, offsets and bone scales held."""
     off_rows = None if off1 is None else off1[prob.track_rows]
     observed = prob.weight > 0
 
     def objective(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        return _objective(R, betas, t, prob, buf, params, off_rows)
+        return _objective(R, betas, t, prob, buf, params, off_rows, scales)
 
     def row_residual(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        kp, _ = predict_targets(R, betas, t, buf, off_rows, rows_per_body=prob.rows_per_track)
+        kp, _ = predict_targets(
+            R, betas, t, buf, off_rows, rows_per_body=prob.rows_per_track, bone_scales=scales
+        )
         err = (kp - prob.target).norm(dim=-1) * observed
         return err.sum(1) / observed.sum(1).clamp_min(1)
 

@@ -83,6 +83,18 @@ class FitParams:
     on Pose2Sim's balancing trial they bring the body keypoints only 6.0 / 4.7 / 6.0 / 5.9
     -> 5.7 / 4.6 / 5.6 / 5.5 px nearer the RTS joints (``bench/bench_peer_pose2sim.py``
     reports the floor with them)."""
+    w_bone_scale: float = 1e-2
+    """Sum over the bone groups of (log scale)^2, mean over tracks (0 = bones keep the
+    shape space's lengths): each group of a track (hips and shoulders wide, thighs,
+    shins, upper arms, forearms: ``kinematics.SCALED_BONES``) may take a length the 10
+    betas cannot reach. On CMU walks synthesised on the Pose2Sim and Campus rigs step I
+    comes 0.4 mm nearer the truth (15.9 -> 15.5, 17.2 -> 16.8 mm) and its SMPL joints
+    1.2 mm; on the sample 0.1 mm (SMPL joints 0.3 mm). Weaker (1e-3) gains 0.4 mm more
+    on CMU but costs the noisy twin's SMPL joints 1.4 mm (the scales take up noise)."""
+    lr_bone_scale: float = 0.1
+    floor_iterations: int = 150
+    """Adam steps of the constant-bone-length skeleton that a fit is judged by
+    (:mod:`pipeline.fit.floor`; 0 = not computed)."""
     w_limit: float = 1e-3
     """Squared excess (rad^2) over the joint limits (:mod:`pipeline.fit.limit_penalty`), step I."""
     min_torso_points: int = 3
@@ -113,6 +125,9 @@ class SmplFit:
             relative to the body model's, in the frame of each keypoint's joint
             (``KeypointBuffers.offset_joint``); ``keypoints`` include them, the mesh and
             ``joints`` do not (the body stays a plain SMPL body). None: zero.
+        bone_scales: (K, 24) per track, each bone's length (joint minus its parent) as a
+            factor of the shaped body's; ``joints``, ``keypoints`` and the mesh follow
+            them (the skinning carries the surface with its joints). None: all 1.
     """
 
     joint_set: str
@@ -126,6 +141,7 @@ class SmplFit:
     stage: str
     model: BodyModel | BodyModelData = field(repr=False)
     keypoint_offsets: np.ndarray | None = None
+    bone_scales: np.ndarray | None = None
 
     @property
     def present(self) -> np.ndarray:
@@ -141,10 +157,12 @@ class SmplFit:
 
         from pipeline.body.model import torch_body_model
 
+        scales = None if self.bone_scales is None else self.bone_scales[k][None]
         with torch.no_grad():
             out = torch_body_model(self.model)(
                 torch.as_tensor(self.pose_rotvecs[k, f][None], dtype=torch.float32),
                 torch.as_tensor(self.betas[k][None], dtype=torch.float32),
+                bone_scales=None if scales is None else np.nan_to_num(scales, nan=1.0),
             )
         return MM_PER_M * out.vertices[0].double().numpy() + self.transl[k, f]
 
@@ -154,6 +172,8 @@ class SmplFit:
         out = {prefix + k: getattr(self, k) for k in keys}
         if self.keypoint_offsets is not None:
             out[prefix + "keypoint_offsets"] = self.keypoint_offsets
+        if self.bone_scales is not None:
+            out[prefix + "bone_scales"] = self.bone_scales
         return out
 
     @classmethod
@@ -169,12 +189,14 @@ class SmplFit:
         """Inverse of :meth:`arrays` (``seconds`` is not stored: NaN)."""
         keys = ("pose_rotvecs", "betas", "transl", "joints", "keypoints", "residual")
         off = arrays.get(prefix + "keypoint_offsets") if hasattr(arrays, "get") else None
+        scales = arrays.get(prefix + "bone_scales") if hasattr(arrays, "get") else None
         return cls(
             joint_set=joint_set,
             model=model,
             stage=stage,
             seconds=float("nan"),
             keypoint_offsets=None if off is None else np.asarray(off),
+            bone_scales=None if scales is None else np.asarray(scales),
             **{k: np.asarray(arrays[prefix + k]) for k in keys},
         )
 

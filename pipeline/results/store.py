@@ -141,6 +141,8 @@ class PipelineResults:
     # un-mirrored by association (det_joints2d holds the un-mirrored joints)
     track_resolved: np.ndarray | None = None  # (K, F, J) bool: re-solved from the views
     # that fit the track's bones (pipeline.stages.proportions)
+    fit_floor: np.ndarray | None = None  # (K, F) mm: how near the best skeleton of constant
+    # bone lengths comes to the fits' input (track_smoothed), pipeline.fit.floor
     track_contradicted: np.ndarray | None = None  # (K, F, J) bool: contradicts the track's
     # bones, kept in track_raw, skipped by the filter where it can coast (track_rejected)
 
@@ -380,7 +382,9 @@ def code_digest() -> str:
 
 # Fields stored as one array each; the others go into the file's JSON meta or, for the
 # optional arrays and the fits, are handled one by one.
-OPTIONAL_ARRAYS = ("det_restored", "det_flipped", "track_resolved", "track_contradicted")
+OPTIONAL_ARRAYS = (
+    "det_restored", "det_flipped", "track_resolved", "track_contradicted", "fit_floor",
+)  # fmt: skip
 _NOT_ARRAYS = {
     "config", "joint_set", "num_frames", "num_views", "cache_key", *OPTIONAL_ARRAYS,
 }  # fmt: skip
@@ -435,6 +439,8 @@ def fit_arrays(results: PipelineResults) -> dict[str, np.ndarray]:
         fit = getattr(results, name)
         if fit is not None:
             arrays.update(fit.arrays(prefix))
+    if results.fit_floor is not None:
+        arrays["fit_floor"] = results.fit_floor
     return arrays
 
 

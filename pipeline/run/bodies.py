@@ -10,6 +10,8 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from pipeline.body.keypoints import FITTABLE_JOINT_SETS
 from pipeline.config import PipelineConfig
 from pipeline.core.progress import Progress
@@ -35,7 +37,9 @@ def fit_bodies(
     *,
     progress: Progress = True,
 ) -> PipelineResults:
-    """Step I SMPL fit to the RTS-smoothed tracks, and its VAE-corrected version.
+    """Step I SMPL fit to the RTS-smoothed tracks, its VAE-corrected version, and the floor
+    they are judged by (:mod:`pipeline.fit.floor`: how near the best skeleton of constant
+    bone lengths comes to the same tracks).
 
     The fit is a batch over the whole sequence (its smoothness term looks at t - 1 and
     t + 1), so it takes the smoothed tracks whatever ``kalman.smoother`` shows as "the"
@@ -65,4 +69,14 @@ def fit_bodies(
         progress=progress,
         **chunks,
     )
-    return dataclasses.replace(results, smpl=fit_i, smpl_vae=fit_vae)
+    floor = None
+    if config.smpl_fit.floor_iterations > 0:
+        from pipeline.data.joint_sets import get_joint_set
+        from pipeline.fit.floor import rigid_floor
+
+        bones = np.array(get_joint_set(results.joint_set).bones)
+        floor = rigid_floor(
+            results.track_smoothed, bones, iterations=config.smpl_fit.floor_iterations,
+            beta_m=config.smpl_fit.smooth_l1_beta_m, progress=progress,
+        ).distance  # fmt: skip
+    return dataclasses.replace(results, smpl=fit_i, smpl_vae=fit_vae, fit_floor=floor)

@@ -363,6 +363,18 @@ def _forward_pass(
     return s
 
 
+def _skip_mask(skip: np.ndarray | None, shape: tuple, observed: np.ndarray) -> np.ndarray:
+    """``skip`` (frames and trajectories: ``shape``) as (T, N) bool of observed entries."""
+    if skip is None:
+        return np.zeros(observed.shape, bool)
+    if np.shape(skip) != shape:
+        raise ValueError(
+            f"skip must be {shape} (frames and trajectories of the measurements), "
+            f"got {np.shape(skip)}"
+        )
+    return np.asarray(skip, bool).reshape(observed.shape) & observed
+
+
 def kalman_filter(
     measurements: np.ndarray, params: KalmanParams | None = None, *, skip: np.ndarray | None = None
 ) -> FilterResult:
@@ -389,15 +401,7 @@ def kalman_filter(
     z_all = z_all.reshape(T, N, 3)
     cv = params.model == "constant_velocity"
     observed = np.isfinite(z_all).all(axis=-1)  # (T, N)
-    skipped = np.zeros((T, N), bool)
-    if skip is not None:
-        if np.shape(skip) != z_all.shape[:1] + lead:
-            raise ValueError(
-                f"skip must be {z_all.shape[:1] + lead} (frames and trajectories of the"
-                f" measurements), got {np.shape(skip)}"
-            )
-        skipped = np.asarray(skip, bool).reshape(T, N) & observed
-    s = _forward_pass(z_all, observed, skipped, params)
+    s = _forward_pass(z_all, observed, _skip_mask(skip, z_all.shape[:1] + lead, observed), params)
 
     # Outputs derived from the stored steps; blank frames where the trajectory is not
     # alive (before its start, or on/after a drop) and innovations without a measurement.

@@ -194,6 +194,62 @@ def _with_agreeing_views(
     return out
 
 
+def _limbs(bones: np.ndarray, num_joints: int) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """The skeleton seen from its centre (:func:`skeleton_tree`): (B,) each bone's outer
+    end, (B,) the bones from the centre outwards, and per joint its limb (the joint and
+    every joint beyond it)."""
+    parent, order = skeleton_tree(bones, num_joints)
+    depth = np.zeros(num_joints, int)
+    children: list[list[int]] = [[] for _ in range(num_joints)]
+    for j in order:
+        if parent[j] >= 0:
+            depth[j] = depth[parent[j]] + 1
+            children[parent[j]].append(j)
+    limbs = []
+    for c in range(num_joints):
+        out, todo = [], [c]
+        while todo:
+            j = todo.pop()
+            out.append(j)
+            todo.extend(children[j])
+        limbs.append(np.array(out))
+    outer = np.where(depth[bones[:, 0]] > depth[bones[:, 1]], bones[:, 0], bones[:, 1])
+    return outer, np.argsort(depth[outer], kind="stable"), limbs
+
+
+def _refit_limb(
+    evidence: PersonEvidence,
+    obs: np.ndarray,
+    pose: np.ndarray,
+    limb: np.ndarray,
+    bones: np.ndarray,
+    median: np.ndarray,
+    tolerance: float,
+) -> np.ndarray | None:
+    """``pose`` (J, 3) with ``limb`` re-solved from the view pair whose limb fits the
+    track's bones best (then joined by the views that agree with it), or None when no
+    pair keeps every bone of the limb within ``tolerance`` of ``median`` (B,)."""
+    points, pairs = _pair_solutions(evidence.rig, obs, limb, evidence.min_confidence)
+    if not pairs:
+        return None
+    limb_bones = np.flatnonzero(np.isin(bones, limb).any(1))
+    cand = np.repeat(pose[None], len(pairs), 0)  # (C, J, 3)
+    solved = np.isfinite(points[:, limb]).all(-1)  # (C, L)
+    for i in range(len(pairs)):
+        cand[i, limb[solved[i]]] = points[i, limb[solved[i]]]
+    d = _deviation(cand, bones, median)[:, limb_bones]  # (C, bl)
+    worst = np.where(np.isfinite(d), d, 0.0).max(1)
+    worst[~solved[:, 0]] = np.inf  # the pair must place the joint itself
+    best = int(np.argmin(worst))
+    if worst[best] > tolerance:
+        return None
+    fixed = _with_agreeing_views(evidence, obs, cand[best], limb)
+    d = _deviation(fixed, bones, median)[limb_bones]
+    if (np.where(np.isfinite(d), d, 0.0) > tolerance).any():
+        return cand[best]  # the extra views pulled it off again
+    return fixed
+
+
 def check_proportions(
     person_joints: np.ndarray,
     person_track: np.ndarray,
@@ -223,26 +279,7 @@ def check_proportions(
     )
     if not params.enabled or Q == 0 or len(bones) == 0 or num_tracks == 0:
         return ProportionCheck(joints, resolved, contradicted, median)
-    parent, order = skeleton_tree(bones, J)
-    depth = np.zeros(J, int)
-    for j in order:
-        depth[j] = depth[parent[j]] + 1 if parent[j] >= 0 else 0
-    children: list[list[int]] = [[] for _ in range(J)]
-    for j in order:
-        if parent[j] >= 0:
-            children[parent[j]].append(j)
-
-    def limb_from(c: int) -> np.ndarray:
-        out, todo = [], [c]
-        while todo:
-            j = todo.pop()
-            out.append(j)
-            todo.extend(children[j])
-        return np.array(out)
-
-    # each bone's outer end, bones taken from the centre outwards
-    outer = np.where(depth[bones[:, 0]] > depth[bones[:, 1]], bones[:, 0], bones[:, 1])
-    bone_order = np.argsort(depth[outer], kind="stable")
+    outer, bone_order, limbs = _limbs(bones, J)
     tracked = person_track >= 0
     ref = np.full((Q, len(bones)), np.nan)
     ref[tracked] = median[person_track[tracked]]
@@ -261,26 +298,11 @@ def check_proportions(
             c = int(outer[b])
             if trusted[c] or handled[c]:
                 continue  # the outer end is seen alike by many views: the fault is inward
-            limb = limb_from(c)
+            limb = limbs[c]
             handled[limb] = True
-            limb_bones = np.flatnonzero(np.isin(bones, limb).any(1))
             fixed = None
             if obs is not None:
-                points, pairs = _pair_solutions(evidence.rig, obs, limb, evidence.min_confidence)
-                if pairs:
-                    cand = np.repeat(joints[q][None], len(pairs), 0)  # (C, J, 3)
-                    solved = np.isfinite(points[:, limb]).all(-1)  # (C, L)
-                    for i in range(len(pairs)):
-                        cand[i, limb[solved[i]]] = points[i, limb[solved[i]]]
-                    d = _deviation(cand, bones, ref[q])[:, limb_bones]  # (C, bl)
-                    worst = np.where(np.isfinite(d), d, 0.0).max(1)
-                    worst[~solved[:, 0]] = np.inf  # the pair must place the joint itself
-                    best = int(np.argmin(worst))
-                    if worst[best] <= params.tolerance:
-                        fixed = _with_agreeing_views(evidence, obs, cand[best], limb)
-                        d = _deviation(fixed, bones, ref[q])[limb_bones]
-                        if (np.where(np.isfinite(d), d, 0.0) > params.tolerance).any():
-                            fixed = cand[best]  # the extra views pulled it off again
+                fixed = _refit_limb(evidence, obs, joints[q], limb, bones, ref[q], params.tolerance)
             if fixed is not None:
                 moved = np.linalg.norm(fixed[limb] - joints[q, limb], axis=-1) > 1.0
                 moved |= np.isfinite(fixed[limb]).all(-1) & ~np.isfinite(joints[q, limb]).all(-1)

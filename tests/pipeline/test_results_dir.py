@@ -50,6 +50,7 @@ def random_results(seed: int = 0, *, F: int = 12, V: int = 4, J: int = 17) -> Pi
         track_rejected=track(J) > 1.0,
         track_resolved=track(J) > 1.5,
         track_contradicted=track(J) > 2.0,
+        fit_floor=np.abs(rng.normal(size=(K, F))),
         cache_key=f"key{seed}",
         det_flipped=rng.random(N) > 0.9,
     )

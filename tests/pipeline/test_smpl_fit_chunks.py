@@ -45,12 +45,15 @@ def test_chunks_fit_as_well_as_one_batch_with_one_body_per_track(case):
     e_whole, e_chunk = _mpjpe(gt, whole), _mpjpe(gt, chunked)
     print(f"MPJPE whole {e_whole:.2f} mm, chunks of 16 {e_chunk:.2f} mm")
     assert e_chunk < e_whole + 1.0, (e_chunk, e_whole)
-    # One body per track: every frame's joints are its pose on the track's one betas.
+    # One body per track: every frame's joints are its pose on the track's one betas and
+    # bone scales.
+    assert np.isfinite(chunked.bone_scales).all()
     k, f = np.nonzero(chunked.present)
     with torch.no_grad():
         out = model(
             torch.as_tensor(chunked.pose_rotvecs[k, f].reshape(-1, 72), dtype=torch.float32),
             torch.as_tensor(chunked.betas[k], dtype=torch.float32),
+            bone_scales=torch.as_tensor(chunked.bone_scales[k], dtype=torch.float32),
         )
     joints = 1000.0 * out.joints[:, :24].double().numpy() + chunked.transl[k, f][:, None]
     assert np.abs(joints - chunked.joints[k, f]).max() < 0.5  # mm

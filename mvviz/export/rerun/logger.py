@@ -228,7 +228,8 @@ class SceneLogger:
         with torch.no_grad():
             for a in range(0, len(out), SKIN_BATCH):
                 k, f = tracks[a : a + SKIN_BATCH], frames[a : a + SKIN_BATCH]
-                v = skin_subset(model, fit.pose_rotvecs[k, f], fit.betas[k], keep)
+                scales = None if fit.bone_scales is None else fit.bone_scales[k]
+                v = skin_subset(model, fit.pose_rotvecs[k, f], fit.betas[k], keep, scales)
                 out[a : a + len(k)] = v + fit.transl[k, f][:, None, :] * MM_TO_M
         return out
 

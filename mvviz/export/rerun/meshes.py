@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from mvviz.export.rerun.layout import MM_TO_M
-from pipeline.body.model import BodyModel, rigid_chain
+from pipeline.body.model import BodyModel, rigid_chain, scale_bones
 from pipeline.core.rotations import axis_angle_to_matrix
 
 
@@ -60,18 +60,28 @@ def display_mesh(body_model: BodyModel, cell_mm: float | None) -> tuple[np.ndarr
 
 
 def skin_subset(
-    body_model: BodyModel, pose: np.ndarray, betas: np.ndarray, keep: np.ndarray
+    body_model: BodyModel,
+    pose: np.ndarray,
+    betas: np.ndarray,
+    keep: np.ndarray,
+    bone_scales: np.ndarray | None = None,
 ) -> np.ndarray:
     """Linear blend skinning of the vertices ``keep`` only (the model's forward skins all).
 
     Args:
-        pose: (B, 72) axis-angle; betas: (B, <=num_betas); keep: (V',) vertex indices.
+        pose: (B, 72) axis-angle; betas: (B, <=num_betas); keep: (V',) vertex indices;
+        bone_scales: optional (B, 24) bone length factors (``BodyModel.forward``'s).
     Returns:
         (B, V', 3) float32 posed vertices, metres, without translation.
     """
     bm = body_model
+    scales = None
+    if bone_scales is not None:
+        scales = torch.as_tensor(np.nan_to_num(np.asarray(bone_scales, float), nan=1.0))
+        scales = scales.to(bm.v_template.dtype).reshape(len(pose), -1)
     if bm.has_posedirs:  # pose blend shapes need every vertex: the model's own path
-        return bm(torch.as_tensor(pose, dtype=torch.float32), betas).vertices.numpy()[:, keep]
+        out = bm(torch.as_tensor(pose, dtype=torch.float32), betas, bone_scales=scales)
+        return out.vertices.numpy()[:, keep]
     pose = torch.as_tensor(pose, dtype=bm.v_template.dtype).reshape(len(pose), -1, 3)
     b = torch.zeros(len(pose), bm.num_betas, dtype=pose.dtype)
     given = torch.as_tensor(betas, dtype=pose.dtype).reshape(len(pose), -1)[:, : bm.num_betas]
@@ -80,8 +90,9 @@ def skin_subset(
     # 1. shape blend shapes of the kept vertices
     v_shaped = bm.v_template[idx] + torch.einsum("vcb,nb->nvc", bm.shapedirs[idx], b)
     rest = bm.rest_joints(b)
-    # 2. forward kinematics; joint transforms relative to the rest pose
-    posed, T = rigid_chain(axis_angle_to_matrix(pose), rest, bm.tree)
+    # 2. forward kinematics (of the scaled skeleton); transforms relative to the bind pose
+    chain_rest = rest if scales is None else scale_bones(rest, scales, bm.parents)
+    posed, T = rigid_chain(axis_angle_to_matrix(pose), chain_rest, bm.tree)
     rel_t = posed - (T[..., :3, :3] @ rest[..., None])[..., 0]  # (B, J, 3)
     # 3. blend per-vertex transforms by the skinning weights
     w = bm.weights[idx]

@@ -67,7 +67,9 @@ def test_a_larger_kalman_q_changes_the_filter_only(scene, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_disabled_camera_shows_where_it_was_used(scene, tmp_path, capsys):
-    ab, text = _compare(scene, tmp_path, capsys, "--b-set", "disabled_views=0")
+    # without camera 0 the filtered tracks move at most ~13 mm (measured 10.3-12.8 where
+    # they move most), under the default threshold of 20 mm: 10 mm lists those spans
+    ab, text = _compare(scene, tmp_path, capsys, "--b-set", "disabled_views=0", "--min-mm", "10")
     fig = ab["figures"]
     assert fig["reprojection 0 px"]["a"] > 0 and fig["reprojection 0 px"]["b"] is None
     # Camera 0's detections go unassigned: a third of the true pairs are missed

@@ -1,5 +1,5 @@
-"""AMASS-style npz: our body model on the file's poses, betas and trans gives the fitted
-vertices back within 1e-4 m."""
+"""AMASS-style npz: our body model on the file's poses, betas, bone scales and trans gives
+the fitted vertices back within 1e-4 m."""
 
 from __future__ import annotations
 
@@ -13,10 +13,12 @@ from tests.pipeline.exports.conftest import synthetic_fit
 
 
 def _vertices(model, z):
+    n = len(z["poses"])
     with torch.no_grad():
         out = model(
             torch.as_tensor(z["poses"].reshape(-1, 24, 3)).float(),
-            torch.as_tensor(np.tile(z["betas"], (len(z["poses"]), 1))).float(),
+            torch.as_tensor(np.tile(z["betas"], (n, 1))).float(),
+            bone_scales=torch.as_tensor(np.tile(z["bone_scales"], (n, 1))).float(),
         )
     return out.vertices.double().numpy() + z["trans"][:, None]  # metres
 
