@@ -59,11 +59,11 @@ def selection_info(state: ViewerState) -> str:
     m = res.track_mahalanobis[k, f, j]
     if np.isfinite(m):
         lines.append(f"Mahalanobis {m:.2f}  ")
-    lines.append("")  # each view's part in this joint, and why a view was left out
-    lines.append(joint_views_markdown(joint_views(data, k, j, f)))
-    fits = fit_distance_markdown(res, k)
+    fits = fit_distance_markdown(res, k)  # the track's bodies, before the joint's views
     if fits:
         lines += ["", fits]
+    lines.append("")  # each view's part in this joint, and why a view was left out
+    lines.append(joint_views_markdown(joint_views(data, k, j, f)))
     return "\n".join(lines)
 
 
