@@ -87,8 +87,9 @@ CRITERION_HELP = {
     "kalman": "Mahalanobis distance of the measurement above 3, per track and span",
     "proportions": "joints whose bones were more than 25 % off their track's median length: "
     "re-solved from the views that fit, or kept but not filtered (contradicted)",
-    "smpl": "fit residuals at least 2× that joint's usual residual (ranked by the ratio) "
-    "and joint rotations outside their limits (÷ 10°)",
+    "smpl": "fit residuals at least 2× that joint's usual residual (ranked by the ratio), "
+    "joint rotations outside their limits (÷ 10°) and frames where the prior's correction "
+    "backed off (step I's pose kept)",
     "labels": "keypoint labels that look wrong (left/right, joint order, one camera "
     "mirrored), per scene, track or camera; measured ÷ threshold",
     "protocol": "limbs the Shelf / Campus protocol counts wrong on the filtered tracks, "

@@ -96,6 +96,9 @@ def fit_in_chunks(
                     shape[i] = (fit.betas.copy(), fit.keypoint_offsets.copy(), scales)
                 for k in PER_FRAME:
                     out[i][k][:, s:e] = getattr(fit, k)[:, s - ws :]
+                if fit.prior_reverted is not None:
+                    out[i].setdefault("prior_reverted", np.zeros((K, F), bool))
+                    out[i]["prior_reverted"][:, s:e] = fit.prior_reverted[:, s - ws :]
                 new = ~np.isfinite(shape[i][0]).all(1) & np.isfinite(fit.betas).all(1)
                 shape[i][0][new], shape[i][1][new] = fit.betas[new], fit.keypoint_offsets[new]
                 if shape[i][2] is not None and fit.bone_scales is not None:

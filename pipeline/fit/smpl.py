@@ -566,7 +566,9 @@ def _fit(
         prob, buf, model, corr.rotmats, betas, corr.transl, seconds=corr.seconds,
         stage="smpl_vae", offsets=off1, scales=scales,
     )  # fmt: skip
-    return fit1, fit2
+    reverted = np.zeros((prob.K, prob.F), bool)
+    reverted[prob.track, prob.frame] = corr.reverted
+    return fit1, dataclasses.replace(fit2, prior_reverted=reverted)
 
 
 def _phase_zero(prob: _Problem, buf: KeypointBuffers, params: FitParams, warm: WarmStart | None):

@@ -128,6 +128,10 @@ class SmplFit:
         bone_scales: (K, 24) per track, each bone's length (joint minus its parent) as a
             factor of the shaped body's; ``joints``, ``keypoints`` and the mesh follow
             them (the skinning carries the surface with its joints). None: all 1.
+        prior_reverted: (K, F) bool, the SMPL + VAE fit only: person-frames where the
+            prior's correction would have moved the body more than
+            ``FitParams.max_extra_residual_mm`` farther from its targets, so it kept step
+            I's pose. None: not a corrected fit.
     """
 
     joint_set: str
@@ -142,6 +146,7 @@ class SmplFit:
     model: BodyModel | BodyModelData = field(repr=False)
     keypoint_offsets: np.ndarray | None = None
     bone_scales: np.ndarray | None = None
+    prior_reverted: np.ndarray | None = None
 
     @property
     def present(self) -> np.ndarray:
@@ -174,6 +179,8 @@ class SmplFit:
             out[prefix + "keypoint_offsets"] = self.keypoint_offsets
         if self.bone_scales is not None:
             out[prefix + "bone_scales"] = self.bone_scales
+        if self.prior_reverted is not None:
+            out[prefix + "prior_reverted"] = self.prior_reverted
         return out
 
     @classmethod
@@ -190,6 +197,7 @@ class SmplFit:
         keys = ("pose_rotvecs", "betas", "transl", "joints", "keypoints", "residual")
         off = arrays.get(prefix + "keypoint_offsets") if hasattr(arrays, "get") else None
         scales = arrays.get(prefix + "bone_scales") if hasattr(arrays, "get") else None
+        reverted = arrays.get(prefix + "prior_reverted") if hasattr(arrays, "get") else None
         return cls(
             joint_set=joint_set,
             model=model,
@@ -197,6 +205,7 @@ class SmplFit:
             seconds=float("nan"),
             keypoint_offsets=None if off is None else np.asarray(off),
             bone_scales=None if scales is None else np.asarray(scales),
+            prior_reverted=None if reverted is None else np.asarray(reverted, bool),
             **{k: np.asarray(arrays[prefix + k]) for k in keys},
         )
 

@@ -28,7 +28,8 @@ criterion                 a problem (``kind``)                                 s
                           bone lengths
 ``smpl``                  (track, joint) with a fit residual >= 2x that       see below
                           joint's usual; rotation outside its
-                          ``pose_limits.LIMITS`` box
+                          ``pose_limits.LIMITS`` box; person-frames where
+                          the prior's correction backed off (kept step I)
 ``labels``                finding of :mod:`pipeline.evaluation.label_check` (scene,      measured /
                           track or camera)                                     threshold
 ========================  ==================================================  ===========
@@ -39,8 +40,9 @@ keep a camera or joint that is always a bit off from filling a list just under a
 1 + gap / clip length for a track gap, 1.0 for a one-view person, the mean joint
 confidence of an unassigned detection. ``id``: 3 for an ID switch, 1 to 2 for a birth or
 death (shorter-lived tracks higher). ``smpl``: residual / usual, or degrees outside the
-limits / 10 deg. ``labels``: how far the measure is past its threshold (2 = twice the
-allowed fraction; a ratio below its lower bound scores bound / ratio).
+limits / 10 deg, or 1 where the prior backed off. ``labels``: how far the measure is
+past its threshold (2 = twice the allowed fraction; a ratio below its lower bound scores
+bound / ratio).
 
 Notes (:class:`Note`) are JSON beside the results: ``SCENE/.mvviz/notes.json``.
 Units: millimetres and pixels, as in the results.

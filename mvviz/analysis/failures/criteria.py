@@ -639,6 +639,19 @@ def smpl_failures(
                     kind=f"joint limit|{name}", value=float(excess[k, f, j]),
                 )
             )  # fmt: skip
+    if fit.prior_reverted is not None:
+        limit = results.config.smpl_fit.max_extra_residual_mm
+        for k, f in np.argwhere(fit.prior_reverted):
+            detail = (
+                f"the prior's correction cost more than {limit:g} mm of residual: "
+                "step I's pose kept"
+            )
+            out.append(
+                Failure(
+                    "smpl", 1.0, int(f), int(k), None, None, where_label(int(k)), detail,
+                    kind="prior backed off", value=1.0,
+                )
+            )  # fmt: skip
     # kinds carry the joint: a joint the results' set lacks (index None) still merges
     # with itself only
     return out

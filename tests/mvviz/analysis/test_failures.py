@@ -286,6 +286,24 @@ def test_a_joint_off_its_bones_is_listed_with_how_far(tiny):
     assert "proportions" not in available_criteria(scene, old)
 
 
+def test_frames_where_the_prior_backed_off_are_listed(tiny):
+    """Where the correction kept step I's pose the two fits' poses are equal, and the
+    failure review lists those person-frames under the SMPL criterion."""
+    scene, res = tiny
+    fit = res.smpl_vae
+    assert fit.prior_reverted is not None and fit.prior_reverted.shape == fit.present.shape
+    k, f = np.nonzero(fit.prior_reverted)
+    np.testing.assert_array_equal(fit.pose_rotvecs[k, f], res.smpl.pose_rotvecs[k, f])
+    flags = np.zeros_like(fit.prior_reverted)
+    flags[1, 7:9] = True
+    moved = dataclasses.replace(res, smpl_vae=dataclasses.replace(fit, prior_reverted=flags))
+    backed = [
+        x for x in all_failures(scene, moved, criterion="smpl") if x.kind == "prior backed off"
+    ]
+    assert [(x.track, x.first, x.last) for x in backed] == [(1, 7, 8)]
+    assert "step I's pose kept" in backed[0].text
+
+
 def test_ground_truth_offset_ranks_first_in_mpjpe(tiny):
     scene, res = tiny
     gt = scene.gt
