@@ -146,6 +146,7 @@ def rigid_floor(
     *,
     iterations: int = FLOOR_ITERATIONS,
     beta_m: float = 0.05,
+    start_mm: np.ndarray | None = None,
     progress: Progress = False,
 ) -> RigidFloor:
     """Fit every track's constant-bone-length skeleton (module docstring).
@@ -155,6 +156,11 @@ def rigid_floor(
             RTS-smoothed tracks).
         bones: (B0, 2) the joint set's bones (any graph; its spanning tree is used).
         beta_m: the Smooth L1 switch point, metres (the fit's ``smooth_l1_beta_m``).
+        start_mm: optional (K, F, J, 3) joints to start from where they are finite (a
+            body fit's keypoints: a body of constant proportions, so the floor starts at
+            or under the fit and only goes down; without it, a partly seen person's
+            skeleton started from its noisy joints stopped above the fit, 37.9 against
+            27.5 mm on the balancing trial's second person).
     """
     x = np.asarray(tracks_mm, float)
     K, F, J = x.shape[:3]
@@ -170,7 +176,12 @@ def rigid_floor(
         return RigidFloor(out_joints, out_dist, out_len, pairs)
     y = x[k_idx, f_idx] / 1000.0  # (N, J, 3) m
     w = observed[k_idx, f_idx]  # (N, J)
-    filled, direction0, lengths0 = _initial_skeleton(y, w, k_idx, f_idx, parent, pairs, K)
+    y0, w0 = y, w
+    if start_mm is not None:
+        s0 = np.asarray(start_mm, float)[k_idx, f_idx] / 1000.0
+        have = np.isfinite(s0).all(-1)
+        y0, w0 = np.where(have[..., None], s0, y), have | w
+    filled, direction0, lengths0 = _initial_skeleton(y0, w0, k_idx, f_idx, parent, pairs, K)
     anc, root_of = _bone_paths(parent, pairs)
     anc_t = torch.as_tensor(anc)
     track_t = torch.as_tensor(k_idx)

@@ -77,6 +77,7 @@ def fit_bodies(
         bones = np.array(get_joint_set(results.joint_set).bones)
         floor = rigid_floor(
             results.track_smoothed, bones, iterations=config.smpl_fit.floor_iterations,
-            beta_m=config.smpl_fit.smooth_l1_beta_m, progress=progress,
+            beta_m=config.smpl_fit.smooth_l1_beta_m, start_mm=fit_i.keypoints,
+            progress=progress,
         ).distance  # fmt: skip
     return dataclasses.replace(results, smpl=fit_i, smpl_vae=fit_vae, fit_floor=floor)
