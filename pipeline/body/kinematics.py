@@ -254,12 +254,12 @@ def predict_targets(
         if sum(rows_per_body) != N or len(rows_per_body) != len(betas):
             raise ValueError(f"rows_per_body {list(rows_per_body)} does not cover {N} rows of "
                              f"{len(betas)} bodies")  # fmt: skip
-        betas = torch.repeat_interleave(betas, torch.as_tensor(rows_per_body), 0)
-        if bone_scales is not None:
-            bone_scales = torch.repeat_interleave(bone_scales, torch.as_tensor(rows_per_body), 0)
+    # each body's (scaled) rest skeleton once, then its rows'
     rest = rest_joints(betas, buf)
     if bone_scales is not None:
         rest = scale_bones(rest, bone_scales, buf.parents)
+    if rows_per_body is not None:
+        rest = torch.repeat_interleave(rest, torch.as_tensor(rows_per_body), 0)
     glob_c, posed_c = forward_kinematics_components(rotmats, rest, buf.tree)
     glob, posed = glob_c.permute(3, 2, 0, 1), posed_c.permute(2, 1, 0)  # (N, J, 3, 3), (N, J, 3)
     joints = posed + transl[:, None]

@@ -15,6 +15,7 @@ Shapes use B for batch, V vertices, J = 24 joints.
 
 from __future__ import annotations
 
+import functools
 import sys
 from dataclasses import dataclass
 
@@ -117,12 +118,22 @@ def scale_bones(rest: torch.Tensor, bone_scales: torch.Tensor, parents: np.ndarr
     """Rest joints (N, J, 3) with each bone (joint minus parent) scaled by ``bone_scales``
     (N, J) (a root's entry unused): :func:`pipeline.body.arrays.scale_bones_np` in torch,
     differentiable (the fit learns the scales)."""
-    parents = np.asarray(parents, int)
-    has_parent = torch.as_tensor(parents >= 0)
-    local = rest - rest[:, np.maximum(parents, 0)] * has_parent.to(rest.dtype)[:, None]
+    parent_of, has_parent, anc = _bone_arrays(tuple(int(p) for p in parents))
+    local = rest - rest[:, parent_of] * has_parent.to(rest.dtype)[:, None]
     s = torch.where(has_parent, bone_scales, torch.ones_like(bone_scales))
-    anc = torch.as_tensor(ancestry(parents), dtype=rest.dtype)
-    return torch.einsum("ja,nac->njc", anc, local * s[..., None])
+    return torch.einsum("ja,nac->njc", anc.to(rest.dtype), local * s[..., None])
+
+
+@functools.cache
+def _bone_arrays(parents: tuple[int, ...]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A tree's (J,) parent index (own index at a root), (J,) has-a-parent and (J, J)
+    ancestry, once per tree (the fit builds its skeleton every step)."""
+    p = np.asarray(parents, int)
+    return (
+        torch.as_tensor(np.where(p >= 0, p, np.arange(len(p)))),
+        torch.as_tensor(p >= 0),
+        torch.as_tensor(ancestry(p)),
+    )
 
 
 def rigid_chain(
