@@ -118,21 +118,24 @@ def scale_bones(rest: torch.Tensor, bone_scales: torch.Tensor, parents: np.ndarr
     """Rest joints (N, J, 3) with each bone (joint minus parent) scaled by ``bone_scales``
     (N, J) (a root's entry unused): :func:`pipeline.body.arrays.scale_bones_np` in torch,
     differentiable (the fit learns the scales)."""
-    parent_of, has_parent, anc = _bone_arrays(tuple(int(p) for p in parents))
-    local = rest - rest[:, parent_of] * has_parent.to(rest.dtype)[:, None]
-    s = torch.where(has_parent, bone_scales, torch.ones_like(bone_scales))
-    return torch.einsum("ja,nac->njc", anc.to(rest.dtype), local * s[..., None])
+    parent_of, has_parent, anc = _bone_arrays(tuple(int(p) for p in parents), rest.dtype)
+    local = rest - rest[:, parent_of] * has_parent[:, None]
+    s = bone_scales * has_parent + (1.0 - has_parent)  # a root keeps its place
+    return torch.matmul(anc, local * s[..., None])
 
 
 @functools.cache
-def _bone_arrays(parents: tuple[int, ...]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """A tree's (J,) parent index (own index at a root), (J,) has-a-parent and (J, J)
-    ancestry, once per tree (the fit builds its skeleton every step)."""
+def _bone_arrays(
+    parents: tuple[int, ...], dtype: torch.dtype
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A tree's (J,) parent index (own index at a root), (J,) 1.0 where a joint has a
+    parent and (J, J) ancestry, once per tree and dtype (the fit builds its skeleton
+    every step)."""
     p = np.asarray(parents, int)
     return (
         torch.as_tensor(np.where(p >= 0, p, np.arange(len(p)))),
-        torch.as_tensor(p >= 0),
-        torch.as_tensor(ancestry(p)),
+        torch.as_tensor(p >= 0, dtype=dtype),
+        torch.as_tensor(ancestry(p), dtype=dtype),
     )
 
 

@@ -87,10 +87,10 @@ class FitParams:
     """Sum over the bone groups of (log scale)^2, mean over tracks (0 = bones keep the
     shape space's lengths): each group of a track (hips and shoulders wide, thighs,
     shins, upper arms, forearms: ``kinematics.SCALED_BONES``) may take a length the 10
-    betas cannot reach. On CMU walks synthesised on the Pose2Sim and Campus rigs step I
-    comes 0.4 mm nearer the truth (15.9 -> 15.5, 17.2 -> 16.8 mm) and its SMPL joints
-    1.2 mm; on the sample 0.1 mm (SMPL joints 0.3 mm). Weaker (1e-3) gains 0.4 mm more
-    on CMU but costs the noisy twin's SMPL joints 1.4 mm (the scales take up noise)."""
+    betas cannot reach. On CMU motion synthesised on the Campus and Pose2Sim rigs step I
+    comes 0.3-0.5 mm nearer the truth and its SMPL joints ~1.2 mm; on the sample 0.1 mm
+    (SMPL joints 0.3 mm). Weaker (1e-3) gains 0.4 mm more on CMU but costs the noisy
+    twin's SMPL joints 1.4 mm (the scales take up noise): ``bench/bench_bodies.py``."""
     lr_bone_scale: float = 0.1
     floor_iterations: int = 150
     """Adam steps of the constant-bone-length skeleton that a fit is judged by
