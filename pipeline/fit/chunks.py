@@ -53,6 +53,7 @@ def fit_in_chunks(
     params: FitParams = FitParams(),  # noqa: B008  (frozen dataclass)
     chunk_frames: int = 200,
     overlap: int = 2,
+    noise_mm: np.ndarray | None = None,
     progress: Progress = True,
 ) -> tuple[SmplFit, SmplFit | None]:
     """:func:`pipeline.fit.smpl.fit_sequence` in chunks of ``chunk_frames`` frames (module
@@ -86,7 +87,7 @@ def fit_in_chunks(
                 pose[:, : s - ws] = out[0]["pose_rotvecs"][:, ws:s]
                 transl[:, : s - ws] = out[0]["transl"][:, ws:s]
                 warm = WarmStart(shape[0][0], shape[0][1], pose, transl, shape[0][2])
-            fits = _fit(x[:, ws:e], buf, model, prior, params, None, False, warm)
+            fits = _fit(x[:, ws:e], buf, model, prior, params, None, False, warm, noise_mm)
             for i, fit in enumerate(fits):
                 if fit is None:
                     continue

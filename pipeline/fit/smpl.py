@@ -136,13 +136,17 @@ class _Problem:
     triples: torch.Tensor  # (M, 3) rows (t-1, t, t+1) of the same track
     track_rows: torch.Tensor  # (N,) = track, as a tensor for gathering betas
     rows_per_track: tuple[int, ...]  # (K,) rows of each track: the rows are by track
+    smooth_weight: torch.Tensor | None = None  # (M,) each triple's factor on w_smooth
 
 
 def _pack(
-    tracks_mm: np.ndarray, weights: np.ndarray | None, fitted: np.ndarray | None = None
+    tracks_mm: np.ndarray,
+    weights: np.ndarray | None,
+    fitted: np.ndarray | None = None,
+    smooth_factor: np.ndarray | None = None,
 ) -> _Problem:
     """Pack the observed person-frames; targets the model cannot give (``fitted`` False,
-    (T,)) count as missing."""
+    (T,)) count as missing; ``smooth_factor`` (K,) each track's factor on the smoothness."""
     K, F, T, _ = tracks_mm.shape
     finite = np.isfinite(tracks_mm).all(-1)  # (K, F, T)
     if fitted is not None:
@@ -167,6 +171,9 @@ def _pack(
         triples=torch.as_tensor(triples, dtype=torch.long).reshape(-1, 3),
         track_rows=torch.as_tensor(track, dtype=torch.long),
         rows_per_track=tuple(int(c) for c in np.bincount(track, minlength=K)),
+        smooth_weight=None
+        if smooth_factor is None
+        else torch.as_tensor(np.asarray(smooth_factor)[track[triples[:, 1]]], dtype=torch.float32),
     )
 
 
@@ -401,12 +408,31 @@ def _data_loss(pred: torch.Tensor, prob: _Problem, beta: float) -> torch.Tensor:
 
 
 def _smooth_loss(joints: torch.Tensor, prob: _Problem) -> torch.Tensor:
-    """Mean squared second difference of the model joints over consecutive frames."""
+    """Mean squared second difference of the model joints over consecutive frames, each
+    triple weighted by its track's factor (:func:`smoothing_factors`)."""
     if len(prob.triples) == 0:
         return joints.new_zeros(())
     a, b, c = prob.triples.unbind(1)
     acc = joints[a] - 2.0 * joints[b] + joints[c]
-    return (acc * acc).sum(-1).mean()
+    sq = (acc * acc).sum(-1)  # (M, 24)
+    if prob.smooth_weight is not None:
+        sq = sq * prob.smooth_weight[:, None]
+    return sq.mean()
+
+
+def smoothing_factors(noise_mm: np.ndarray | None, reference_mm: float) -> np.ndarray | None:
+    """(K,) each track's factor on ``w_smooth``: (noise / reference)^2, within [1/16, 4]
+    (1 where the noise is unknown; None: no noise given or ``reference_mm`` 0).
+
+    The data term should weigh a track by the inverse of its input's noise variance; with
+    the data term's weight fixed, that is the smoothness term's weight growing with it.
+    ``noise_mm`` is how far a track's raw joints lie from its RTS path (median): ~25 mm
+    on the noisy twin, whose fit is best at ``w_smooth`` 2, 7-12 mm on the clean sample,
+    CMU motion and Pose2Sim's real trial, whose fits are best at 0.15-0.3."""
+    if noise_mm is None or not reference_mm > 0:
+        return None
+    f = (np.asarray(noise_mm, float) / reference_mm) ** 2
+    return np.where(np.isfinite(f), np.clip(f, 1.0 / 16.0, 4.0), 1.0)
 
 
 def _objective(R, betas, transl, prob, buf, params, offsets=None, scales=None) -> torch.Tensor:
@@ -488,6 +514,7 @@ def fit_sequence(
     prior: PosePrior | None = None,
     params: FitParams = FitParams(),  # noqa: B008  (frozen dataclass)
     weights: np.ndarray | None = None,
+    noise_mm: np.ndarray | None = None,
     progress: Progress = True,
 ) -> tuple[SmplFit, SmplFit | None]:
     """Fit SMPL bodies to 3D joint tracks; see the module docstring for the phases.
@@ -500,6 +527,8 @@ def fit_sequence(
         prior: a trained :class:`~pipeline.fit.prior.PosePrior`; with it the
             corrected fit (phases 2a-2c) is returned too.
         weights: optional (num_tracks, num_frames, num_joints) confidences in [0, 1].
+        noise_mm: optional (num_tracks,) how far each track's raw joints lie from these
+            (smoothed) ones, mm: its smoothness weight follows (:func:`smoothing_factors`).
     Returns:
         ``(step I fit, step I + VAE fit or None)``.
     """
@@ -510,7 +539,7 @@ def fit_sequence(
     if params.limb_offsets:  # every fitted target may carry an offset (FitParams.limb_offsets)
         buf = dataclasses.replace(buf, offset_mask=torch.as_tensor(buf.fitted, dtype=torch.float32))
     with torch_threads(params.num_threads):
-        return _fit(x, buf, model, prior, params, weights, progress)
+        return _fit(x, buf, model, prior, params, weights, progress, noise_mm=noise_mm)
 
 
 @dataclass(frozen=True, eq=False)
@@ -544,8 +573,12 @@ def _fit(
     weights: np.ndarray | None,
     progress: Progress,
     warm: WarmStart | None = None,
+    noise_mm: np.ndarray | None = None,
 ) -> tuple[SmplFit, SmplFit | None]:
-    prob = _pack(x, None if weights is None else np.asarray(weights, float), buf.fitted)
+    prob = _pack(
+        x, None if weights is None else np.asarray(weights, float), buf.fitted,
+        smoothing_factors(noise_mm, params.smooth_reference_mm),
+    )  # fmt: skip
     nb = buf.J_shapedirs.shape[-1]
     t0 = time.perf_counter()
     if len(prob.track) == 0:

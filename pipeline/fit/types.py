@@ -38,7 +38,14 @@ class FitParams:
     lr_transl_m: float = 0.01
     lr_betas: float = 0.05
     w_smooth: float = 2.0
-    """Squared joint acceleration (m/frame^2)^2 over consecutive frames of a track."""
+    """Squared joint acceleration (m/frame^2)^2 over consecutive frames of a track whose
+    raw joints lie ``smooth_reference_mm`` from its smoothed ones; other tracks' weight
+    follows the square of their own distance (``smpl.smoothing_factors``)."""
+    smooth_reference_mm: float = 25.0
+    """The input noise at which ``w_smooth`` applies (0: ``w_smooth`` for every track).
+    On the noisy twin (25 mm) the fit is best at a weight of 2; on the clean sample, CMU
+    motion and Pose2Sim's real trial (7-12 mm) at 0.15-0.3: step I 7.0 -> 6.4 mm on the
+    sample, 15.7 -> 12.7 mm on CMU walking (Pose2Sim rig)."""
     w_betas: float = 1e-5
     w_pose: float = 2e-5
     """|R - I|_F^2 of every non-root joint."""

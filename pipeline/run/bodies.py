@@ -30,6 +30,22 @@ LONG_FIT_FRAMES = 1000
 LONG_FIT_CHUNK_FRAMES = 500
 
 
+def input_noise(results: PipelineResults) -> np.ndarray:
+    """(K,) how far each track's raw joints lie from its RTS path, mm (median over its
+    joints and frames; NaN for a track without both): the noise the fit's smoothness
+    weight follows (``FitParams.smooth_reference_mm``)."""
+    K = results.num_tracks
+    out = np.full(K, np.nan)
+    for k in range(K):
+        d = np.linalg.norm(
+            np.asarray(results.track_raw[k]) - np.asarray(results.track_smoothed[k]), axis=-1
+        )
+        d = d[np.isfinite(d)]
+        if d.size:
+            out[k] = float(np.median(d))
+    return out
+
+
 def fit_bodies(
     results: PipelineResults,
     config: PipelineConfig,
@@ -66,6 +82,7 @@ def fit_bodies(
         torch_body_model(model),
         prior=prior,
         params=config.smpl_fit,
+        noise_mm=input_noise(results),
         progress=progress,
         **chunks,
     )

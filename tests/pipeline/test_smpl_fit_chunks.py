@@ -88,10 +88,12 @@ def test_fit_bodies_fits_a_long_sequence_in_chunks(monkeypatch):
     monkeypatch.setattr(bodies_mod, "LONG_FIT_FRAMES", 100)
     monkeypatch.setattr(bodies_mod, "LONG_FIT_CHUNK_FRAMES", 100)
     got = bodies_mod.fit_bodies(staged, config, model, progress=False)
+    noise = bodies_mod.input_noise(staged)  # each track's smoothness follows its noise
     want, _ = fit_in_chunks(staged.track_smoothed, staged.joint_set, torch_body_model(model),
-                            params=config.smpl_fit, chunk_frames=100, progress=False)  # fmt: skip
+                            params=config.smpl_fit, chunk_frames=100, noise_mm=noise,
+                            progress=False)  # fmt: skip
     whole, _ = fit_sequence(staged.track_smoothed, staged.joint_set, torch_body_model(model),
-                            params=config.smpl_fit, progress=False)  # fmt: skip
+                            params=config.smpl_fit, noise_mm=noise, progress=False)  # fmt: skip
     assert got.smpl_vae is None and got.smpl.pose_rotvecs.shape == whole.pose_rotvecs.shape
     np.testing.assert_array_equal(got.smpl.pose_rotvecs, want.pose_rotvecs)
     np.testing.assert_array_equal(got.smpl.transl, want.transl)
