@@ -188,7 +188,7 @@ def main() -> int:
             "MPJPE columns against the truth of the synthesised scenes (measured joints); "
             'the three "to RTS" columns are the median over person-frames of the mean '
             "joint distance to the RTS joints the fits are given, the floor being the best "
-            "skeleton of constant bone lengths (what no body of fixed proportions beats). "
+            "skeleton of constant bone lengths (how far the input itself is from rigid). "
             "Limit violations: SMPL + VAE. PCP: the Shelf protocol (actors 1 and 3 in the "
             "frames the shared data holds).\n\n" + text + "\n\n"
             f"Fit throughput with bone scales over without (each case): {ratios}."

@@ -87,8 +87,8 @@ def fit_distance_markdown(results, track: int) -> str:
     text = "body fit vs its input (mm, median over the track): " + " · ".join(parts)
     if "floor" in medians:
         text += (
-            "  \n_floor: the best skeleton of constant bone lengths; no body of fixed "
-            "proportions beats it_"
+            "  \n_floor: the best skeleton of constant bone lengths, how far the input "
+            "itself is from rigid_"
         )
     return text
 

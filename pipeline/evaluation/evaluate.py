@@ -241,8 +241,8 @@ def evaluate(scene: Scene, results: PipelineResults) -> Evaluation:
 
 
 def fit_distances(results: PipelineResults) -> dict[str, dict[str, float]]:
-    """How near each body fit comes to its input, next to what no body of constant
-    proportions can beat: per track (``"0"``, ``"1"``, ...) and over all person-frames
+    """How near each body fit comes to its input, next to the best skeleton of constant
+    bone lengths: per track (``"0"``, ``"1"``, ...) and over all person-frames
     (``"all"``), the median over frames of the mean joint distance (mm) of ``floor``
     (:mod:`pipeline.fit.floor`, from ``results.fit_floor``), ``smpl`` and ``smpl_vae``
     to the RTS tracks the fits were given. Empty without fits."""
@@ -367,6 +367,6 @@ def format_table(ev: Evaluation, *, view_names: list[str] | None = None) -> str:
         lines.append("-" * len(head))
         for k, row in ev.fit_distance.items():
             lines.append(f"{k:<8}" + "".join(f"{row.get(n, float('nan')):13.1f}" for n in names))
-        lines.append("(floor = the best skeleton of constant bone lengths: what no body of fixed")
-        lines.append(" proportions can beat on these joints)")
+        lines.append("(floor = the best skeleton of constant bone lengths: how far the input")
+        lines.append(" itself is from rigid)")
     return "\n".join(lines)

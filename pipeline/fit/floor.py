@@ -3,19 +3,20 @@
 A body of fixed proportions (SMPL with one shape per track, any bone scales held over
 the track) cannot follow joints whose distances change from frame to frame; triangulated
 and smoothed joints are not rigid (on Pose2Sim's real balancing trial the RTS bone
-lengths vary with a median std of 18 mm). How close *any* constant-proportion body can
+lengths vary with a median std of 18 mm). How close a constant-proportion skeleton can
 come is measured here: per track, the skeleton of the joint set's bones (a spanning tree
 of them, from the joint of most bones) with one length per bone for the whole track and a
 free 3D direction per bone and frame, fitted to the joints with the body fit's own
-robust data term (Smooth L1). Its
-residual is the input's own non-rigidity: no body model with constant bones beats it
-(a tree of free ball joints is the least constrained such skeleton), so a fit's distance
-to its input is read against it (a fit at the floor has nothing left to gain from
-proportions).
+robust data term (Smooth L1). Its residual is the input's own non-rigidity, the mark a
+fit's distance to its input is read against: a fit far above it has something left to
+gain. A body's keypoints are not quite a rigid stick skeleton (regressed from the skinned
+surface, their distances change a little with the pose), so a fit can land somewhat
+under it, as on synthetic scenes whose keypoints are the body model's own.
 
 Solved for all tracks at once by Adam on the root positions, bone directions and
-lengths (initialised at the measured root, the measured bone vectors and the track's
-median bone lengths, which is most of the way). Units: mm outside, metres inside.
+lengths, started from the step-I body's keypoints where given (else the measured joints)
+and the track's median bone lengths, which is most of the way. Units: mm outside,
+metres inside.
 """
 
 from __future__ import annotations
