@@ -57,6 +57,7 @@ from pipeline.fit.smpl import (  # noqa: E402
     initial_alignment,
     plausibility,
 )
+from pipeline.run.bodies import input_noise  # noqa: E402
 from pipeline.run.pipeline import run_or_load  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -174,7 +175,9 @@ def main() -> None:
     params = FitParams()
     fit_sequence(tracks[:, :3], js, model, params=params, progress=False)  # warm-up, buffers
     t0 = time.perf_counter()
-    fit1, fit2 = fit_sequence(tracks, js, model, prior=prior, params=params, progress=False)
+    noise = input_noise(results)  # as fit_bodies: each track's smoothing follows its noise
+    fit1, fit2 = fit_sequence(tracks, js, model, prior=prior, params=params, noise_mm=noise,
+                              progress=False)  # fmt: skip
     total = time.perf_counter() - t0
     n = int(fit1.present.sum())
     fast = {
