@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import socket
-from datetime import UTC
 from pathlib import Path
 
 from pipeline.core.files import atomic_write
@@ -58,16 +57,14 @@ def markdown_table(header: list[str], rows: list[list]) -> str:
 
 def publish(name: str, title: str, body: str, *, argv: list[str] | None = None) -> Path:
     """Write this run's figures as ``docs/benchmarks/<name>.md``, the section of the
-    Benchmarks page that the documentation includes: title, the command, the machine and
-    the date of the run, then ``body`` (Markdown). Written atomically."""
+    Benchmarks page that the documentation includes: title, the command and the machine
+    of the run, then ``body`` (Markdown). Written atomically."""
     import sys
-    from datetime import datetime
 
     args = sys.argv[1:] if argv is None else argv
     command = " ".join(["python", f"bench/{name}.py", *[a for a in args if a != "--docs"]])
-    when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     text = (
-        f"## {title}\n\n`{command}`\n\n*Measured {when} on {machine_line()}.*\n\n"
+        f"## {title}\n\n`{command}`\n\n*Measured on {machine_line()}.*\n\n"
         f"{body.strip()}\n"
     )
     path = BENCH_PAGES / f"{name}.md"
